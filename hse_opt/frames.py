@@ -61,7 +61,7 @@ def skew(v):
     ----------
     v : array_like, shape (..., 3), or CasADi 3-vector
     """
-    if is_symbolic(v):
+    if is_symbolic(v) or isinstance(v, ca.DM):
         return ca.skew(v)
     v = np.asarray(v, dtype=float)
     x, y, z = v[..., 0], v[..., 1], v[..., 2]

@@ -1,0 +1,9 @@
+"""The symbolic error model (CasADi): paper Eqs. 1-16, the effect catalogue and the
+heading-level measurement model."""
+from . import closed_form, symbolic
+from .effects import CATALOGUE, Covariate, Effect, Param, effect
+from .measurement import MeasurementModel, Model, paper_model
+from .symbolic import Geometry
+
+__all__ = ["CATALOGUE", "Covariate", "Effect", "Geometry", "MeasurementModel", "Model", "Param",
+           "closed_form", "effect", "paper_model", "symbolic"]

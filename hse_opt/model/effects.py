@@ -1,0 +1,234 @@
+"""The effect catalogue: physical error sources, each declared once where it acts.
+
+An effect is a small class with named parameters and one required hook,
+``act(p, op, errors)``: ``p`` maps its parameter names to SI CasADi symbols, ``op`` is the
+:class:`~hse_opt.model.symbolic.Operating` point (rate, heading, tilt, latitude, time,
+covariates) and ``errors`` the :class:`~hse_opt.model.symbolic.ErrorModel` it adds to. The
+symbolic model carries every contribution to the heading error; no effect writes a heading
+formula unless it is an error of the heading reference itself.
+
+Declaring a new effect takes a few lines::
+
+    import casadi as ca
+    from hse_opt.model import Effect, Param, paper_model
+    from hse_opt import units
+
+    class XiX(Effect):
+        '''IMU mount turned about x_b: a xi_x error of the calibrated C_s^b.'''
+        name = "xi_x"
+        params = (Param("xi_x", "arcsec", units.ARCSEC, 0.0, -600.0, 600.0,
+                        "mount rotation about x_b"),)
+
+        def act(self, p, op, errors):
+            errors.add_xi(ca.vertcat(p["xi_x"], 0, 0))
+
+    model = paper_model() + XiX()
+"""
+from dataclasses import dataclass
+
+import casadi as ca
+
+from .. import units
+
+
+@dataclass(frozen=True)
+class Param:
+    """A model parameter record.
+
+    Attributes
+    ----------
+    name : str
+        Unique name within a model.
+    unit : str
+        Display unit (reports, files, bounds given by users).
+    scale : float
+        SI value of one display unit (``value_si = value * scale``).
+    nominal, lower, upper : float
+        Nominal value and default bounds, in the display unit.
+    description : str
+        One line: what the parameter is physically.
+    """
+
+    name: str
+    unit: str
+    scale: float
+    nominal: float
+    lower: float
+    upper: float
+    description: str
+
+    def __post_init__(self):
+        if not (self.lower <= self.nominal <= self.upper):
+            raise ValueError(f"parameter {self.name!r}: need lower <= nominal <= upper, got "
+                             f"{self.lower} <= {self.nominal} <= {self.upper}")
+
+
+class Effect:
+    """Base class of an effect: set ``name``, ``description`` (the class docstring's first
+    line by default), ``params`` and implement :meth:`act`."""
+
+    name: str = ""
+    params: tuple = ()
+    #: level where the effect acts: sensor, encoder, processing, reference or thermal
+    level: str = ""
+    #: parameters entering the model nonlinearly (kept at nominal in linearised use)
+    nonlinear: tuple = ()
+
+    @property
+    def description(self):
+        return (type(self).__doc__ or "").strip().splitlines()[0]
+
+    def act(self, p, op, errors):  # pragma: no cover - the required hook
+        raise NotImplementedError
+
+    def __add__(self, other):
+        from .measurement import Model
+        return Model([self]) + other
+
+    def __repr__(self):
+        return f"<effect {self.name}: {self.description}>"
+
+
+class HSE(Effect):
+    """The paper's model: K_g non-orthogonality lambda2 = eps1+eps2+eps3 and a heading offset."""
+
+    name = "hse"
+    level = "processing"
+    params = (
+        Param("offset", "arcsec", units.ARCSEC, 0.0, -7200.0, 7200.0,
+              "constant heading offset: b0 zero mark against the stand's reference"),
+        Param("lambda2", "arcsec", units.ARCSEC, 0.0, -200.0, 200.0,
+              "eps1+eps2+eps3 of the K_g calibration error Lambda (Eq. 1), spread equally"),
+    )
+
+    def act(self, p, op, errors):
+        errors.add_lambda(ca.vertcat(1, 1, 1) * p["lambda2"] / 3)
+        errors.add_reference_error(-p["offset"])
+
+
+class AxisBias(Effect):
+    """Gyro bias along the rotation axis: not modulated by the turn, reaches heading through tilt."""
+
+    name = "axis_bias"
+    level = "sensor"
+    params = (Param("bias_z", "deg/h", units.DEG_PER_H, 0.0, -1.0, 1.0,
+                    "component of the gyro bias vector along z_b (down the rotation axis)"),)
+
+    def act(self, p, op, errors):
+        errors.add_gyro_bias_b(ca.vertcat(0, 0, p["bias_z"]))
+
+
+class SyncDelay(Effect):
+    """Gyro-encoder time offset: the encoder angle that projects the gyros into b0 is late."""
+
+    name = "sync_delay"
+    level = "encoder"
+    params = (Param("delay", "us", units.MICROSECOND, 0.0, -2000.0, 2000.0,
+                    "encoder sampling late against gyro sampling"),)
+
+    def act(self, p, op, errors):
+        errors.add_encoder_delay(p["delay"])
+
+
+class ScaleNonlinearity(Effect):
+    """Gyro scale-factor nonlinearity in input rate: output = w (1 + n |w|) on every gyro."""
+
+    name = "scale_nonlinearity"
+    level = "sensor"
+    params = (Param("sf_nonlin", "ppm/(deg/s)", units.PPM / units.DEG_PER_S, 0.0, -100.0, 100.0,
+                    "scale-factor change per deg/s of input rate, common to the three gyros"),)
+
+    def act(self, p, op, errors):
+        errors.add_gyro_output_term(lambda w_g, sign_g: p["sf_nonlin"] * sign_g * w_g * w_g, 2)
+
+
+class Warmup(Effect):
+    """Thermal warm-up after power-on: the IMU mount turns about the rotation axis, decaying."""
+
+    name = "warmup"
+    level = "thermal"
+    nonlinear = ("warmup_tau",)
+    params = (
+        Param("warmup_amp", "arcsec", units.ARCSEC, 0.0, -600.0, 600.0,
+              "mount rotation about z_b (xi_z) at power-on, decaying to zero"),
+        Param("warmup_tau", "s", 1.0, 1200.0, 30.0, 36000.0,
+              "time constant of the warm-up transient"),
+    )
+
+    def act(self, p, op, errors):
+        tau, t0, T = p["warmup_tau"], op.t_start, op.duration
+        # mean of exp(-t/tau) over the alignment window [t0, t0 + T], in closed form
+        window_mean = tau / T * (ca.exp(-t0 / tau) - ca.exp(-(t0 + T) / tau))
+        errors.add_xi(ca.vertcat(0, 0, p["warmup_amp"] * window_mean))
+
+
+class AzimuthHarmonic2(Effect):
+    """Periodic error of the test stand's azimuth reading at twice the stand azimuth."""
+
+    name = "azimuth_harmonic2"
+    level = "reference"
+    params = (
+        Param("az_c2", "arcsec", units.ARCSEC, 0.0, -600.0, 600.0,
+              "stand reading error, cos(2 x azimuth) coefficient"),
+        Param("az_s2", "arcsec", units.ARCSEC, 0.0, -600.0, 600.0,
+              "stand reading error, sin(2 x azimuth) coefficient"),
+    )
+
+    def act(self, p, op, errors):
+        errors.add_reference_error(p["az_c2"] * ca.cos(2 * op.psi) + p["az_s2"] * ca.sin(2 * op.psi))
+
+
+class EncoderHarmonic(Effect):
+    """Encoder periodic angle error (1st and 2nd harmonics of the table angle)."""
+
+    name = "encoder_harmonic"
+    level = "encoder"
+    params = tuple(
+        Param(f"enc_{cs}{k}", "arcsec", units.ARCSEC, 0.0, -600.0, 600.0,
+              f"encoder angle error, {'cos' if cs == 'c' else 'sin'}({k} alpha) coefficient")
+        for k in (1, 2) for cs in ("c", "s"))
+
+    def act(self, p, op, errors):
+        def delta(alpha):
+            return sum(p[f"enc_c{k}"] * ca.cos(k * alpha) + p[f"enc_s{k}"] * ca.sin(k * alpha)
+                       for k in (1, 2))
+        errors.add_encoder_error(delta, 2)
+
+
+class Covariate(Effect):
+    """Heading offset following a recorded covariate (e.g. temperature) linearly."""
+
+    level = "reference"
+
+    def __init__(self, column):
+        if not column or not isinstance(column, str):
+            raise ValueError(f"covariate column must be a non-empty name, got {column!r}")
+        self.column = column
+        self.name = f"covariate:{column}"
+        self.params = (Param(f"k_{column}", f"arcsec per {column} unit", units.ARCSEC, 0.0,
+                             -1e4, 1e4, f"heading offset per unit of {column}"),)
+
+    @property
+    def description(self):
+        return f"Heading offset following the covariate {self.column} linearly."
+
+    def act(self, p, op, errors):
+        if self.column not in op.covariates:
+            raise ValueError(f"effect {self.name!r} needs the covariate column {self.column!r}; "
+                             f"the runs have {sorted(op.covariates) or 'no covariates'}")
+        errors.add_reference_error(-p[self.params[0].name] * op.covariates[self.column])
+
+
+CATALOGUE = {cls.name: cls for cls in
+             (HSE, AxisBias, SyncDelay, ScaleNonlinearity, Warmup, AzimuthHarmonic2, EncoderHarmonic)}
+
+
+def effect(name):
+    """The catalogue effect called ``name`` (``'covariate:<column>'`` for a covariate)."""
+    if isinstance(name, Effect):
+        return name
+    if isinstance(name, str) and name.startswith("covariate:"):
+        return Covariate(name.split(":", 1)[1])
+    if name not in CATALOGUE:
+        raise ValueError(f"unknown effect {name!r}; allowed: {', '.join(CATALOGUE)}, covariate:<column>")
+    return CATALOGUE[name]()

@@ -1,0 +1,379 @@
+"""The heading-level measurement model h(params; run) and its Jacobian.
+
+A :class:`Model` is a set of effects (``paper_model() + "sync_delay"``). For a set of runs
+it gives a :class:`MeasurementModel`: CasADi Functions ``h(p, x)`` (heading error of one run,
+rad, estimated - true, from the full nonlinear gyrocompass) and ``J(p, x) = dh/dp``, built
+once and batch-evaluated over runs with ``Function.map``.
+
+Run inputs ``x`` (SI), one column per run: rate (rad/s, signed), azimuth (rad), pitch and
+roll of b0 (rad), latitude (rad), t_start (s since power-on), duration (s), then the
+covariates the model's effects use.
+
+Runs without pitch/roll (tilt unknown): the tilt is not a run input. Every parameter whose
+heading signature couples through the tilt (lambda2, the axis bias, the scale-factor
+nonlinearity) is replaced by free coefficients ``<name>*tilt_cos``, ``<name>*tilt_sin``,
+``<name>*tilt_const``: the products of the parameter with the rotation axis's east
+component ``C23 = tilt_const + tilt_cos cos(psi) + tilt_sin sin(psi)`` (a tilt fixed in b0
+gives the sinusoid, a stand tilt fixed in n the constant), in the parameter's unit times
+mrad. Their heading signatures are the mixed derivatives d2h/(dp dC23) of the symbolic
+model, so nothing is written by hand. The untilted part of such a parameter is a constant
+heading offset (for lambda2: the skew part of Lambda), absorbed by ``offset``.
+"""
+import warnings
+from functools import cached_property, lru_cache
+
+import casadi as ca
+import numpy as np
+
+from .. import units
+from .effects import Effect, Param, effect as make_effect
+from .symbolic import (Geometry, Operating, ErrorModel, averaged_rate_b0,
+                       heading_error_gyrocompass, heading_error_linear)
+
+RUN_FIELDS = ("rate", "azimuth", "pitch", "roll", "latitude", "t_start", "duration")
+#: a 1-mrad tilt must move the heading by this much per display unit for a parameter to
+#: count as tilt-coupled
+_COUPLING_FLOOR = 1e-3 * units.ARCSEC
+#: pitch/roll beyond this (rad) leave the small-tilt regime the catalogue assumes
+MAX_TILT = 2.0 * units.DEG
+
+
+class Model:
+    """A composition of effects; ``Model + effect`` adds one (by object or catalogue name).
+
+    Parameters
+    ----------
+    effects : sequence of Effect or str
+    geometry : Geometry, optional
+        The calibrated axis r_zb^s and K_g the symbolic model is built for.
+    """
+
+    def __init__(self, effects, geometry=None):
+        effects = tuple(make_effect(e) for e in effects)
+        names = [e.name for e in effects]
+        dup = {n for n in names if names.count(n) > 1}
+        if dup:
+            raise ValueError(f"effects {sorted(dup)} appear more than once in the model")
+        pnames = [p.name for e in effects for p in e.params]
+        dup = {n for n in pnames if pnames.count(n) > 1}
+        if dup:
+            raise ValueError(f"parameter names {sorted(dup)} are declared by more than one effect")
+        self.effects = effects
+        self.geometry = geometry or Geometry()
+
+    def __add__(self, other):
+        if isinstance(other, Model):
+            return Model(self.effects + other.effects, self.geometry)
+        if isinstance(other, (list, tuple)):
+            return Model(self.effects + tuple(other), self.geometry)
+        return Model(self.effects + (other,), self.geometry)
+
+    def __repr__(self):
+        return f"Model({[e.name for e in self.effects]})"
+
+    @property
+    def effect_names(self):
+        return tuple(e.name for e in self.effects)
+
+    @property
+    def params(self):
+        return tuple(p for e in self.effects for p in e.params)
+
+    @property
+    def covariates(self):
+        """Covariate columns the effects need, in order."""
+        return tuple(e.column for e in self.effects if hasattr(e, "column"))
+
+    def measurement(self, tilt_known=True):
+        """The :class:`MeasurementModel` for runs with (``True``) or without pitch/roll."""
+        return _measurement(self, bool(tilt_known))
+
+    def __eq__(self, other):
+        return isinstance(other, Model) and self._key() == other._key()
+
+    def __hash__(self):
+        return hash(self._key())
+
+    def _key(self):
+        return (self.effect_names, tuple(self.geometry.r_zb_s), tuple(self.geometry.K_g.ravel()))
+
+
+def paper_model(geometry=None):
+    """The paper's model: ``hse`` (offset and lambda2)."""
+    return Model(["hse"], geometry)
+
+
+@lru_cache(maxsize=64)
+def _measurement(model, tilt_known):
+    return MeasurementModel(model, tilt_known)
+
+
+def _symbolic_heading(model, p, x, covariate_names):
+    """Heading error (rad) of one run for parameters ``p`` (dict of SI SX) and inputs x."""
+    cov = {c: x[len(RUN_FIELDS) + i] for i, c in enumerate(covariate_names)}
+    op = Operating(Omega=x[0], psi=x[1], theta=x[2], gamma=x[3], L=x[4], t_start=x[5],
+                   duration=x[6], covariates=cov)
+    errors = ErrorModel()
+    for e in model.effects:
+        e.act(p, op, errors)
+    omega_b0, degree = averaged_rate_b0(op, errors, model.geometry)
+    return heading_error_gyrocompass(op, omega_b0) - errors.reference_error, degree
+
+
+class MeasurementModel:
+    """h(p; run) and its Jacobian for one model and one tilt mode.
+
+    Attributes
+    ----------
+    params : tuple of Param
+        In the order of ``p``; values of ``p`` are SI (``display * param.scale``).
+    names : tuple of str
+    degree : int
+        Trigonometric degree in the table angle averaged exactly (degree + 1 samples).
+    h, J : casadi.Function
+        ``h(p, x) -> heading error`` (rad) and ``J(p, x) -> dh/dp`` (1 x n_p) of one run.
+    """
+
+    def __init__(self, model, tilt_known):
+        self.model = model
+        self.tilt_known = tilt_known
+        base = model.params
+        self.covariates = model.covariates
+        n_x = len(RUN_FIELDS) + len(self.covariates)
+        x = ca.SX.sym("x", n_x)
+        p_sym = {q.name: ca.SX.sym(q.name) for q in base}
+        if tilt_known:
+            h, self.degree = _symbolic_heading(model, p_sym, x, self.covariates)
+            params, p_vec = base, ca.vertcat(*[p_sym[q.name] for q in base])
+        else:
+            h, self.degree, params, p_vec = self._free_tilt(model, base, p_sym, x)
+        self.params = tuple(params)
+        self.names = tuple(q.name for q in self.params)
+        self.scale = np.array([q.scale for q in self.params])
+        self.nonlinear = tuple(n for e in model.effects for n in e.nonlinear if n in self.names)
+        self.h = ca.Function("h", [p_vec, x], [h], ["p", "x"], ["heading_err"])
+        self.J = ca.Function("J", [p_vec, x], [ca.jacobian(h, p_vec)], ["p", "x"], ["dh_dp"])
+        self.n_x = n_x
+
+    def _free_tilt(self, model, base, p_sym, x):
+        """Replace tilt-coupled parameters by free C23 coefficients (module docstring)."""
+        t = ca.SX.sym("t", 3)  # tilt_cos, tilt_sin, tilt_const: C23 coefficients
+        psi = x[1]
+        theta = t[1] + ca.sin(psi) * t[2]
+        gamma = -t[0] - ca.cos(psi) * t[2]
+        x_t = ca.vertcat(x[0], x[1], theta, gamma, x[4:])
+        h_t, degree = _symbolic_heading(model, p_sym, x_t, self.covariates)
+        p_all = ca.vertcat(*[p_sym[q.name] for q in base])
+        p0 = ca.DM([q.nominal * q.scale for q in base])
+        mixed = ca.jacobian(ca.jacobian(h_t, t), p_all)  # 3 x n_p
+        h0 = ca.substitute(h_t, t, ca.DM.zeros(3))
+        dh0 = ca.jacobian(h0, p_all)
+        coupled = self._coupled(base, mixed, dh0, x, p_all, p0, t)
+        kept = [q for q, c in zip(base, coupled) if not c]
+        params, extra = list(kept), 0
+        for j, q in enumerate(base):
+            if not coupled[j]:
+                continue
+            for k, label in enumerate(("tilt_cos", "tilt_sin", "tilt_const")):
+                coef = ca.SX.sym(f"{q.name}*{label}")
+                params.append(Param(f"{q.name}*{label}", f"{q.unit}*mrad", q.scale * units.MRAD,
+                                    0.0, -1e3 * abs(q.upper), 1e3 * abs(q.upper),
+                                    f"{q.name} times the {label[5:]} coefficient of C23 (tilt unknown)"))
+                p_sym[params[-1].name] = coef
+                basis = ca.substitute(mixed[k, j], ca.vertcat(p_all, t), ca.vertcat(p0, ca.DM.zeros(3)))
+                extra = extra + coef * basis
+        # coupled parameters stay at nominal in the untilted part
+        dropped = [q for q, c in zip(base, coupled) if c]
+        if dropped:
+            h0 = ca.substitute(h0, ca.vertcat(*[p_sym[q.name] for q in dropped]),
+                               ca.DM([q.nominal * q.scale for q in dropped]))
+        p_vec = ca.vertcat(*[p_sym[q.name] for q in params])
+        return h0 + extra, degree, params, p_vec
+
+    def _coupled(self, base, mixed, dh0, x, p_all, p0, t):
+        """Which base parameters couple to heading through the tilt (numerically, over a
+        spread of operating points)."""
+        f = ca.Function("coupling", [x, p_all, t], [mixed, dh0])
+        rng = np.random.default_rng(12345)
+        n = 16
+        X = np.zeros((x.shape[0], n))
+        X[0] = rng.choice([-1, 1], n) * rng.uniform(10, 80, n) * units.DEG_PER_S
+        X[1] = rng.uniform(0, 2 * np.pi, n)
+        X[4] = rng.uniform(-1.0, 1.0, n)
+        X[5] = rng.uniform(0, 7200, n)
+        X[6] = 600.0
+        X[7:] = rng.normal(size=(X.shape[0] - 7, n))
+        mixed_v, dh0_v = f.map(n)(X, p0, ca.DM.zeros(3))
+        mixed_v = np.abs(np.array(mixed_v)).reshape(3, n, -1).max(axis=(0, 1))
+        scale = np.array([q.scale for q in base])
+        return mixed_v * units.MRAD * scale > _COUPLING_FLOOR
+
+    # ---- numeric evaluation -------------------------------------------------------------
+    @property
+    def nominal(self):
+        """Nominal parameter values, SI."""
+        return np.array([q.nominal * q.scale for q in self.params])
+
+    def inputs(self, rate, azimuth, latitude, duration=600.0, t_start=None, pitch=None,
+               roll=None, covariates=None):
+        """Run-input matrix ``x`` (n_x, n_runs) from SI arrays.
+
+        Parameters
+        ----------
+        rate : array_like, shape (n,)
+            Signed bias rate Omega, rad/s.
+        azimuth, latitude : array_like, shape (n,)
+            Stand azimuth (taken as the heading of b0) and latitude, rad.
+        duration : array_like or float
+            Alignment length, s.
+        t_start : array_like, optional
+            Time since power-on at the start of each alignment, s; when absent the run order
+            stands in (run i starts at i * duration).
+        pitch, roll : array_like, optional
+            Tilt of b0 from leveling, rad. Required when ``tilt_known``; ignored otherwise.
+        covariates : mapping name -> array_like, optional
+            The columns this model's covariate effects use.
+        """
+        rate = np.atleast_1d(np.asarray(rate, dtype=float))
+        n = rate.size
+        cols = {"rate": rate}
+        for name, v in (("azimuth", azimuth), ("latitude", latitude), ("duration", duration)):
+            cols[name] = np.broadcast_to(np.asarray(v, dtype=float), (n,))
+        if t_start is None:
+            t_start = np.concatenate([[0.0], np.cumsum(cols["duration"][:-1])])
+        cols["t_start"] = np.broadcast_to(np.asarray(t_start, dtype=float), (n,))
+        if self.tilt_known:
+            if pitch is None or roll is None:
+                raise ValueError("pitch and roll are required for a tilt-known measurement model; "
+                                 "use model.measurement(tilt_known=False) for runs without them")
+            cols["pitch"] = np.broadcast_to(np.asarray(pitch, dtype=float), (n,))
+            cols["roll"] = np.broadcast_to(np.asarray(roll, dtype=float), (n,))
+        else:
+            cols["pitch"] = cols["roll"] = np.zeros(n)
+        covariates = dict(covariates or {})
+        missing = [c for c in self.covariates if c not in covariates]
+        if missing:
+            raise ValueError(f"covariate columns {missing} are required by the model's effects; "
+                             f"given: {sorted(covariates) or 'none'}")
+        X = np.empty((self.n_x, n))
+        for i, f in enumerate(RUN_FIELDS):
+            X[i] = cols[f]
+        for i, c in enumerate(self.covariates):
+            X[len(RUN_FIELDS) + i] = np.broadcast_to(np.asarray(covariates[c], dtype=float), (n,))
+        _check_inputs(X, self.tilt_known)
+        return X
+
+    def predict(self, p, X):
+        """Heading error (rad) of every run: ``p`` SI (n_p,), ``X`` (n_x, n) -> (n,)."""
+        return self._batch["h"](self._p(p), X)
+
+    def jacobian(self, p, X):
+        """dh/dp (rad per SI unit) of every run: (n, n_p)."""
+        return self._batch["J"](self._p(p), X)
+
+    @cached_property
+    def _batch(self):
+        return {"h": BatchEvaluator(self.h), "J": BatchEvaluator(self.J)}
+
+    def _p(self, p):
+        p = np.asarray(p, dtype=float).ravel()
+        if p.shape != (len(self.params),):
+            raise ValueError(f"p must have {len(self.params)} values {self.names}, got {p.shape[0]}")
+        if not np.all(np.isfinite(p)):
+            bad = [n for n, v in zip(self.names, p) if not np.isfinite(v)]
+            raise ValueError(f"parameters {bad} are not finite")
+        return p
+
+    def parameter_index(self, name):
+        try:
+            return self.names.index(name)
+        except ValueError:
+            raise ValueError(f"unknown parameter {name!r}; this model has {', '.join(self.names)}") from None
+
+
+def _check_inputs(X, tilt_known):
+    names = RUN_FIELDS
+    bad = ~np.isfinite(X)
+    if bad.any():
+        i, j = np.argwhere(bad)[0]
+        label = names[i] if i < len(names) else f"covariate {i - len(names)}"
+        raise ValueError(f"run input {label!r} of run index {j} is {X[i, j]}; allowed: finite values")
+    lat = np.abs(X[4])
+    if (lat > np.pi / 2).any():
+        j = int(np.argmax(lat))
+        raise ValueError(f"latitude of run index {j} is {np.degrees(X[4, j]):.6g} deg; "
+                         "allowed: -90 to 90 deg")
+    if (X[6] <= 0).any():
+        j = int(np.argmin(X[6]))
+        raise ValueError(f"duration of run index {j} is {X[6, j]} s; allowed: > 0")
+    if tilt_known:
+        tilt = np.abs(X[2:4])
+        if (tilt > MAX_TILT).any():
+            i, j = np.unravel_index(np.argmax(tilt), tilt.shape)
+            raise ValueError(f"{('pitch', 'roll')[i]} of run index {j} is "
+                             f"{np.degrees(X[2 + i, j]):.6g} deg; allowed: |tilt| <= "
+                             f"{np.degrees(MAX_TILT):g} deg (first-order tilt terms)")
+
+
+class BatchEvaluator:
+    """Evaluate a per-run Function ``f(p, x) -> row`` over many runs with ``Function.map``.
+
+    Runs go through in chunks of a fixed size (a power of two up to ``max_chunk``, the last
+    chunk padded), each chunk one call of the mapped Function on numpy memory (no per-run
+    Python work, no copies into CasADi matrices). Above ``jit_above`` runs the mapped
+    Function is compiled once with the C compiler (CasADi jit) for speed; if compiling
+    fails, the virtual machine is used and a warning says why.
+    """
+
+    def __init__(self, fun, max_chunk=4096, jit_above=20000):
+        self.fun = fun
+        self.n_out = fun.nnz_out(0)
+        self.max_chunk = max_chunk
+        self.jit_above = jit_above
+        self._cache = {}
+
+    def _mapped(self, chunk, jit):
+        key = (chunk, jit)
+        if key not in self._cache:
+            f = self.fun.map(f"{self.fun.name()}_map", "serial", chunk, [0], [])
+            if jit:
+                f = _compile(f)
+            self._cache[key] = f.buffer()
+        return self._cache[key]
+
+    def __call__(self, p, X):
+        n = X.shape[1]
+        out = np.empty((n, self.n_out))
+        if n == 0:
+            return out if self.n_out > 1 else out[:, 0]
+        chunk = min(self.max_chunk, 1 << max(0, int(np.ceil(np.log2(n)))))
+        buf, trigger = self._mapped(chunk, n >= self.jit_above)
+        XT = np.ascontiguousarray(X.T)
+        p = np.ascontiguousarray(p, dtype=float)
+        buf.set_arg(0, memoryview(p))
+        full = n - n % chunk
+        for i in range(0, full, chunk):
+            buf.set_arg(1, memoryview(XT[i:i + chunk].reshape(-1)))
+            buf.set_res(0, memoryview(out[i:i + chunk].reshape(-1)))
+            trigger()
+        if full < n:
+            pad_x = np.repeat(XT[-1:], chunk, axis=0)
+            pad_x[: n - full] = XT[full:]
+            pad_out = np.empty((chunk, self.n_out))
+            buf.set_arg(1, memoryview(pad_x.reshape(-1)))
+            buf.set_res(0, memoryview(pad_out.reshape(-1)))
+            trigger()
+            out[full:] = pad_out[: n - full]
+        return out if self.n_out > 1 else out[:, 0]
+
+
+def _compile(f):
+    """Wrap a Function in an MX Function compiled with CasADi's jit (gcc -O3)."""
+    args = [ca.MX.sym(f"a{i}", f.sparsity_in(i)) for i in range(f.n_in())]
+    opts = {"jit": True, "compiler": "shell",
+            "jit_options": {"flags": ["-O3", "-march=native"], "verbose": False}}
+    try:
+        return ca.Function(f"{f.name()}_jit", args, f.call(args), opts)
+    except RuntimeError as err:  # no C compiler: keep the virtual machine
+        warnings.warn(f"CasADi jit failed, evaluating without it: {err}", RuntimeWarning, stacklevel=3)
+        return f

@@ -1,0 +1,27 @@
+import numpy as np
+import pytest
+
+from hse_opt import frames, units
+
+ALL_EFFECTS = ["hse", "axis_bias", "sync_delay", "scale_nonlinearity", "warmup",
+               "azimuth_harmonic2", "encoder_harmonic", "covariate:temp_c"]
+
+
+@pytest.fixture
+def rng():
+    return np.random.default_rng(20131204)
+
+
+def random_case(rng, eps_max=1e-4, xi_max=1e-4, tilt_max=2e-3, rate_max_dps=100.0,
+                lat_max_deg=70.0, dr_max=1e-3):
+    """A random operating point and error set over the issue's ranges."""
+    r = frames.R_ZB_S_IDEAL + rng.uniform(-dr_max, dr_max, 3)
+    return dict(
+        eps=rng.uniform(-eps_max, eps_max, 3),
+        xi=rng.uniform(-xi_max, xi_max, 3),
+        theta=rng.uniform(-tilt_max, tilt_max),
+        gamma=rng.uniform(-tilt_max, tilt_max),
+        rate=rng.choice([-1, 1]) * rng.uniform(10, rate_max_dps) * units.DEG_PER_S,
+        L=rng.uniform(-lat_max_deg, lat_max_deg) * units.DEG,
+        r=r / np.linalg.norm(r),
+    )
