@@ -1,0 +1,629 @@
+"""PLAN and RUNS tables: load, validate and save (the data-format contract).
+
+Both files are CSV with one header row and units in the column names (DESIGN.md, "Data
+formats"). In memory a table is a frozen dataclass of read-only float64 arrays in SI units
+(rad, rad/s, s); the run id is int64. Every extra numeric column is kept as a covariate, in
+the file's own unit and under its own name (``temp_c``).
+
+``RUNS.csv`` (:class:`Runs`): ``run, rate_dps, azimuth_deg, heading_err_arcsec,
+latitude_deg, duration_s`` and optionally ``t_start_s``, ``pitch_arcsec`` with
+``roll_arcsec``, ``heading_std_arcsec``.
+
+``PLAN.csv`` (:class:`Plan`): ``run, rate_dps, azimuth_deg, t_start_s, duration_s`` and
+optionally ``tilt_x_arcsec`` with ``tilt_y_arcsec``.
+
+Checks
+------
+Every construction checks the structure: equal 1-D lengths, finite values, unique integer
+run ids, ``|latitude| <= 90 deg``, ``duration > 0``, ``t_start >= 0``, ``heading_std > 0``
+and paired columns given together. Reading a table from columns or a file
+(:meth:`Runs.from_columns`, :func:`load_runs`, ...) also checks two things that concern the
+file rather than the physics:
+
+* Lock-in. A constant-rate biased RLG system needs the table rate well outside the gyros'
+  lock-in zone: each skewed gyro sees only ``|Omega| cos(54.74 deg) = |Omega|/sqrt(3)``, RLG
+  lock-in thresholds are of the order of 0.01-0.5 deg/s, and the scale factor is nonlinear
+  up to several times the threshold. ``|rate_dps| < min_rate_dps`` is therefore an error;
+  the default :data:`DEFAULT_MIN_RATE_DPS` = 5 deg/s leaves each gyro about 2.9 deg/s, at
+  least six times a large lock-in threshold (the paper uses 20-60 deg/s). It also catches a
+  rate written in rad/s (40 deg/s is 0.70 rad/s). Pass ``min_rate_dps=0`` to turn it off.
+* Azimuths in radians. ``azimuth_deg`` is taken to hold radians when it has at least two
+  distinct values, all of them within +-2 pi, spread over at least 1 (57 deg if radians, a
+  multi-position test; 1 deg if degrees, one stand position with reading jitter) and not
+  all whole numbers (0, 90, 180 deg written as radians are not). Degrees inside +-6.28 deg
+  with such a spread are a fine azimuth sweep; ``allow_small_azimuths=True`` accepts them.
+  Azimuths outside [0, 360) deg are kept as given.
+
+Every failure is a :class:`DataError` (a ``ValueError``) whose message names the file, the
+1-based data row with its line in the file, the column, and what is allowed.
+
+Numbers
+-------
+A file value is read as the decimal number it is written as (a float given to
+:meth:`Runs.from_columns` as its shortest repr), multiplied exactly by the unit factor of
+:mod:`hse_opt.units` and rounded once to float64. On saving, each SI value is written as
+the shortest decimal (at most 18 significant digits) that reads back to exactly the same
+float64, so ``load -> save -> load`` and ``save -> load`` are exact and a saved
+``91.8795`` stays ``91.8795``. Files are written whole: a temporary file in the target's
+directory, flushed and fsynced, then ``os.replace``; on any error the target is untouched.
+Input files are only read.
+"""
+from __future__ import annotations
+
+import contextlib
+import csv
+import dataclasses
+import decimal
+import numbers
+import os
+import secrets
+from dataclasses import dataclass, field
+from typing import ClassVar, Mapping, NamedTuple
+
+import numpy as np
+
+from .units import ARCSEC, DEG, DEG_PER_S
+
+__all__ = ["DataError", "Runs", "Plan", "load_runs", "load_plan", "save_runs", "save_plan",
+           "DEFAULT_MIN_RATE_DPS"]
+
+#: default lock-in limit of the table rate, deg/s (see the module docstring)
+DEFAULT_MIN_RATE_DPS = 5.0
+
+_EXACT = decimal.Context(prec=80)  # wide enough that file-value * factor is exact
+
+
+class DataError(ValueError):
+    """Invalid PLAN/RUNS data; the message names file, row (with line), column and what is allowed.
+
+    Attributes ``source``, ``problem``, ``row`` (1-based data row or None), ``line`` (line in
+    the file or None) and ``column`` (name or None) carry the parts of the message.
+    """
+
+    def __init__(self, source, problem, row=None, line=None, column=None):
+        self.source, self.problem, self.row, self.line, self.column = source, problem, row, line, column
+        where = [str(source)]
+        if row is not None:
+            where.append(f"row {row}" + (f" (line {line})" if line is not None else ""))
+        elif line is not None:
+            where.append(f"line {line}")
+        if column is not None:
+            where.append(f"column '{column}'")
+        super().__init__(", ".join(where) + ": " + problem)
+
+    def __reduce__(self):
+        return type(self), (self.source, self.problem, self.row, self.line, self.column)
+
+
+class _Col(NamedTuple):
+    name: str        # column name in the file, with its unit
+    attr: str        # SI attribute
+    factor: float    # SI value of one file unit; 0 marks the integer run id
+    required: bool
+
+
+def _decimal(value):
+    """One file value (str or real number) as an exact Decimal; ValueError if it is none."""
+    if isinstance(value, str):
+        text = value.strip()
+        if not text:
+            raise ValueError("is empty")
+        try:
+            return decimal.Decimal(text)
+        except decimal.InvalidOperation:
+            raise ValueError(f"{value!r} is not a number") from None
+    if isinstance(value, numbers.Integral) and not isinstance(value, (bool, np.bool_)):
+        return decimal.Decimal(int(value))
+    if isinstance(value, numbers.Real) and not isinstance(value, (bool, np.bool_)):
+        return decimal.Decimal(repr(float(value)))
+    raise ValueError(f"{value!r} is not a number")
+
+
+def _to_si(value, factor):
+    """File value -> SI float: the exact product with ``factor``, rounded once."""
+    try:
+        x = float(_EXACT.multiply(_decimal(value), decimal.Decimal(factor)))
+    except decimal.InvalidOperation:
+        raise ValueError(f"{value!r} is not a number") from None
+    if not np.isfinite(x):
+        raise ValueError(f"{value!r} is not finite")
+    return x
+
+
+def _to_text(x, factor):
+    """SI float -> shortest decimal text in file units that :func:`_to_si` reads back exactly."""
+    x = float(x)
+    f = decimal.Decimal(factor)
+    q = _EXACT.divide(decimal.Decimal(x), f)
+    for digits in (15, 16, 17, 18):  # 18 digits always land inside the rounding interval
+        r = decimal.Context(prec=digits).plus(q).normalize()
+        if float(_EXACT.multiply(r, f)) == x:
+            break
+    return format(r, "f" if -7 <= r.adjusted() < 17 else "e")
+
+
+def _to_run_id(value):
+    d = _decimal(value)
+    if not d.is_finite() or d != d.to_integral_value() or abs(d) >= 2**63:
+        raise ValueError(f"{value!r} is not an integer in the int64 range")
+    return int(d)
+
+
+def _looks_like_radians(azimuth_deg):
+    u = np.unique(azimuth_deg)
+    return bool(u.size >= 2 and np.all(np.abs(u) <= 2 * np.pi + 1e-9) and np.ptp(u) >= 1.0
+                and np.any(np.abs(u - np.round(u)) > 1e-9))
+
+
+def _sequence(values, source, name):
+    if isinstance(values, np.ndarray):
+        if values.ndim != 1:
+            raise DataError(source, f"has shape {values.shape}; allowed: a 1-D sequence", column=name)
+        return values.tolist()
+    if isinstance(values, (str, bytes)) or not hasattr(values, "__len__"):
+        raise DataError(source, f"is a {type(values).__name__}; allowed: a 1-D sequence of numbers",
+                        column=name)
+    return list(values)
+
+
+class _Table:
+    """Shared behaviour of :class:`Runs` and :class:`Plan` (schema in ``_COLUMNS``)."""
+
+    _COLUMNS: ClassVar[tuple[_Col, ...]]
+    _PAIRS: ClassVar[tuple[tuple[str, str], ...]]
+    _RULES: ClassVar[tuple[tuple[str, object, str], ...]]
+    _NOTES: ClassVar[dict[str, str]] = {}
+
+    # -- construction and structural checks -----------------------------------------------
+    def __post_init__(self):
+        set_ = lambda name, value: object.__setattr__(self, name, value)  # noqa: E731
+        set_("source", str(self.source))
+        src, n, first = self.source, None, self._COLUMNS[0].name
+        for col in self._COLUMNS:
+            value = getattr(self, col.attr)
+            if value is None:
+                if col.required:
+                    raise DataError(src, "is required; allowed: a 1-D array", column=col.name)
+                continue
+            arr = self._array(value, col.name, n, first, integer=col.factor == 0)
+            n = arr.size if n is None else n
+            set_(col.attr, arr)
+        for a, b in self._PAIRS:
+            if (getattr(self, a) is None) != (getattr(self, b) is None):
+                given, missing = (a, b) if getattr(self, b) is None else (b, a)
+                raise DataError(src, f"is given without '{self._col(missing).name}'; allowed: both or "
+                                     "neither", column=self._col(given).name)
+        if not isinstance(self.covariates, Mapping):
+            raise TypeError("covariates must be a mapping name -> 1-D array")
+        covariates = {}
+        for name, value in self.covariates.items():
+            self._check_covariate_name(name, src)
+            covariates[name] = self._array(value, name, n, first)
+        set_("covariates", covariates)
+        seen = {}
+        for i, r in enumerate(self.run.tolist()):
+            if r in seen:
+                raise DataError(src, f"run id {r} repeats row {seen[r] + 1}; allowed: unique integer ids",
+                                row=i + 1, column="run")
+            seen[r] = i
+        for attr, ok, allowed in self._RULES:
+            x = getattr(self, attr)
+            if x is not None and not np.all(good := ok(x)):
+                col, i = self._col(attr), int(np.argmin(good))
+                raise DataError(src, f"value {_to_text(x[i], col.factor)} is not allowed; allowed: "
+                                     f"{allowed}", row=i + 1, column=col.name)
+
+    def _array(self, value, name, n, first, integer=False):
+        src = self.source
+        arr = np.array(value)  # a copy: the table owns its arrays
+        if arr.ndim != 1 or (n is not None and arr.size != n):
+            expected = "1-D" if n is None else f"({n},) like '{first}'"
+            raise DataError(src, f"has shape {arr.shape}; allowed: {expected}", column=name)
+        if arr.dtype.kind not in "iuf":
+            raise DataError(src, f"has dtype {arr.dtype}; allowed: numbers", column=name)
+        if integer:
+            bad = np.zeros(arr.size, bool)
+            if arr.dtype.kind == "f":
+                bad = ~np.isfinite(arr) | (arr != np.round(arr))
+            if bad.any():
+                i = int(np.argmax(bad))
+                raise DataError(src, f"value {float(arr[i])!r} is not an integer; allowed: integer ids",
+                                row=i + 1, column=name)
+            arr = arr.astype(np.int64)
+        else:
+            arr = arr.astype(np.float64, copy=False)
+            if not np.all(finite := np.isfinite(arr)):
+                i = int(np.argmin(finite))
+                raise DataError(src, f"value {float(arr[i])!r} is not finite; allowed: a finite number",
+                                row=i + 1, column=name)
+        arr.setflags(write=False)
+        return arr
+
+    @classmethod
+    def _col(cls, attr):
+        return next(c for c in cls._COLUMNS if c.attr == attr)
+
+    @classmethod
+    def _check_covariate_name(cls, name, src, line=None):
+        if not isinstance(name, str) or not name.strip() or name != name.strip():
+            raise DataError(src, f"covariate name {name!r} is not allowed; allowed: a non-empty name "
+                                 "without surrounding spaces", line=line)
+        known = {c.name for c in cls._COLUMNS}
+        stems = {f.name: None for f in dataclasses.fields(cls)} | {c.attr: c.name for c in cls._COLUMNS}
+        if name in known or name in stems:
+            hint = f" (it looks like '{stems[name]}' without its unit)" if stems.get(name) else ""
+            raise DataError(src, f"name clashes with a contract column or attribute{hint}; allowed: "
+                                 "another name for a covariate", line=line, column=name)
+
+    # -- edge constructor ------------------------------------------------------------------
+    @classmethod
+    def from_columns(cls, columns, source="<memory>", *, min_rate_dps=DEFAULT_MIN_RATE_DPS,
+                     allow_small_azimuths=False):
+        """Build and validate a table from columns in file units, exactly like the loader.
+
+        Parameters
+        ----------
+        columns : Mapping[str, array-like]
+            Column name (with its unit, as in the file) -> 1-D values: numbers or numeric text.
+            Contract columns are converted to SI; every other column becomes a covariate.
+        source : str
+            Name used in error messages.
+        min_rate_dps : float
+            Lock-in limit, deg/s: ``|rate_dps|`` below it is an error (0 turns the check off).
+        allow_small_azimuths : bool
+            Accept ``azimuth_deg`` values that look like radians (see the module docstring).
+
+        Raises
+        ------
+        DataError
+            With file, row, column and what is allowed.
+        """
+        return cls._build(columns, str(source), None, min_rate_dps, allow_small_azimuths)
+
+    @classmethod
+    def _build(cls, columns, src, lines, min_rate_dps, allow_small_azimuths, header_line=None):
+        """from_columns with ``lines[k]``, the file line of data row k + 1, added to row errors."""
+        if not (min_rate_dps >= 0):
+            raise ValueError(f"min_rate_dps = {min_rate_dps!r}; allowed: >= 0 (deg/s)")
+        try:
+            return cls._parse(columns, src, min_rate_dps, allow_small_azimuths, header_line)
+        except DataError as e:
+            if lines is None or e.row is None:
+                raise
+            raise DataError(e.source, e.problem, e.row, lines[e.row - 1], e.column) from None
+
+    @classmethod
+    def _parse(cls, columns, src, min_rate_dps, allow_small_azimuths, header_line):
+        names = list(columns)
+        for col in cls._COLUMNS:
+            if col.required and col.name not in names:
+                stem = col.name.rsplit("_", 1)[0] if col.factor else col.name
+                like = [n for n in names if isinstance(n, str) and n.startswith(stem)]
+                hint = f" (found {', '.join(map(repr, like))}: give it in the unit named)" if like else ""
+                need = ", ".join(c.name for c in cls._COLUMNS if c.required)
+                raise DataError(src, f"required column is missing{hint}; allowed: a header with {need}",
+                                line=header_line, column=col.name)
+        values = {name: _sequence(columns[name], src, name) for name in names}
+        n = len(values["run"])
+        for name, seq in values.items():
+            if len(seq) != n:
+                raise DataError(src, f"has {len(seq)} values but 'run' has {n}; allowed: equal lengths",
+                                column=name)
+        if n == 0:
+            raise DataError(src, "no data rows; allowed: at least one row below the header", line=header_line)
+        by_name = {c.name: c for c in cls._COLUMNS}
+        attrs, covariates = {}, {}
+        for name, seq in values.items():
+            col = by_name.get(name)
+            if col is None:
+                cls._check_covariate_name(name, src, header_line)
+                factor = 1.0
+                allowed = "a finite number (a column outside the contract is a numeric covariate)"
+            else:
+                factor, allowed = col.factor, "an integer run id" if col.factor == 0 else "a finite number"
+            out = []
+            for i, v in enumerate(seq):
+                try:
+                    out.append(_to_run_id(v) if factor == 0 else _to_si(v, factor))
+                except ValueError as e:
+                    raise DataError(src, f"value {e}; allowed: {allowed}", row=i + 1, column=name) from None
+            if col is None:
+                covariates[name] = out
+            else:
+                attrs[col.attr] = out
+        limit = min_rate_dps * DEG_PER_S
+        for i, rate in enumerate(attrs["rate"]):
+            if abs(rate) < limit:
+                raise DataError(src, f"value {values['rate_dps'][i]!r} is inside the lock-in limit; "
+                                     f"allowed: |rate_dps| >= {min_rate_dps:g} deg/s (min_rate_dps sets the "
+                                     "limit; a rate in rad/s also lands here)", row=i + 1, column="rate_dps")
+        if not allow_small_azimuths and _looks_like_radians(np.array(attrs["azimuth"]) / DEG):
+            raise DataError(src, f"the values of rows 1-{n} look like radians (all within +-2 pi, spread "
+                                 "over at least 1, not whole numbers); allowed: degrees, or "
+                                 "allow_small_azimuths=True for a fine azimuth sweep in degrees",
+                            column="azimuth_deg")
+        return cls(**attrs, covariates=covariates, source=src)
+
+    # -- helpers ---------------------------------------------------------------------------
+    def __len__(self):
+        return int(self.run.size)
+
+    @property
+    def notes(self):
+        """tuple of str: what the tools should tell the user about missing optional columns."""
+        return tuple(note for attr, note in self._NOTES.items() if getattr(self, attr) is None)
+
+    def subset(self, index):
+        """The rows selected by a boolean mask of shape (n,) or by integer indices, as a new table."""
+        idx = np.asarray(index)
+        if idx.size == 0:
+            idx = idx.astype(np.int64)
+        if idx.ndim != 1 or idx.dtype.kind not in "biu" or (idx.dtype.kind == "b" and idx.size != len(self)):
+            raise ValueError(f"index of shape {idx.shape} and dtype {idx.dtype}; allowed: a boolean mask "
+                             f"of shape ({len(self)},) or 1-D integer indices")
+        take = {c.attr: getattr(self, c.attr)[idx] for c in self._COLUMNS
+                if getattr(self, c.attr) is not None}
+        return dataclasses.replace(self, **take, covariates={k: v[idx] for k, v in self.covariates.items()})
+
+    def replace(self, **changes):
+        """A new, validated table with some attributes (SI) or covariates (file unit) replaced.
+
+        Keywords that name a dataclass field replace it (``heading_err=...`` in rad); any other
+        keyword sets the covariate of that name, or removes it when the value is None.
+        """
+        fields = {f.name for f in dataclasses.fields(self)}
+        covariates = dict(changes.pop("covariates", self.covariates))
+        for name in [k for k in changes if k not in fields]:
+            value = changes.pop(name)
+            if value is None:
+                if name not in covariates:
+                    raise KeyError(f"no covariate {name!r} to remove; covariates: {sorted(covariates)}")
+                del covariates[name]
+            else:
+                covariates[name] = value
+        return dataclasses.replace(self, **changes, covariates=covariates)
+
+    def _text_columns(self):
+        cols = {}
+        for c in self._COLUMNS:
+            x = getattr(self, c.attr)
+            if x is not None:
+                cols[c.name] = ([str(v) for v in x.tolist()] if c.factor == 0
+                                else [_to_text(v, c.factor) for v in x])
+        for name, x in self.covariates.items():
+            cols[name] = [_to_text(v, 1.0) for v in x]
+        return cols
+
+    def to_columns(self):
+        """dict[str, numpy.ndarray]: the table in file units, contract columns first, then covariates.
+
+        Values are the nearest float64 of the decimals :func:`save_runs` / :func:`save_plan`
+        write. A float64 in file units cannot always hold an SI float64 exactly, so
+        ``from_columns(t.to_columns())`` may differ from ``t`` in the last bit; files round-trip
+        exactly.
+        """
+        return {name: np.array(col, np.int64 if name == "run" else np.float64)
+                for name, col in self._text_columns().items()}
+
+
+_RUN, _RATE, _AZIMUTH = _Col("run", "run", 0, True), _Col("rate_dps", "rate", DEG_PER_S, True), \
+    _Col("azimuth_deg", "azimuth", DEG, True)
+_DURATION, _T_START = _Col("duration_s", "duration", 1.0, True), _Col("t_start_s", "t_start", 1.0, True)
+_POSITIVE_DURATION = ("duration", lambda x: x > 0, "duration_s > 0")
+_NONNEGATIVE_T_START = ("t_start", lambda x: x >= 0, "t_start_s >= 0 (time since power-on)")
+
+
+@dataclass(frozen=True, eq=False)
+class Runs(_Table):
+    """Alignment results (``RUNS.csv``), one row per run in execution order; SI inside.
+
+    Attributes
+    ----------
+    run : numpy.ndarray of int64, shape (n,)
+        Unique run ids.
+    rate : numpy.ndarray, shape (n,)
+        Signed table bias rate Omega, rad/s.
+    azimuth : numpy.ndarray, shape (n,)
+        Test-stand azimuth (the heading reference, up to one unknown constant), rad.
+    heading_err : numpy.ndarray, shape (n,)
+        Alignment heading minus stand azimuth (estimated minus true), rad.
+    latitude : numpy.ndarray, shape (n,)
+        Latitude, rad.
+    duration : numpy.ndarray, shape (n,)
+        Alignment length, s.
+    t_start : numpy.ndarray, shape (n,), or None
+        Time since power-on at the start of the alignment, s.
+    pitch, roll : numpy.ndarray, shape (n,), or None
+        theta and gamma of b0 from the alignment's own leveling, rad (both or neither).
+    heading_std : numpy.ndarray, shape (n,), or None
+        The alignment's own 1-sigma heading uncertainty, rad.
+    covariates : dict[str, numpy.ndarray]
+        Other numeric columns, shape (n,), in the file's unit, under the file's name.
+    source : str
+        The file the table came from, or ``'<memory>'``.
+
+    Arrays are read-only copies. Direct construction checks the structure only; the lock-in
+    and radians checks belong to :meth:`from_columns` and :func:`load_runs`.
+    """
+
+    run: np.ndarray
+    rate: np.ndarray
+    azimuth: np.ndarray
+    heading_err: np.ndarray
+    latitude: np.ndarray
+    duration: np.ndarray
+    t_start: np.ndarray | None = None
+    pitch: np.ndarray | None = None
+    roll: np.ndarray | None = None
+    heading_std: np.ndarray | None = None
+    covariates: dict = field(default_factory=dict)
+    source: str = "<memory>"
+
+    _COLUMNS = (_RUN, _RATE, _AZIMUTH, _Col("heading_err_arcsec", "heading_err", ARCSEC, True),
+                _Col("latitude_deg", "latitude", DEG, True), _DURATION, _T_START._replace(required=False),
+                _Col("pitch_arcsec", "pitch", ARCSEC, False), _Col("roll_arcsec", "roll", ARCSEC, False),
+                _Col("heading_std_arcsec", "heading_std", ARCSEC, False))
+    _PAIRS = (("pitch", "roll"),)
+    _RULES = (("latitude", lambda x: np.abs(x) <= 90 * DEG, "|latitude_deg| <= 90"), _POSITIVE_DURATION,
+              _NONNEGATIVE_T_START, ("heading_std", lambda x: x > 0, "heading_std_arcsec > 0"))
+    _NOTES = {
+        "t_start": "no t_start_s column: run order stands in for time since power-on",
+        "pitch": "no pitch_arcsec/roll_arcsec columns: tilt-coupled terms are fitted as azimuth "
+                 "sinusoids with free coefficients",
+        "heading_std": "no heading_std_arcsec column: all runs get equal weight",
+    }
+
+
+@dataclass(frozen=True, eq=False)
+class Plan(_Table):
+    """A test plan (``PLAN.csv``), one row per planned alignment in execution order; SI inside.
+
+    Attributes
+    ----------
+    run : numpy.ndarray of int64, shape (n,)
+        Unique run ids.
+    rate : numpy.ndarray, shape (n,)
+        Signed table bias rate Omega, rad/s.
+    azimuth : numpy.ndarray, shape (n,)
+        Test-stand azimuth, rad.
+    t_start : numpy.ndarray, shape (n,)
+        Time since power-on at the start of the alignment, s.
+    duration : numpy.ndarray, shape (n,)
+        Alignment length, s.
+    tilt_x, tilt_y : numpy.ndarray, shape (n,), or None
+        Deliberate tilt of the table base about x and y, rad (both or neither).
+    covariates : dict[str, numpy.ndarray]
+        Other numeric columns, shape (n,), in the file's unit, under the file's name.
+    source : str
+        The file the plan came from, or ``'<memory>'``.
+    """
+
+    run: np.ndarray
+    rate: np.ndarray
+    azimuth: np.ndarray
+    t_start: np.ndarray
+    duration: np.ndarray
+    tilt_x: np.ndarray | None = None
+    tilt_y: np.ndarray | None = None
+    covariates: dict = field(default_factory=dict)
+    source: str = "<memory>"
+
+    _COLUMNS = (_RUN, _RATE, _AZIMUTH, _T_START, _DURATION, _Col("tilt_x_arcsec", "tilt_x", ARCSEC, False),
+                _Col("tilt_y_arcsec", "tilt_y", ARCSEC, False))
+    _PAIRS = (("tilt_x", "tilt_y"),)
+    _RULES = (_POSITIVE_DURATION, _NONNEGATIVE_T_START)
+
+
+# -- files -----------------------------------------------------------------------------------
+def _read(cls, path, min_rate_dps, allow_small_azimuths):
+    src = os.fspath(path)
+    try:
+        with open(src, newline="", encoding="utf-8-sig") as fh:
+            reader = csv.reader(fh)
+            rows, lines = [], []
+            for fields in reader:
+                if any(f.strip() for f in fields):
+                    rows.append(fields)
+                    lines.append(reader.line_num)
+    except UnicodeDecodeError as e:
+        raise DataError(src, f"is not UTF-8 text ({e.reason} at byte {e.start}); allowed: a UTF-8 CSV "
+                             "file") from None
+    except csv.Error as e:
+        raise DataError(src, f"is not valid CSV ({e}); allowed: comma-separated values") from None
+    if not rows:
+        need = ", ".join(c.name for c in cls._COLUMNS if c.required)
+        raise DataError(src, f"the file is empty; allowed: a header row with {need}, then data rows")
+    header = [h.strip() for h in rows[0]]
+    if len(header) == 1 and any(sep in header[0] for sep in ";\t"):
+        raise DataError(src, "the header has one column; allowed: comma-separated columns", line=lines[0])
+    for j, name in enumerate(header):
+        if not name:
+            raise DataError(src, f"header field {j + 1} is empty; allowed: a column name", line=lines[0])
+        if name in header[:j]:
+            raise DataError(src, "column name repeats; allowed: each name once", line=lines[0], column=name)
+    for k, fields in enumerate(rows[1:]):
+        if len(fields) != len(header):
+            raise DataError(src, f"has {len(fields)} fields but the header has {len(header)}; allowed: one "
+                                 "value per column", row=k + 1, line=lines[k + 1])
+    columns = {name: [fields[j] for fields in rows[1:]] for j, name in enumerate(header)}
+    return cls._build(columns, src, lines[1:], min_rate_dps, allow_small_azimuths, header_line=lines[0])
+
+
+def load_runs(path, *, min_rate_dps=DEFAULT_MIN_RATE_DPS, allow_small_azimuths=False) -> Runs:
+    """Read and validate a ``RUNS.csv`` file (the file is only read).
+
+    Parameters
+    ----------
+    path : str or os.PathLike
+        The CSV file.
+    min_rate_dps : float
+        Lock-in limit, deg/s; ``|rate_dps|`` below it is an error (0 turns the check off).
+    allow_small_azimuths : bool
+        Accept ``azimuth_deg`` values that look like radians.
+
+    Returns
+    -------
+    Runs
+
+    Raises
+    ------
+    DataError
+        Invalid content; the message names file, row (and line), column and what is allowed.
+    OSError
+        The file cannot be read.
+    """
+    return _read(Runs, path, min_rate_dps, allow_small_azimuths)
+
+
+def load_plan(path, *, min_rate_dps=DEFAULT_MIN_RATE_DPS, allow_small_azimuths=False) -> Plan:
+    """Read and validate a ``PLAN.csv`` file; parameters and errors as :func:`load_runs`."""
+    return _read(Plan, path, min_rate_dps, allow_small_azimuths)
+
+
+def _write_atomic(table, cls, path):
+    if not isinstance(table, cls):
+        raise TypeError(f"expected a {cls.__name__}, got {type(table).__name__}")
+    table = dataclasses.replace(table)  # re-run the checks: arrays could have been made writable
+    columns = table._text_columns()
+    target = os.path.abspath(os.fspath(path))
+    directory, name = os.path.split(target)
+    tmp = os.path.join(directory, f".{name}.{secrets.token_hex(6)}.tmp")
+    fd = os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o666)
+    try:
+        with contextlib.suppress(FileNotFoundError):
+            os.chmod(tmp, os.stat(target).st_mode & 0o7777)
+        with os.fdopen(fd, "w", newline="", encoding="utf-8") as fh:
+            fd = None
+            writer = csv.writer(fh, lineterminator="\n")
+            writer.writerow(columns)
+            writer.writerows(zip(*columns.values()))
+            fh.flush()
+            os.fsync(fh.fileno())
+        os.replace(tmp, target)
+    except BaseException:
+        if fd is not None:
+            os.close(fd)
+        with contextlib.suppress(FileNotFoundError):
+            os.unlink(tmp)
+        raise
+    with contextlib.suppress(OSError):  # make the rename durable where the platform allows it
+        dir_fd = os.open(directory, os.O_RDONLY)
+        try:
+            os.fsync(dir_fd)
+        finally:
+            os.close(dir_fd)
+
+
+def save_runs(runs: Runs, path) -> None:
+    """Write ``runs`` to ``path`` as ``RUNS.csv``, whole or not at all.
+
+    Contract columns come first, in contract order, then the covariates; numbers are the
+    shortest decimals that read back exactly. The file is written to a temporary file in the
+    same directory, fsynced and renamed over ``path``; on any error ``path`` is untouched.
+    """
+    _write_atomic(runs, Runs, path)
+
+
+def save_plan(plan: Plan, path) -> None:
+    """Write ``plan`` to ``path`` as ``PLAN.csv``, whole or not at all (as :func:`save_runs`)."""
+    _write_atomic(plan, Plan, path)
