@@ -40,7 +40,7 @@ def _integrand_function(effects, rng, size=None):
 
 
 def _quad_mean(f):
-    return np.array([quad(lambda a: float(f(a)[i]), 0, 2 * np.pi, epsabs=1e-22, epsrel=1e-13,
+    return np.array([quad(lambda a: float(f(a)[i]), 0, 2 * np.pi, epsabs=1e-20, epsrel=1e-12,
                           limit=200)[0] / (2 * np.pi) for i in range(3)])
 
 

@@ -135,7 +135,7 @@ class ScaleNonlinearity(Effect):
 
     name = "scale_nonlinearity"
     level = "sensor"
-    params = (Param("sf_nonlin", "ppm/(deg/s)", units.PPM / units.DEG_PER_S, 0.0, -100.0, 100.0,
+    params = (Param("sf_nonlin", "ppm/(deg/s)", units.PPM / units.DEG_PER_S, 0.0, -1.0, 1.0,
                     "scale-factor change per deg/s of input rate, common to the three gyros"),)
 
     def act(self, p, op, errors):

@@ -263,6 +263,37 @@ class MeasurementModel:
         _check_inputs(X, self.tilt_known)
         return X
 
+    def inputs_from_runs(self, runs):
+        """Run-input matrix from a :class:`hse_opt.data.Runs` or :class:`hse_opt.data.Plan`
+        (plans give their deliberate tilt ``tilt_x``/``tilt_y`` as pitch/roll)."""
+        pitch = getattr(runs, "pitch", None)
+        roll = getattr(runs, "roll", None)
+        if pitch is None and hasattr(runs, "tilt_x"):
+            pitch, roll = runs.tilt_y, runs.tilt_x
+        missing = [c for c in self.covariates if c not in runs.covariates]
+        if missing:
+            raise ValueError(f"{runs.source}: covariate columns {missing} are required by the model's "
+                             f"effects; the file has {sorted(runs.covariates) or 'none'}")
+        return self.inputs(runs.rate, runs.azimuth, runs.latitude, runs.duration, runs.t_start,
+                           pitch, roll, {c: runs.covariates[c] for c in self.covariates})
+
+    def vector(self, values=None, **kw):
+        """SI parameter vector from display-unit values by name; the rest at nominal.
+
+        ``m.vector(lambda2=4.2, offset=-3)`` or ``m.vector({"lambda2": 4.2})``.
+        """
+        values = {**(values or {}), **kw}
+        unknown = sorted(set(values) - set(self.names))
+        if unknown:
+            raise ValueError(f"unknown parameter(s) {unknown}; this model has: {', '.join(self.names)}")
+        out = []
+        for q in self.params:
+            v = float(values.get(q.name, q.nominal))
+            if not np.isfinite(v):
+                raise ValueError(f"parameter {q.name!r} = {v}; allowed: a finite value in {q.unit}")
+            out.append(v * q.scale)
+        return np.array(out)
+
     def predict(self, p, X):
         """Heading error (rad) of every run: ``p`` SI (n_p,), ``X`` (n_x, n) -> (n,)."""
         return self._batch["h"](self._p(p), X)
