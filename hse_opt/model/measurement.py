@@ -356,7 +356,7 @@ class BatchEvaluator:
     fails, the virtual machine is used and a warning says why.
     """
 
-    def __init__(self, fun, max_chunk=4096, jit_above=20000):
+    def __init__(self, fun, max_chunk=4096, jit_above=5000):
         self.fun = fun
         self.n_out = fun.nnz_out(0)
         self.max_chunk = max_chunk
