@@ -39,6 +39,11 @@ def k_hse(lambda2, C23, latitude):
     return lambda2 * C23 / (3.0 * EARTH_RATE * np.cos(latitude))
 
 
+def hse_eq15(rate, K_HSE):
+    """Eq. 15: the paper's delta-psi = K_HSE Omega (true - estimated), rad; K_HSE in s."""
+    return K_HSE * rate
+
+
 def lambda2_from_k_hse(K_HSE, C23, latitude):
     """Invert Eq. 16: lambda2 = 3 w_ie cos L K_HSE / C23 (rad); K_HSE in s, paper's sign."""
     return 3.0 * EARTH_RATE * np.cos(latitude) * K_HSE / C23

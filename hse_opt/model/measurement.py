@@ -95,7 +95,8 @@ class Model:
         return hash(self._key())
 
     def _key(self):
-        return (self.effect_names, tuple(self.geometry.r_zb_s), tuple(self.geometry.K_g.ravel()))
+        return (tuple((type(e), e.name) for e in self.effects), tuple(self.geometry.r_zb_s),
+                tuple(self.geometry.K_g.ravel()))
 
 
 def paper_model(geometry=None):
