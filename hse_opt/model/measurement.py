@@ -177,8 +177,9 @@ class MeasurementModel:
                 continue
             for k, label in enumerate(("tilt_cos", "tilt_sin", "tilt_const")):
                 coef = ca.SX.sym(f"{q.name}*{label}")
+                bound = max(abs(q.lower), abs(q.upper)) * MAX_TILT / units.MRAD
                 params.append(Param(f"{q.name}*{label}", f"{q.unit}*mrad", q.scale * units.MRAD,
-                                    0.0, -1e3 * abs(q.upper), 1e3 * abs(q.upper),
+                                    0.0, -bound, bound,
                                     f"{q.name} times the {label[5:]} coefficient of C23 (tilt unknown)"))
                 p_sym[params[-1].name] = coef
                 basis = ca.substitute(mixed[k, j], ca.vertcat(p_all, t), ca.vertcat(p0, ca.DM.zeros(3)))
