@@ -26,9 +26,9 @@ import casadi as ca
 import numpy as np
 
 from .. import units
-from .effects import Effect, Param, effect as make_effect
+from .effects import Param, effect as make_effect
 from .symbolic import (Geometry, Operating, ErrorModel, averaged_rate_b0,
-                       heading_error_gyrocompass, heading_error_linear)
+                       heading_error_gyrocompass)
 
 RUN_FIELDS = ("rate", "azimuth", "pitch", "roll", "latitude", "t_start", "duration")
 #: a 1-mrad tilt must move the heading by this much per display unit for a parameter to
