@@ -139,3 +139,53 @@ def wrap_angle(a):
     if is_symbolic(a):
         return ca.atan2(ca.sin(a), ca.cos(a))
     return (np.asarray(a) + np.pi) % (2 * np.pi) - np.pi
+
+
+# -- additions (numeric helpers used by the simulator; additive only) --------------------------
+def rotvec_to_dcm(phi):
+    """Rotation matrix of a rotation vector (Rodrigues), exact for any angle; numeric only.
+
+    ``rotvec_to_dcm(a * e)`` is the active rotation by angle ``a`` (rad) about the unit axis
+    ``e``; to first order it is ``I + [phi x]``.
+
+    Parameters
+    ----------
+    phi : array_like, shape (..., 3)
+        Rotation vector, rad.
+
+    Returns
+    -------
+    numpy.ndarray, shape (..., 3, 3)
+    """
+    phi = np.asarray(phi, dtype=float)
+    a2 = np.einsum("...i,...i->...", phi, phi)
+    a = np.sqrt(a2)
+    small = a2 < 1e-8
+    safe = np.where(small, 1.0, a)
+    # sin(a)/a and (1 - cos(a))/a^2, with their Taylor series for small a
+    s = np.where(small, 1.0 - a2 / 6.0 + a2 * a2 / 120.0, np.sin(safe) / safe)
+    c = np.where(small, 0.5 - a2 / 24.0 + a2 * a2 / 720.0, (1.0 - np.cos(safe)) / (safe * safe))
+    k = skew(phi)
+    eye = np.broadcast_to(np.eye(3), k.shape)
+    return eye + s[..., None, None] * k + c[..., None, None] * (k @ k)
+
+
+def dcm_to_zyx(C):
+    """Angles (psi, theta, gamma), rad, of ``C = rot_z(psi) @ rot_y(theta) @ rot_x(gamma)``.
+
+    The inverse of :func:`dcm_zyx` for |theta| < pi/2; numeric only.
+
+    Parameters
+    ----------
+    C : array_like, shape (..., 3, 3)
+
+    Returns
+    -------
+    psi, theta, gamma : numpy.ndarray, shape (...)
+        Heading in (-pi, pi], pitch in [-pi/2, pi/2], roll in (-pi, pi].
+    """
+    C = np.asarray(C, dtype=float)
+    psi = np.arctan2(C[..., 1, 0], C[..., 0, 0])
+    theta = -np.arcsin(np.clip(C[..., 2, 0], -1.0, 1.0))
+    gamma = np.arctan2(C[..., 2, 1], C[..., 2, 2])
+    return psi, theta, gamma

@@ -74,3 +74,11 @@ def factor(unit):
         if a in FACTORS and b in FACTORS:
             return FACTORS[a] * FACTORS[b]
     raise ValueError(f"unit {unit!r} is not known; allowed: {sorted(FACTORS)}, 'a/b' or 'a*b' of those")
+
+
+# -- additions for the simulator (accelerometer units) ----------------------------------------
+#: standard gravity g0 (unit of the "g"-based accelerometer specs, not the local gravity), m/s^2
+STANDARD_GRAVITY = 9.80665
+#: one micro-g, in m/s^2
+MICRO_G = 1e-6 * STANDARD_GRAVITY
+FACTORS.setdefault("ug", MICRO_G)

@@ -1,0 +1,1 @@
+"""The numeric alignment simulator (independent of :mod:`hse_opt.model`)."""

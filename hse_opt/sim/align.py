@@ -1,0 +1,401 @@
+"""The alignment processor: raw log (simulated or real) -> heading, pitch, roll of b0.
+
+Steps
+-----
+1. Calibration. Gyro increments are mapped to b with the lab-calibrated parameters,
+   ``dtheta_b = C~_s^b K~_g dtheta_g``; accelerometer increments with ``C~_s^b A~_a``.
+2. Projection into b0. Each interval ``(t_{k-1}, t_k]`` is turned into b0 with the encoder
+   angle at its midpoint, ``alpha_mid = (alpha_{k-1} + alpha_k) / 2``, the table turn
+   ``alpha_k - alpha_{k-1}`` is removed from the z increment, and the horizontal parts are
+   divided by ``sinc(d alpha / 2)`` (the exact average of a rotating vector over the
+   interval). On a static base b0 is fixed in n, so the projected record is that of a
+   quasi-static IMU in which every b-frame constant error rotates at the table rate.
+3. Blocks. The projected increments are summed over blocks of ``L`` samples chosen so that a
+   whole number ``m`` of blocks makes one revolution (``m`` = revolution time x
+   ``filter_rate``, rounded); the filter runs once per block.
+4. Coarse alignment (TRIAD) over the largest whole number of revolutions in the record:
+   the down axis from the mean specific force, east from ``down x`` mean rate.
+5. Fine alignment: a linear Kalman filter on the error of a navigation solution that is
+   integrated open loop from the coarse attitude ``C0`` (horizontal attitude from the
+   measured rates, velocity from the specific force, no Coriolis term in the navigation or
+   in its error model, so both match). b0 is static, so the heading of the navigation
+   solution is held (the vertical b0 rate carries no heading information on a static base;
+   it reaches heading only through the tilt, which the filter sees in the east rate).
+   States (9): attitude error phi = (N, E, D) of the navigation solution, horizontal
+   velocity error, the horizontal gyro and accelerometer biases of the table top seen in b0
+   (they rotate at the table rate: ``d/dt x = Omega [[0, -1], [1, 0]] x``). The model is
+   time invariant, so the transition and process noise matrices are computed once (Van Loan).
+   Measurement: zero velocity (the navigation velocity) after each block, noise variance
+   ``accel_pulse^2 / 12 + velocity_floor^2`` per axis (the velocity pulse remainder).
+6. Whole-revolution smoothing: the reported angles are the mean of the block estimates over
+   the last ``smoothing_revolutions`` revolutions, with the filter's 1-sigma averaged over
+   the same blocks.
+
+The static-base gyrocompass limit of this filter is Eq. 12: a constant east error ``dw_E``
+of the revolution-averaged rate gives ``heading estimated - true = -dw_E / (w_ie cos L)``.
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+
+import numpy as np
+import scipy.linalg
+
+from hse_opt import units
+from hse_opt.frames import dcm_to_zyx, earth_rate_n, skew
+from hse_opt.sim._fastmath import cos_sin
+from hse_opt.sim.rawlog import RawLog
+
+__all__ = ["AlignConfig", "AlignResult", "AlignHistory", "align", "triad"]
+
+_CHUNK_TARGET = 16384
+
+
+def _mat(m):
+    return tuple(tuple(float(x) for x in row) for row in np.asarray(m, dtype=float))
+
+
+@dataclass(frozen=True)
+class AlignConfig:
+    """Processor settings: the lab calibration it applies and the filter's tuning (SI).
+
+    Attributes
+    ----------
+    K_g_cal : 3x3 nested tuple
+        Calibrated gyro matrix K~_g, gyro outputs (rad) -> s.
+    C_s_b_cal : 3x3 nested tuple
+        Calibrated C~_s^b, s -> b.
+    A_acc_cal : 3x3 nested tuple
+        Calibrated accelerometer matrix, outputs (m/s) -> s (identity: ideal axes).
+    latitude : float or None
+        rad; None takes ``latitude_deg`` from the log's metadata.
+    arw : float
+        Gyro angle random walk assumed by the filter, rad/sqrt(s).
+    vrw : float
+        Accelerometer white noise assumed by the filter, m/s/sqrt(s).
+    gyro_pulse, accel_pulse : float
+        Quanta, rad and m/s (the velocity quantum sets the measurement noise).
+    filter_rate : float
+        Approximate filter rate, Hz (1 Hz default).
+    smoothing_revolutions : int
+        Whole revolutions averaged at the end.
+    sigma0_tilt, sigma0_heading : float
+        Prior 1-sigma of the coarse attitude, rad.
+    sigma0_gyro_bias, sigma0_accel_bias : float
+        Prior 1-sigma of the horizontal table-top biases, rad/s and m/s^2.
+    velocity_floor : float
+        Added to the velocity measurement 1-sigma, m/s.
+    """
+
+    K_g_cal: tuple = _mat(np.eye(3))
+    C_s_b_cal: tuple = _mat(np.eye(3))
+    A_acc_cal: tuple = _mat(np.eye(3))
+    latitude: float | None = None
+    arw: float = 0.0121 * units.DEG_PER_H
+    vrw: float = 10.0 * units.MICRO_G
+    gyro_pulse: float = 0.5 * units.ARCSEC
+    accel_pulse: float = 1e-4
+    filter_rate: float = 1.0
+    smoothing_revolutions: int = 1
+    sigma0_tilt: float = 1e-3
+    sigma0_heading: float = 1e-2
+    sigma0_gyro_bias: float = 0.05 * units.DEG_PER_H
+    sigma0_accel_bias: float = 1e-2
+    velocity_floor: float = 1e-6
+
+    def __post_init__(self):
+        for name in ("K_g_cal", "C_s_b_cal", "A_acc_cal"):
+            m = np.asarray(getattr(self, name), dtype=float)
+            if m.shape != (3, 3) or not np.isfinite(m).all():
+                raise ValueError(f"AlignConfig.{name} must be a finite 3x3 matrix, got shape {m.shape}")
+            object.__setattr__(self, name, _mat(m))
+        for name in ("arw", "vrw", "gyro_pulse", "accel_pulse", "velocity_floor"):
+            v = getattr(self, name)
+            if not (math.isfinite(v) and v >= 0):
+                raise ValueError(f"AlignConfig.{name} = {v!r} is not allowed: must be >= 0")
+        for name in ("filter_rate", "sigma0_tilt", "sigma0_heading", "sigma0_gyro_bias",
+                     "sigma0_accel_bias"):
+            v = getattr(self, name)
+            if not (math.isfinite(v) and v > 0):
+                raise ValueError(f"AlignConfig.{name} = {v!r} is not allowed: must be > 0")
+        if int(self.smoothing_revolutions) != self.smoothing_revolutions or self.smoothing_revolutions < 1:
+            raise ValueError(f"AlignConfig.smoothing_revolutions = {self.smoothing_revolutions!r}: "
+                             "an integer >= 1 is required")
+        if self.latitude is not None and not abs(self.latitude) < math.radians(89.0):
+            raise ValueError(f"AlignConfig.latitude = {self.latitude!r} rad is not allowed: |latitude| < 89 deg")
+
+    @classmethod
+    def from_truth(cls, truth, **overrides):
+        """The processor of a simulated system: the *calibrated* parameters (K~_g, C~_s^b;
+        accelerometers taken as ideal) and the sensors' specified noise as tuning."""
+        from hse_opt.sim.truth import gyro_matrices
+        mats = gyro_matrices(truth)
+        kw = dict(K_g_cal=mats["K_g_cal"], C_s_b_cal=mats["C_s_b_cal"], A_acc_cal=np.eye(3),
+                  latitude=truth.site.latitude, arw=truth.gyro.arw, vrw=truth.accel.vrw,
+                  gyro_pulse=truth.gyro.pulse, accel_pulse=truth.accel.pulse)
+        kw.update(overrides)
+        return cls(**kw)
+
+
+@dataclass(frozen=True, eq=False)
+class AlignHistory:
+    """Per-block time history of the fine alignment (for plots); arrays of shape (nb,).
+
+    ``t`` s (since the log's first timestamp, at block ends); angles and 1-sigmas rad."""
+
+    t: np.ndarray
+    heading: np.ndarray
+    pitch: np.ndarray
+    roll: np.ndarray
+    heading_std: np.ndarray
+    pitch_std: np.ndarray
+    roll_std: np.ndarray
+
+
+@dataclass(frozen=True, eq=False)
+class AlignResult:
+    """Result of one alignment (rad, s).
+
+    Attributes
+    ----------
+    heading, pitch, roll : float
+        Attitude of b0 (``C_b0^n = rot_z(heading) rot_y(pitch) rot_x(roll)``), after
+        whole-revolution smoothing.
+    heading_std, pitch_std, roll_std : float
+        The filter's 1-sigma, averaged over the smoothing window.
+    coarse_heading, coarse_pitch, coarse_roll : float
+        The TRIAD coarse alignment over whole revolutions.
+    rate : float
+        Mean table rate from the encoder, rad/s.
+    n_revolutions : int
+        Whole revolutions used by the coarse alignment.
+    block_samples, blocks_per_revolution : int
+        Filter block length (samples) and blocks per revolution.
+    history : AlignHistory
+    """
+
+    heading: float
+    pitch: float
+    roll: float
+    heading_std: float
+    pitch_std: float
+    roll_std: float
+    coarse_heading: float
+    coarse_pitch: float
+    coarse_roll: float
+    rate: float
+    n_revolutions: int
+    block_samples: int
+    blocks_per_revolution: int
+    history: AlignHistory = field(repr=False)
+
+
+def triad(f_b0, w_b0):
+    """C_b0^n from a mean specific force and a mean rate in b0 (static base, NED).
+
+    Down is ``-f / |f|``, east ``down x w`` normalised, north ``east x down``.
+
+    Parameters
+    ----------
+    f_b0 : array_like, shape (3,)
+        Specific force, m/s^2.
+    w_b0 : array_like, shape (3,)
+        Angular rate, rad/s.
+    """
+    f = np.asarray(f_b0, dtype=float)
+    w = np.asarray(w_b0, dtype=float)
+    d = -f / np.linalg.norm(f)
+    e = np.cross(d, w)
+    e /= np.linalg.norm(e)
+    nrt = np.cross(e, d)
+    return np.vstack([nrt, e, d])
+
+
+def _blocks(log, config):
+    """Calibrate, project into b0 and block-sum. Returns dict of block sums and geometry."""
+    n = len(log)
+    enc = log.encoder
+    span = enc[-1] - enc[0]
+    duration = log.t[-1] - log.t[0]
+    rate = span / duration
+    if not abs(span) >= 2 * np.pi:
+        raise ValueError(f"raw log: the table turned {abs(span) / (2 * np.pi):.3f} revolutions; "
+                         "the alignment needs at least one whole revolution")
+    dt = duration / (n - 1)
+    rev_samples = 2 * np.pi / (abs(rate) * dt)
+    m = max(1, int(round(rev_samples * dt * config.filter_rate)))
+    L = max(1, int(round(rev_samples / m)))
+    nint = n - 1                               # intervals with an encoder angle at both ends
+    nb = nint // L
+    if nb < 2 * m:
+        nb_need = 2 * m
+        raise ValueError(f"raw log: {nint} usable samples make {nb} filter blocks; at least "
+                         f"{nb_need} (two revolutions) are needed")
+    A_g = np.asarray(config.C_s_b_cal) @ np.asarray(config.K_g_cal)
+    A_a = np.asarray(config.C_s_b_cal) @ np.asarray(config.A_acc_cal)
+    gyro = log.gyro.T
+    accel = log.accel.T
+    dth_sum = np.empty((3, nb))
+    dv_sum = np.empty((3, nb))
+    per_chunk = max(1, _CHUNK_TARGET // L)
+    for b0 in range(0, nb, per_chunk):
+        b1 = min(nb, b0 + per_chunk)
+        i0, i1 = 1 + b0 * L, 1 + b1 * L          # rows of the log (row i: interval i-1 -> i)
+        e = enc[i0 - 1:i1]
+        amid = 0.5 * (e[1:] + e[:-1])
+        da = np.diff(e)
+        c, s = cos_sin(amid)
+        kb = b1 - b0
+        for src, A, out, turn in ((gyro, A_g, dth_sum, da), (accel, A_a, dv_sum, None)):
+            x = A @ src[:, i0:i1]
+            hx = c * x[0]
+            hx -= s * x[1]
+            hy = s * x[0]
+            hy += c * x[1]
+            out[0, b0:b1] = hx.reshape(kb, L).sum(axis=1)
+            out[1, b0:b1] = hy.reshape(kb, L).sum(axis=1)
+            z = x[2] if turn is None else x[2] - turn
+            out[2, b0:b1] = z.reshape(kb, L).sum(axis=1)
+    # exact average of a rotating vector over an interval: divide by sinc(d alpha / 2)
+    da_mean = span / nint
+    corr = 1.0 / np.sinc(da_mean / (2 * np.pi))   # np.sinc(x) = sin(pi x) / (pi x)
+    dth_sum[:2] *= corr
+    dv_sum[:2] *= corr
+    return {"dth": dth_sum, "dv": dv_sum, "L": L, "m": m, "nb": nb, "dt": dt, "rate": rate,
+            "block_time": L * dt}
+
+
+def _filter_matrices(C0, w_n, g, rate, T, config):
+    """Transition Phi, process noise Qd (Van Loan) for one block of length T (s)."""
+    F = np.zeros((9, 9))
+    # attitude error (N, E; D held): phi_dot = -[w x] phi - C0[:, :2] x_g
+    Wx = skew(w_n)
+    F[0:2, 0:3] = -Wx[0:2, :]
+    F[0:2, 5:7] = -C0[0:2, 0:2]
+    # velocity error: v_dot = f^n x phi + C0[:2, :2] x_a, f^n = (0, 0, -g)
+    F[3, 1] = g
+    F[4, 0] = -g
+    F[3:5, 7:9] = C0[0:2, 0:2]
+    J = np.array([[0.0, -1.0], [1.0, 0.0]]) * rate
+    F[5:7, 5:7] = J
+    F[7:9, 7:9] = J
+    Qc = np.zeros((9, 9))
+    Qc[0, 0] = Qc[1, 1] = config.arw ** 2
+    Qc[3, 3] = Qc[4, 4] = config.vrw ** 2
+    M = np.zeros((18, 18))
+    M[:9, :9] = -F
+    M[:9, 9:] = Qc
+    M[9:, 9:] = F.T
+    E = scipy.linalg.expm(M * T)
+    Phi = E[9:, 9:].T
+    Qd = Phi @ E[:9, 9:]
+    Qd = 0.5 * (Qd + Qd.T)
+    return Phi, Qd
+
+
+def align(log, config=None):
+    """Align one raw log.
+
+    Parameters
+    ----------
+    log : RawLog
+    config : AlignConfig, optional
+        Calibration and tuning (default: ideal calibration, default tuning).
+
+    Returns
+    -------
+    AlignResult
+
+    Raises
+    ------
+    ValueError
+        The log is too short (fewer than two revolutions of filter blocks), has no table
+        turn, or no latitude is known.
+    """
+    if not isinstance(log, RawLog):
+        raise ValueError("align: a RawLog is required (see hse_opt.sim.rawlog)")
+    config = AlignConfig() if config is None else config
+    lat = config.latitude
+    if lat is None:
+        if "latitude_deg" not in log.meta:
+            raise ValueError("align: no latitude: give AlignConfig.latitude or latitude_deg in the log meta")
+        lat = float(log.meta["latitude_deg"]) * units.DEG
+    blk = _blocks(log, config)
+    dth, dv, nb, m, T = blk["dth"], blk["dv"], blk["nb"], blk["m"], blk["block_time"]
+    w_n = earth_rate_n(lat)
+
+    # coarse alignment over whole revolutions
+    n_rev = nb // m
+    nc = n_rev * m
+    f_mean = dv[:, :nc].sum(axis=1) / (nc * T)
+    w_mean = dth[:, :nc].sum(axis=1) / (nc * T)
+    C0 = triad(f_mean, w_mean)
+    g = float(np.linalg.norm(f_mean))
+
+    # open-loop navigation solution from C0 (heading held), at block ends
+    r = C0 @ dth - (w_n * T)[:, None]              # n-frame angle residual per block
+    fn = C0 @ dv                                  # n-frame velocity increment per block
+    wd = w_n[2]
+    # psi_h: d/dt (psi_N + i psi_E) = -(r_N + i r_E)/T - i wd (psi_N + i psi_E)
+    k = np.arange(1, nb + 1)
+    rot = np.exp(1j * wd * T * k)
+    zr = r[0] + 1j * r[1]
+    z = -np.cumsum(zr * rot) / rot                # psi at the end of each block
+    psi_n, psi_e = z.real, z.imag
+    pn0 = np.concatenate([[0.0], psi_n[:-1]])
+    pe0 = np.concatenate([[0.0], psi_e[:-1]])
+    dvn = fn[0] + g * T * 0.5 * (pe0 + psi_e)
+    dve = fn[1] - g * T * 0.5 * (pn0 + psi_n)
+    vel = np.vstack([np.cumsum(dvn), np.cumsum(dve)])
+
+    Phi, Qd = _filter_matrices(C0, w_n, g, blk["rate"], T, config)
+    Rv = config.accel_pulse ** 2 / 12.0 + config.velocity_floor ** 2
+    x = np.zeros(9)
+    P = np.diag([config.sigma0_tilt ** 2, config.sigma0_tilt ** 2, config.sigma0_heading ** 2,
+                 config.velocity_floor ** 2, config.velocity_floor ** 2,
+                 config.sigma0_gyro_bias ** 2, config.sigma0_gyro_bias ** 2,
+                 config.sigma0_accel_bias ** 2, config.sigma0_accel_bias ** 2])
+    xs = np.empty((nb, 3))
+    Ps = np.empty((nb, 3, 3))
+    PhiT = Phi.T
+    for j in range(nb):
+        x = Phi @ x
+        P = Phi @ P @ PhiT + Qd
+        S00 = P[3, 3] + Rv
+        S11 = P[4, 4] + Rv
+        S01 = P[3, 4]
+        det = S00 * S11 - S01 * S01
+        PH = P[:, 3:5]
+        K = PH @ (np.array([[S11, -S01], [-S01, S00]]) / det)
+        innov = vel[:, j] - x[3:5]
+        x = x + K @ innov
+        P = P - K @ PH.T
+        xs[j] = x[0:3]
+        Ps[j] = P[0:3, 0:3]
+
+    # corrected attitude: C = (I + [(phi - psi) x]) C0, psi = (psi_N, psi_E, 0)
+    delta = xs.copy()
+    delta[:, 0] -= psi_n
+    delta[:, 1] -= psi_e
+    C = (np.eye(3) + skew(delta)) @ C0
+    heading, pitch, roll = dcm_to_zyx(C)
+    heading = np.unwrap(heading)
+    # 1-sigma: heading from phi_D; pitch and roll from the n-frame tilt turned into b0
+    ch, sh = np.cos(heading), np.sin(heading)
+    Pnn, Pee, Pne = Ps[:, 0, 0], Ps[:, 1, 1], Ps[:, 0, 1]
+    var_roll = ch * ch * Pnn + 2 * ch * sh * Pne + sh * sh * Pee
+    var_pitch = sh * sh * Pnn - 2 * ch * sh * Pne + ch * ch * Pee
+    hist = AlignHistory(t=T * k, heading=heading, pitch=pitch,
+                        roll=roll, heading_std=np.sqrt(Ps[:, 2, 2]), pitch_std=np.sqrt(var_pitch),
+                        roll_std=np.sqrt(var_roll))
+    w = min(nb, config.smoothing_revolutions * m)
+    sel = slice(nb - w, nb)
+    ch0, cp0, cr0 = dcm_to_zyx(C0)
+    return AlignResult(
+        heading=float(np.mean(heading[sel])), pitch=float(np.mean(pitch[sel])),
+        roll=float(np.mean(roll[sel])), heading_std=float(np.mean(hist.heading_std[sel])),
+        pitch_std=float(np.mean(hist.pitch_std[sel])), roll_std=float(np.mean(hist.roll_std[sel])),
+        coarse_heading=float(ch0), coarse_pitch=float(cp0), coarse_roll=float(cr0),
+        rate=float(blk["rate"]), n_revolutions=int(n_rev), block_samples=int(blk["L"]),
+        blocks_per_revolution=int(m), history=hist)
