@@ -13,8 +13,9 @@ Physics (``PHYSICS.md``; frames n NED, b0 turntable base, b table top, s IMU, g 
   ``w^b0 = C_n^b0 w_ie^n``; ``f^b = rot_z(-alpha) f^b0``, ``f^b0 = C_n^b0 (0, 0, -g)``.
   Over each sample interval ``(t_{k-1}, t_k]`` the increments are integrated in closed form:
   ``int cos(alpha) dt = (sin alpha_k - sin alpha_{k-1}) / alpha_dot`` (exact for a constant
-  rate; with the 1e-4 ripple, alpha deviates from linear inside a 2 ms interval by
-  ``alpha_ddot dt^2 / 8`` < 1e-10 rad, a relative error below 1e-10 of the Earth-rate term),
+  rate; with a 1e-4 ripple, alpha deviates from linear inside a 2 ms interval by
+  ``alpha_ddot dt^2 / 8`` ~ 1e-10 rad, a periodic relative error of 1e-10 of the horizontal
+  rate and specific force),
   ``int alpha_dot dt = alpha_k - alpha_{k-1}`` exactly.
 * IMU mount: ``C_b^s(t) = C_b^s(r_zb^s true) rot_z(-xi_w(t))`` with the thermal rotation
   ``xi_w`` (warm-up and temperature) about z_b; its rate adds ``d xi_w`` to the z increment.
