@@ -18,6 +18,7 @@ without ``t_start_s`` runs back to back from power-on.
 """
 from __future__ import annotations
 
+import contextlib
 import csv
 import math
 import os
@@ -229,12 +230,23 @@ def _prepare(plan_rows, truth):
     return out
 
 
+def _single_blas_thread():
+    """A context limiting BLAS to one thread (threadpoolctl, if installed): campaign workers
+    are already parallel, and idle BLAS threads spinning on a shared machine only steal CPU."""
+    try:
+        from threadpoolctl import threadpool_limits
+    except ImportError:  # pragma: no cover - optional
+        return contextlib.nullcontext()
+    return threadpool_limits(limits=1, user_api="blas")
+
+
 def _simulate_chunk(truth, align_config, seed, items):
     """Worker: simulate a list of (run_id, RunSpec, extra); returns [(run_id, row)]."""
     out = []
-    for rid, spec, extra in items:
-        rng = np.random.default_rng(np.random.SeedSequence([int(seed), int(rid)]))
-        out.append((rid, simulate_run(truth, spec, rng, align_config, rid, extra)))
+    with _single_blas_thread():
+        for rid, spec, extra in items:
+            rng = np.random.default_rng(np.random.SeedSequence([int(seed), int(rid)]))
+            out.append((rid, simulate_run(truth, spec, rng, align_config, rid, extra)))
     return out
 
 

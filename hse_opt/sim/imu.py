@@ -37,7 +37,7 @@ import math
 import numpy as np
 
 from hse_opt.frames import (dcm_to_zyx, earth_rate_n, rot_x, rot_y, rot_z, rotvec_to_dcm)
-from hse_opt.sim._fastmath import MAX_DEVIATION, cos_sin_linear, rotate_small
+from hse_opt.sim._fastmath import MAX_DEVIATION, PhaseTable, apply3, rotate_small
 from hse_opt.sim.rawlog import RawLog
 from hse_opt.sim.truth import gyro_matrices, temperature, validate_run
 
@@ -99,23 +99,23 @@ def _ripple(table, rate, sin_phase):
     return (w * table.ripple / _ripple_nu(table, rate)) * (sin_phase - math.sin(table.ripple_phase))
 
 
-def _angle_cos_sin(table, rate, alpha0, i0, m, dt):
-    """alpha, cos(alpha), sin(alpha) at the boundaries ``tau_k = k dt``, ``k = i0 .. i0 + m``."""
+def _angle_cos_sin(table, rate, alpha0, i0, m, dt, tabs):
+    """alpha, cos(alpha), sin(alpha) at the boundaries ``tau_k = k dt``, ``k = i0 .. i0 + m``;
+    ``tabs`` = (PhaseTable of W dt, PhaseTable of the ripple's nu dt or None)."""
     w = rate * (1.0 + table.rate_error)
-    k0 = float(i0)
     lin = alpha0 + w * dt * np.arange(i0, i0 + m + 1, dtype=float)
+    c, s = tabs[0].cos_sin(alpha0 + w * dt * i0, m + 1)
     if not table.ripple:
-        c, s = cos_sin_linear(alpha0 + w * dt * k0, w * dt, m + 1)
         return lin, c, s
-    nu = _ripple_nu(table, rate)
-    if 2 * abs(table.ripple / table.ripple_order) > MAX_DEVIATION:
+    if tabs[1] is None:                  # ripple too large for the series: plain numpy
         a = table_angle(table, rate, alpha0, dt * np.arange(i0, i0 + m + 1, dtype=float))
         return a, np.cos(a), np.sin(a)
-    _, rs = cos_sin_linear(nu * dt * k0 + table.ripple_phase, nu * dt, m + 1)
+    nu = _ripple_nu(table, rate)
+    _, rs = tabs[1].cos_sin(nu * dt * i0 + table.ripple_phase, m + 1)
     d = _ripple(table, rate, rs)
-    c, s = cos_sin_linear(alpha0 + w * dt * k0, w * dt, m + 1)
     c, s = rotate_small(c, s, d)
-    return lin + d, c, s
+    lin += d
+    return lin, c, s
 
 
 #: samples per generation chunk: the chunks keep the working arrays in cache; the random
@@ -203,13 +203,30 @@ def generate(truth, run, rng=None):
     accel = np.empty((3, n))
     encoder = np.empty(n)
     t_out = np.empty(n)
+    # exp(-t_on / tau) on the chunk grid = exp(-t_on[0] / tau) * exp(-k dt / tau): one table
+    # per time constant, scaled per chunk (exact to a few 1e-16)
+    taus = {}
+    if thermal_xi:
+        taus["xi"] = mount.warmup_tau
+    if bw.any():
+        taus["bias"] = g.bias_warmup_tau
+    if need_temp:
+        taus["temp"] = thermal.tau
+    ktab = dt * np.arange(min(n, CHUNK) + 1, dtype=float)
+    tables = {name: np.exp(-ktab / tau) for name, tau in taus.items()}
+    w_true = run.rate * (1.0 + truth.table.rate_error)
+    ripple_ok = 2 * abs(truth.table.ripple / truth.table.ripple_order) <= MAX_DEVIATION
+    ptabs = (PhaseTable(w_true * dt, min(n, CHUNK) + 1),
+             PhaseTable(_ripple_nu(truth.table, run.rate) * dt, min(n, CHUNK) + 1)
+             if truth.table.ripple and ripple_ok else None)
     for i0 in range(0, n, CHUNK):
         i1 = min(n, i0 + CHUNK)
         m = i1 - i0
-        tau = dt * np.arange(i0, i1 + 1, dtype=float)   # boundaries since the run start
-        t_on = tau + run.t_start
+        t_first = run.t_start + dt * i0
+        t_on = t_first + ktab[:m + 1]                 # boundaries, time since power-on
         t_out[i0:i1] = t_on[1:]
-        alpha, ca, sa = _angle_cos_sin(truth.table, run.rate, alpha0, i0, m, dt)
+        expo = {name: tab[:m + 1] * math.exp(-t_first / taus[name]) for name, tab in tables.items()}
+        alpha, ca, sa = _angle_cos_sin(truth.table, run.rate, alpha0, i0, m, dt, ptabs)
         dalpha = np.diff(alpha)
         Ci = np.diff(sa)
         Ci *= dt
@@ -226,12 +243,17 @@ def generate(truth, run, rng=None):
             np.multiply(Ci, v[1], out=out[1])
             out[1] -= v[0] * Si
             out[2] = z
-        temp = temperature(thermal, t_on) if need_temp else None
+        temp = None
+        if need_temp:
+            temp = thermal.ambient_c + thermal.rise_c * (1.0 - expo["temp"])
+            if thermal.swing_c:
+                temp += thermal.swing_c * np.sin(2 * np.pi * t_on / thermal.swing_period
+                                                 + thermal.swing_phase)
         if thermal_xi:
             # thermal rotation xi_w of the IMU about z_b: C_b^s(t) = C_b^s rot_z(-xi_w); it
             # is checked below 1e-3 rad, where cos = 1 - xi^2/2 and sin = xi are exact to
             # < 1e-13 relative
-            xi = mount.warmup_xi_z * np.exp(-t_on / mount.warmup_tau)
+            xi = mount.warmup_xi_z * expo["xi"]
             if mount.xi_z_tempco:
                 xi += mount.xi_z_tempco * (temp - thermal.reference_c)
             if np.abs(xi).max() > 1e-3:
@@ -247,12 +269,12 @@ def generate(truth, run, rng=None):
                 arr[1] -= s * x
             dth_b[2] += np.diff(xi)
 
-        dth = np.matmul(G, dth_b, out=gyro[:, i0:i1])
+        dth = apply3(G, dth_b, gyro[:, i0:i1])
         if scale:
             dth *= 1.0 + sf + nl * np.abs(dth)
         dth += gbias
         if bw.any():
-            e = np.diff(np.exp(-t_on / g.bias_warmup_tau))
+            e = np.diff(expo["bias"])
             e *= -g.bias_warmup_tau
             dth += bw * e
         if tc.any():   # thermal terms vary over minutes: midpoint rule, error < 1e-12 relative
@@ -267,7 +289,7 @@ def generate(truth, run, rng=None):
         if gcount is not None:
             gcount(dth)
 
-        dv = np.matmul(A, dv_b, out=accel[:, i0:i1])
+        dv = apply3(A, dv_b, accel[:, i0:i1])
         dv += abias
         if a_sigma:
             noise = rng.standard_normal((3, m), dtype=np.float32)
@@ -277,7 +299,7 @@ def generate(truth, run, rng=None):
             acount(dv)
 
         if enc.sync_delay:
-            am = table_angle(truth.table, run.rate, alpha0, tau[1:] - enc.sync_delay)
+            am = table_angle(truth.table, run.rate, alpha0, dt * np.arange(i0 + 1, i1 + 1, dtype=float) - enc.sync_delay)
         else:
             am = alpha[1:]
         if enc.harmonics:
