@@ -124,3 +124,11 @@ def test_ideal_is_free_of_errors_and_noise():
     assert np.allclose(t.mount.r_zb_s_true, -1 / np.sqrt(3))
     assert not any(t.gyro.eps) and not any(t.mount.xi) and t.encoder.sync_delay == 0
     assert not TruthConfig.default().is_noise_free
+
+
+def test_shipped_default_toml_is_the_default_system():
+    from pathlib import Path
+
+    import hse_opt
+    path = Path(hse_opt.__file__).parent / "datasets" / "truth_default.toml"
+    assert load_truth(path) == TruthConfig.default()

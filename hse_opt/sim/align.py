@@ -91,8 +91,8 @@ class AlignConfig:
     C_s_b_cal: tuple = _mat(np.eye(3))
     A_acc_cal: tuple = _mat(np.eye(3))
     latitude: float | None = None
-    arw: float = 0.0121 * units.DEG_PER_H
-    vrw: float = 10.0 * units.MICRO_G
+    arw: float = 0.0120 * units.DEG_PER_H
+    vrw: float = 1.0 * units.MICRO_G
     gyro_pulse: float = 0.5 * units.ARCSEC
     accel_pulse: float = 1e-4
     filter_rate: float = 1.0
