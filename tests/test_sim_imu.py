@@ -132,6 +132,13 @@ def test_pulse_quantization_carries_the_remainder():
     assert abs(d[-5000:].mean(axis=0) - d[:5000].mean(axis=0)).max() < 0.05 * q
     dv = np.cumsum(quant.accel, axis=0) - np.cumsum(exact.accel, axis=0)
     assert np.abs(dv).max() < 1e-4 * (1 + 1e-9)
+    # the counter sits after the scale factor when there is one
+    sf = {"gyro": {"sf_error_ppm": [300.0, 0.0, -200.0]}}
+    exact = generate(base.updated(sf), run)
+    quant = generate(base.updated(sf).updated({"gyro": {"pulse_arcsec": 1.5}}), run, np.random.default_rng(2))
+    assert np.abs(quant.gyro / q - np.round(quant.gyro / q)).max() < 1e-6
+    d = np.cumsum(quant.gyro, axis=0) - np.cumsum(exact.gyro, axis=0)
+    assert np.abs(d).max() < q * (1 + 1e-9)
 
 
 def test_white_noise_has_the_specified_density():

@@ -309,7 +309,8 @@ def generate(truth, run, rng=None):
         if gcount is None:
             gyro_s.finish(out, rng, gyro[:, i0:i1])
         else:
-            gyro_s.finish(out, rng, out)
+            gyro_s.finish(out, rng, out)                  # noise, SI
+            out *= gcount.k                               # to counts, then quantize
             gcount.finish(out, rng, gyro[:, i0:i1])
 
         out = buf[:, :m]
