@@ -1,6 +1,37 @@
-"""The numeric alignment simulator (independent of :mod:`hse_opt.model`).
+"""The numeric alignment simulator: the independent reference for :mod:`hse_opt.model`.
 
-Work in progress (issue 3): the truth configuration, the raw-data generator and the
-alignment processor are here but not yet tested or benchmarked; the campaign runner and
-the symbolic-vs-numeric tests are still to come. Do not rely on its API yet.
+Built from the physics (``PHYSICS.md``) and sharing only :mod:`hse_opt.units` and
+:mod:`hse_opt.frames` with the symbolic model.
+
+Modules
+-------
+truth
+    :class:`TruthConfig` -- the true system (frozen, TOML in and out, units in key names);
+    :class:`RunSpec` -- one run of a plan.
+imu
+    :func:`generate` -- raw 500 Hz gyro/accelerometer increments and encoder angles.
+rawlog
+    :class:`RawLog` -- the documented raw-log format (``.npz`` / ``.csv``), load/validate/save.
+align
+    :func:`align` -- the alignment processor (coarse TRIAD + Kalman filter + whole-revolution
+    smoothing) for simulated or real logs; :class:`AlignConfig`, :class:`AlignResult`.
+campaign
+    :func:`run_campaign` (PLAN -> RUNS, parallel, Dask), :func:`simulate_run`,
+    :func:`simulate_heading_error` (noise-free, one error source at a time),
+    :func:`simulate_main` (``hse-opt simulate``).
 """
+from hse_opt.sim.align import AlignConfig, AlignHistory, AlignResult, align, triad
+from hse_opt.sim.campaign import (add_simulate_arguments, default_align_config, read_plan_csv,
+                                  run_campaign, simulate_alignment, simulate_heading_error,
+                                  simulate_main, simulate_run, write_runs_csv)
+from hse_opt.sim.imu import generate, true_attitude
+from hse_opt.sim.rawlog import RawLog, load_rawlog, save_rawlog, validate_rawlog
+from hse_opt.sim.truth import EFFECT_KEYS, Harmonic, RunSpec, TruthConfig, load_truth, save_truth
+
+__all__ = [
+    "AlignConfig", "AlignHistory", "AlignResult", "align", "triad", "add_simulate_arguments",
+    "default_align_config", "read_plan_csv", "run_campaign", "simulate_alignment",
+    "simulate_heading_error", "simulate_main", "simulate_run", "write_runs_csv", "generate",
+    "true_attitude", "RawLog", "load_rawlog", "save_rawlog", "validate_rawlog", "EFFECT_KEYS",
+    "Harmonic", "RunSpec", "TruthConfig", "load_truth", "save_truth",
+]

@@ -1,9 +1,16 @@
 """Fast, accurate cos/sin of nearly linear phase sequences (private helpers of the simulator).
 
-``np.sin`` costs about 15 ns per float64 here; a phase that grows linearly with the sample
-index can instead be built from two short tables by the angle-addition formula (a few
-multiplications per sample), and a small deviation ``d`` from linear is folded in with its
-Taylor series. Both are exact to a few 1e-16 (checked against ``np.sin`` in the tests).
+``np.sin`` costs about 15 ns per float64 here, and the simulator needs cos and sin of the
+table angle at 500 Hz. The table angle grows almost linearly with the sample index, so:
+
+* a :class:`PhaseTable` holds ``cos`` and ``sin`` of ``k * dphi`` for one chunk length;
+  the values for a chunk starting at phase ``phi0`` follow by the angle-addition formula
+  (four multiplications per sample);
+* a small deviation ``d`` from the linear phase is folded in with its Taylor series
+  (:func:`rotate_small`).
+
+Both are exact to a few 1e-16 (checked against ``np.sin`` in the tests); a deviation larger
+than :data:`MAX_DEVIATION` falls back to ``np.cos``/``np.sin``.
 """
 from __future__ import annotations
 
@@ -11,50 +18,82 @@ import math
 
 import numpy as np
 
-#: largest deviation from the linear phase handled by the series, rad (error d^5/120 < 1e-17)
+#: largest deviation from the linear phase handled by the series, rad (error d^6/720 < 2e-21)
 MAX_DEVIATION = 1e-3
 
 
-def cos_sin_linear(phi0, dphi, n):
-    """cos and sin of ``phi0 + k * dphi`` for ``k = 0 .. n-1`` (rad), shape (n,) each."""
-    if n <= 64:
-        ph = phi0 + dphi * np.arange(n)
-        return np.cos(ph), np.sin(ph)
-    m = int(math.ceil(math.sqrt(n)))
-    q = -(-n // m)
-    r = dphi * np.arange(m)
-    a = phi0 + (dphi * m) * np.arange(q)
-    cr, sr = np.cos(r), np.sin(r)
-    ca, sa = np.cos(a)[:, None], np.sin(a)[:, None]
-    c = (ca * cr - sa * sr).ravel()[:n]
-    s = (sa * cr + ca * sr).ravel()[:n]
-    return c, s
+class PhaseTable:
+    """cos and sin of ``phi0 + k * dphi`` for ``k = 0 .. m-1``, ``m <= n`` (rad)."""
+
+    def __init__(self, dphi, n):
+        k = dphi * np.arange(n, dtype=float)
+        self.dphi = float(dphi)
+        self.c = np.cos(k)
+        self.s = np.sin(k)
+
+    def cos_sin(self, phi0, m):
+        """Arrays (m,) of ``cos`` and ``sin`` of ``phi0 + k dphi``."""
+        c0, s0 = math.cos(phi0), math.sin(phi0)
+        cb, sb = self.c[:m], self.s[:m]
+        c = cb * c0
+        c -= sb * s0
+        s = sb * c0
+        s += cb * s0
+        return c, s
 
 
 def rotate_small(c, s, d):
     """cos and sin of ``phase + d`` from ``c = cos(phase)``, ``s = sin(phase)`` and a small
     ``d`` (|d| <= :data:`MAX_DEVIATION`, rad); arrays of one shape."""
     d2 = d * d
-    cd = 1.0 - d2 * (0.5 - d2 / 24.0)
-    sd = d * (1.0 - d2 / 6.0)
-    return c * cd - s * sd, s * cd + c * sd
+    cd = d2 * (d2 / 24.0 - 0.5)
+    cd += 1.0
+    sd = d2 * (-1.0 / 6.0)
+    sd += 1.0
+    sd *= d
+    cn = c * cd
+    cn -= s * sd
+    sn = s * cd
+    sn += c * sd
+    return cn, sn
 
 
-def cos_sin(phase):
-    """cos and sin of a phase sequence that is nearly linear in the index (rad, shape (n,)).
+def cos_sin_linear(phi0, dphi, n):
+    """cos and sin of ``phi0 + k * dphi`` for ``k = 0 .. n-1`` (rad), shape (n,) each."""
+    return PhaseTable(dphi, n).cos_sin(phi0, n)
 
-    The phase is split into its straight line through the first and last samples and a
-    deviation; when the deviation stays within :data:`MAX_DEVIATION` the fast path is used,
-    otherwise ``np.cos``/``np.sin``.
+
+def cos_sin(phase, table=None):
+    """cos and sin of a phase sequence that is nearly linear in its index (rad, shape (n,)).
+
+    The phase is split into the line ``phase[0] + k * dphi`` and a deviation; ``dphi`` is
+    ``table.dphi`` when a :class:`PhaseTable` of at least ``n`` entries is given, else the
+    slope through the first and last samples. Deviations within :data:`MAX_DEVIATION` use
+    the fast path, larger ones ``np.cos``/``np.sin``.
     """
     phase = np.asarray(phase, dtype=float)
     n = phase.shape[0]
     if n < 3:
         return np.cos(phase), np.sin(phase)
-    slope = (phase[-1] - phase[0]) / (n - 1)
-    lin = phase[0] + slope * np.arange(n)
-    d = phase - lin
+    if table is None or table.c.shape[0] < n:
+        table = PhaseTable((phase[-1] - phase[0]) / (n - 1), n)
+    d = phase - phase[0]
+    d -= table.dphi * np.arange(n, dtype=float)
     if not np.abs(d).max() <= MAX_DEVIATION:
         return np.cos(phase), np.sin(phase)
-    c, s = cos_sin_linear(phase[0], slope, n)
+    c, s = table.cos_sin(float(phase[0]), n)
     return rotate_small(c, s, d)
+
+
+def apply3(M, X, out=None):
+    """``M @ X`` for a 3x3 ``M`` and ``X`` of shape (3, k), row by row into ``out`` (3, k).
+
+    Plain ufuncs instead of BLAS: no worker threads on a shared machine, and the rows stay
+    in cache when ``k`` is a chunk."""
+    if out is None:
+        out = np.empty_like(X)
+    for i in range(3):
+        np.multiply(X[0], M[i, 0], out=out[i])
+        out[i] += M[i, 1] * X[1]
+        out[i] += M[i, 2] * X[2]
+    return out

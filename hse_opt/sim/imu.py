@@ -13,8 +13,9 @@ Physics (``PHYSICS.md``; frames n NED, b0 turntable base, b table top, s IMU, g 
   ``w^b0 = C_n^b0 w_ie^n``; ``f^b = rot_z(-alpha) f^b0``, ``f^b0 = C_n^b0 (0, 0, -g)``.
   Over each sample interval ``(t_{k-1}, t_k]`` the increments are integrated in closed form:
   ``int cos(alpha) dt = (sin alpha_k - sin alpha_{k-1}) / alpha_dot`` (exact for a constant
-  rate; with the 1e-4 ripple, alpha deviates from linear inside a 2 ms interval by
-  ``alpha_ddot dt^2 / 8`` < 1e-10 rad, a relative error below 1e-10 of the Earth-rate term),
+  rate; with a 1e-4 ripple, alpha deviates from linear inside a 2 ms interval by
+  ``alpha_ddot dt^2 / 8`` ~ 1e-10 rad, a periodic relative error of 1e-10 of the horizontal
+  rate and specific force),
   ``int alpha_dot dt = alpha_k - alpha_{k-1}`` exactly.
 * IMU mount: ``C_b^s(t) = C_b^s(r_zb^s true) rot_z(-xi_w(t))`` with the thermal rotation
   ``xi_w`` (warm-up and temperature) about z_b; its rate adds ``d xi_w`` to the z increment.
@@ -36,7 +37,7 @@ import math
 import numpy as np
 
 from hse_opt.frames import (dcm_to_zyx, earth_rate_n, rot_x, rot_y, rot_z, rotvec_to_dcm)
-from hse_opt.sim._fastmath import MAX_DEVIATION, cos_sin_linear, rotate_small
+from hse_opt.sim._fastmath import MAX_DEVIATION, PhaseTable, apply3, rotate_small
 from hse_opt.sim.rawlog import RawLog
 from hse_opt.sim.truth import gyro_matrices, temperature, validate_run
 
@@ -98,23 +99,23 @@ def _ripple(table, rate, sin_phase):
     return (w * table.ripple / _ripple_nu(table, rate)) * (sin_phase - math.sin(table.ripple_phase))
 
 
-def _angle_cos_sin(table, rate, alpha0, i0, m, dt):
-    """alpha, cos(alpha), sin(alpha) at the boundaries ``tau_k = k dt``, ``k = i0 .. i0 + m``."""
+def _angle_cos_sin(table, rate, alpha0, i0, m, dt, tabs):
+    """alpha, cos(alpha), sin(alpha) at the boundaries ``tau_k = k dt``, ``k = i0 .. i0 + m``;
+    ``tabs`` = (PhaseTable of W dt, PhaseTable of the ripple's nu dt or None)."""
     w = rate * (1.0 + table.rate_error)
-    k0 = float(i0)
     lin = alpha0 + w * dt * np.arange(i0, i0 + m + 1, dtype=float)
+    c, s = tabs[0].cos_sin(alpha0 + w * dt * i0, m + 1)
     if not table.ripple:
-        c, s = cos_sin_linear(alpha0 + w * dt * k0, w * dt, m + 1)
         return lin, c, s
-    nu = _ripple_nu(table, rate)
-    if 2 * abs(table.ripple / table.ripple_order) > MAX_DEVIATION:
+    if tabs[1] is None:                  # ripple too large for the series: plain numpy
         a = table_angle(table, rate, alpha0, dt * np.arange(i0, i0 + m + 1, dtype=float))
         return a, np.cos(a), np.sin(a)
-    _, rs = cos_sin_linear(nu * dt * k0 + table.ripple_phase, nu * dt, m + 1)
+    nu = _ripple_nu(table, rate)
+    _, rs = tabs[1].cos_sin(nu * dt * i0 + table.ripple_phase, m + 1)
     d = _ripple(table, rate, rs)
-    c, s = cos_sin_linear(alpha0 + w * dt * k0, w * dt, m + 1)
     c, s = rotate_small(c, s, d)
-    return lin + d, c, s
+    lin += d
+    return lin, c, s
 
 
 #: samples per generation chunk: the chunks keep the working arrays in cache; the random
@@ -123,27 +124,54 @@ def _angle_cos_sin(table, rate, alpha0, i0, m, dt):
 CHUNK = 16384
 
 
-class _Counter:
-    """A pulse counter: quantizes increments, carrying the fractional remainder.
+class _Sensor:
+    """One sensor triad of the generator: outputs ``M @ v_b`` plus per-row terms, white noise
+    and a pulse counter per row.
 
-    ``phase`` (m,) is the initial fractional count in [0, 1) (the counter's unknown phase at
-    the start of the record)."""
+    Work is done in counts when the quantum ``q`` is set: everything is pre-scaled by 1/q,
+    the running sum is floored and differenced (remainder carried from chunk to chunk), and
+    the pulses are scaled back by q.
+    """
 
-    def __init__(self, quantum, phase):
-        self.q = quantum
-        self.rem = np.asarray(phase, dtype=float).copy()
+    def __init__(self, M, v0, bias_dt, sigma, q, phase):
+        self.k = 1.0 / q if q else 1.0
+        self.q = q
+        M = np.asarray(M, dtype=float)
+        # row i of M @ (x, y, z) with x = Ci v0x + Si v0y, y = Ci v0y - Si v0x
+        self.a = (M[:, 0] * v0[0] + M[:, 1] * v0[1]) * self.k
+        self.b = (M[:, 0] * v0[1] - M[:, 1] * v0[0]) * self.k
+        self.c = M[:, 2] * self.k
+        self.bias = np.asarray(bias_dt, dtype=float) * self.k
+        self.sigma = sigma * self.k
+        self.rem = None if not q else np.asarray(phase, dtype=float).copy()
 
-    def __call__(self, incr):
-        """Quantize increments (m, k) in place: floor of the running sum, differenced."""
-        c = np.cumsum(incr, axis=1, out=incr)
-        c /= self.q
-        c += self.rem[:, None]
-        last = c[:, -1].copy()
-        np.floor(c, out=c)
-        self.rem = last - c[:, -1]
-        c[:, 1:] -= c[:, :-1].copy()
-        c *= self.q
-        return c
+    def rows(self, Ci, Si, z, out):
+        """Unscaled-by-q signal rows into ``out`` (3, m), in counts when quantized."""
+        for i in range(3):
+            r = out[i]
+            np.multiply(Ci, self.a[i], out=r)
+            r += self.b[i] * Si
+            r += self.c[i] * z
+            r += self.bias[i]
+        return out
+
+    def finish(self, out, rng, dest):
+        """Noise, quantization; SI increments into ``dest`` (3, m)."""
+        if self.sigma:
+            noise = rng.standard_normal(out.shape, dtype=np.float32)
+            noise *= np.float32(self.sigma)
+            out += noise
+        if self.rem is None:
+            dest[...] = out
+            return
+        out[:, 0] += self.rem
+        np.cumsum(out, axis=1, out=out)
+        last = out[:, -1].copy()
+        np.floor(out, out=out)
+        self.rem = last - out[:, -1]
+        np.subtract(out[:, 1:], out[:, :-1], out=dest[:, 1:])
+        dest[:, 0] = out[:, 0]
+        dest *= self.q
 
 
 def generate(truth, run, rng=None):
@@ -155,14 +183,19 @@ def generate(truth, run, rng=None):
     run : RunSpec
     rng : numpy.random.Generator or None
         Source of every random draw (noise, counter phases, start angle when
-        ``run.alpha0`` is None). May be None only for a noise-free system with a given
-        ``run.alpha0``; then the pulse-counter phases are 1/2.
+        ``run.alpha0`` is None). May be None only for a noise-free system (no noise, no
+        quantization) with a given ``run.alpha0``.
 
     Returns
     -------
     RawLog
         ``n = round(duration / sample_period)`` samples; timestamps are time since power-on.
         (Arrays are built component-major, so ``log.gyro`` is an F-ordered (n, 3) view.)
+
+    Notes
+    -----
+    Generated in chunks of :data:`CHUNK` samples; the random stream is drawn chunk by chunk
+    (gyro noise, then accelerometer noise).
     """
     validate_run(truth, run)
     need_rng = (not truth.is_noise_free) or run.alpha0 is None
@@ -182,55 +215,72 @@ def generate(truth, run, rng=None):
     G = np.linalg.inv(mats["K_g"]) @ mats["C_b_s"]      # b -> gyro outputs: K_g^-1 C_b^s
     A = mats["A_acc"] @ mats["C_b_s"]                    # b -> accelerometer outputs
     sf = np.asarray(g.sf_error)[:, None]
-    nl = np.asarray(g.sf_nonlinearity)[:, None] / dt
+    nl = np.asarray(g.sf_nonlinearity)[:, None]
     scale = bool(np.any(sf) or np.any(nl))
-    gbias = ((np.asarray(g.bias) + g.axis_bias * G[:, 2]) * dt)[:, None]
-    abias = (np.asarray(a.bias) * dt)[:, None]
-    bw = np.asarray(g.bias_warmup)[:, None]
-    tc = np.asarray(g.bias_tempco)[:, None]
+    bw = np.asarray(g.bias_warmup)
+    tc = np.asarray(g.bias_tempco)
     thermal_xi = bool(mount.warmup_xi_z or mount.xi_z_tempco)
-    need_temp = bool(mount.xi_z_tempco or np.any(tc))
-    g_sigma = g.arw * math.sqrt(dt)
-    a_sigma = a.vrw * math.sqrt(dt)
-    gcount = acount = None
-    if g.pulse:
-        gcount = _Counter(g.pulse, rng.uniform(0.0, 1.0, 3) if rng is not None else np.full(3, 0.5))
-    if a.pulse:
-        acount = _Counter(a.pulse, rng.uniform(0.0, 1.0, 3) if rng is not None else np.full(3, 0.5))
+    need_temp = bool(mount.xi_z_tempco or tc.any())
+    gq = 0.0 if scale else g.pulse      # with a scale-factor error, quantize after scaling
+    gyro_s = _Sensor(G, w0, (np.asarray(g.bias) + g.axis_bias * G[:, 2]) * dt,
+                     g.arw * math.sqrt(dt), gq,
+                     rng.uniform(0.0, 1.0, 3) if (gq and rng is not None) else np.full(3, 0.5))
+    gcount = None
+    if scale and g.pulse:
+        gcount = _Sensor(np.eye(3), np.zeros(3), np.zeros(3), 0.0, g.pulse,
+                         rng.uniform(0.0, 1.0, 3) if rng is not None else np.full(3, 0.5))
+    acc_s = _Sensor(A, f0, np.asarray(a.bias) * dt, a.vrw * math.sqrt(dt), a.pulse,
+                    rng.uniform(0.0, 1.0, 3) if (a.pulse and rng is not None) else np.full(3, 0.5))
 
     gyro = np.empty((3, n))
     accel = np.empty((3, n))
     encoder = np.empty(n)
     t_out = np.empty(n)
+    # exp(-t_on / tau) on the chunk grid = exp(-t_on[0] / tau) * exp(-k dt / tau): one table
+    # per time constant, scaled per chunk (exact to a few 1e-16)
+    taus = {}
+    if thermal_xi:
+        taus["xi"] = mount.warmup_tau
+    if bw.any():
+        taus["bias"] = g.bias_warmup_tau
+    if need_temp:
+        taus["temp"] = thermal.tau
+    ktab = dt * np.arange(min(n, CHUNK) + 1, dtype=float)
+    tables = {name: np.exp(-ktab / tau) for name, tau in taus.items()}
+    w_true = run.rate * (1.0 + truth.table.rate_error)
+    ripple_ok = 2 * abs(truth.table.ripple / truth.table.ripple_order) <= MAX_DEVIATION
+    ptabs = (PhaseTable(w_true * dt, min(n, CHUNK) + 1),
+             PhaseTable(_ripple_nu(truth.table, run.rate) * dt, min(n, CHUNK) + 1)
+             if truth.table.ripple and ripple_ok else None)
+    buf = np.empty((3, min(n, CHUNK)))
     for i0 in range(0, n, CHUNK):
         i1 = min(n, i0 + CHUNK)
         m = i1 - i0
-        tau = dt * np.arange(i0, i1 + 1, dtype=float)   # boundaries since the run start
-        t_on = tau + run.t_start
+        t_first = run.t_start + dt * i0
+        t_on = t_first + ktab[:m + 1]                 # boundaries, time since power-on
         t_out[i0:i1] = t_on[1:]
-        alpha, ca, sa = _angle_cos_sin(truth.table, run.rate, alpha0, i0, m, dt)
+        expo = {name: tab[:m + 1] * math.exp(-t_first / taus[name]) for name, tab in tables.items()}
+        alpha, ca, sa = _angle_cos_sin(truth.table, run.rate, alpha0, i0, m, dt, ptabs)
         dalpha = np.diff(alpha)
+        r = dt / dalpha
         Ci = np.diff(sa)
-        Ci *= dt
-        Ci /= dalpha                                  # int cos(alpha) dt over each interval
+        Ci *= r                                       # int cos(alpha) dt over each interval
         Si = np.diff(ca)
-        Si *= -dt
-        Si /= dalpha                                  # int sin(alpha) dt
-        # increments in b, component-major (3, m): rot_z(-alpha) w^b0 + alpha_dot e_z
-        dth_b = np.empty((3, m))
-        dv_b = np.empty((3, m))
-        for out, v, z in ((dth_b, w0, dalpha + w0[2] * dt), (dv_b, f0, f0[2] * dt)):
-            np.multiply(Ci, v[0], out=out[0])
-            out[0] += v[1] * Si
-            np.multiply(Ci, v[1], out=out[1])
-            out[1] -= v[0] * Si
-            out[2] = z
-        temp = temperature(thermal, t_on) if need_temp else None
+        Si *= r
+        np.negative(Si, out=Si)                       # int sin(alpha) dt
+        zg = dalpha
+        zg += w0[2] * dt                              # z increment: table turn + Earth rate
+        temp = None
+        if need_temp:
+            temp = thermal.ambient_c + thermal.rise_c * (1.0 - expo["temp"])
+            if thermal.swing_c:
+                temp += thermal.swing_c * np.sin(2 * np.pi * t_on / thermal.swing_period
+                                                 + thermal.swing_phase)
         if thermal_xi:
-            # thermal rotation xi_w of the IMU about z_b: C_b^s(t) = C_b^s rot_z(-xi_w); it
-            # is checked below 1e-3 rad, where cos = 1 - xi^2/2 and sin = xi are exact to
-            # < 1e-13 relative
-            xi = mount.warmup_xi_z * np.exp(-t_on / mount.warmup_tau)
+            # thermal rotation xi_w of the IMU about z_b: C_b^s(t) = C_b^s rot_z(-xi_w), i.e.
+            # the horizontal increments see alpha + xi_w; xi_w is checked below 1e-3 rad,
+            # where cos = 1 - xi^2/2 and sin = xi are exact to < 1e-13 relative
+            xi = mount.warmup_xi_z * expo["xi"]
             if mount.xi_z_tempco:
                 xi += mount.xi_z_tempco * (temp - thermal.reference_c)
             if np.abs(xi).max() > 1e-3:
@@ -238,45 +288,38 @@ def generate(truth, run, rng=None):
                                  "allowed |warmup_xi_z + tempco * dT| <= 206 arcsec")
             s = 0.5 * (xi[1:] + xi[:-1])
             c = 1.0 - 0.5 * s * s
-            for arr in (dth_b, dv_b):
-                x = arr[0].copy()
-                arr[0] *= c
-                arr[0] += s * arr[1]
-                arr[1] *= c
-                arr[1] -= s * x
-            dth_b[2] += np.diff(xi)
+            Ci, Si = c * Ci - s * Si, c * Si + s * Ci
+            zg += np.diff(xi)                         # the mount's own rotation rate
 
-        dth = np.matmul(G, dth_b, out=gyro[:, i0:i1])
-        if scale:
-            dth *= 1.0 + sf + nl * np.abs(dth)
-        dth += gbias
+        out = buf[:, :m]
+        gyro_s.rows(Ci, Si, zg, out)
         if bw.any():
-            e = np.diff(np.exp(-t_on / g.bias_warmup_tau))
-            e *= -g.bias_warmup_tau
-            dth += bw * e
+            e = np.diff(expo["bias"])
+            e *= -g.bias_warmup_tau * gyro_s.k
+            for i in range(3):
+                out[i] += bw[i] * e
         if tc.any():   # thermal terms vary over minutes: midpoint rule, error < 1e-12 relative
             tmid = 0.5 * (temp[1:] + temp[:-1])
             tmid -= thermal.reference_c
-            tmid *= dt
-            dth += tc * tmid
-        if g_sigma:
-            noise = rng.standard_normal((3, m), dtype=np.float32)
-            noise *= g_sigma
-            dth += noise
-        if gcount is not None:
-            gcount(dth)
+            tmid *= dt * gyro_s.k
+            for i in range(3):
+                out[i] += tc[i] * tmid
+        if scale:
+            out *= 1.0 + sf + nl * (np.abs(out) / dt)
+        if gcount is None:
+            gyro_s.finish(out, rng, gyro[:, i0:i1])
+        else:
+            gyro_s.finish(out, rng, out)                  # noise, SI
+            out *= gcount.k                               # to counts, then quantize
+            gcount.finish(out, rng, gyro[:, i0:i1])
 
-        dv = np.matmul(A, dv_b, out=accel[:, i0:i1])
-        dv += abias
-        if a_sigma:
-            noise = rng.standard_normal((3, m), dtype=np.float32)
-            noise *= a_sigma
-            dv += noise
-        if acount is not None:
-            acount(dv)
+        out = buf[:, :m]
+        acc_s.rows(Ci, Si, np.full(m, f0[2] * dt), out)
+        acc_s.finish(out, rng, accel[:, i0:i1])
 
         if enc.sync_delay:
-            am = table_angle(truth.table, run.rate, alpha0, tau[1:] - enc.sync_delay)
+            am = table_angle(truth.table, run.rate, alpha0,
+                             dt * np.arange(i0 + 1, i1 + 1, dtype=float) - enc.sync_delay)
         else:
             am = alpha[1:]
         if enc.harmonics:

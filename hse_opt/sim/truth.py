@@ -5,8 +5,8 @@ key name (``latitude_deg``, ``arw_dph_rthz``, ...). A key that is not in the sch
 section, is an error naming it and suggesting the closest valid key; it is never ignored.
 
 Sections and keys (``TRUTH.toml``; defaults are the paper-like system of
-:meth:`TruthConfig.default`; run them through ``hse-opt simulate --write-truth`` or
-:meth:`TruthConfig.to_toml` to get a commented starting file)
+:meth:`TruthConfig.default`, written out in ``hse_opt/datasets/truth_default.toml``; a file
+may give any subset of keys, the rest keep their default values)
 
 ``[site]``
     ``latitude_deg``, ``gravity_mps2`` (local gravity).
@@ -80,12 +80,14 @@ Chosen to resemble the paper's prototype and Table 1 (``paper_table1.csv``):
 * Noise. The within-position (repeat) scatter of Table 1, pooled over positions 2-4 (the
   cold-start position 1 is left out: it also holds the warm-up drift), is 7.90 arcsec
   (6 degrees of freedom; 9.52 arcsec with position 1). For a gyrocompass the 10-minute
-  heading scatter is ``sigma = N / (w_ie cos L sqrt(T))``, N the angle random walk; with
-  the other noise sources (accelerometer white noise 10 ug/sqrt(Hz), 1e-4 m/s velocity
-  pulses, 0.5 arcsec RLG pulses) and the processor's Kalman filter the default
-  ``arw_dph_rthz = 0.0121`` (2.0e-4 deg/sqrt(h)) makes the filter's own 1-sigma and the
-  Monte-Carlo scatter of a 10-minute 40 deg/s alignment 7.9 arcsec (checked in
-  ``tests/test_sim_noise.py``). That is a very quiet gyro: the paper's scatter is small.
+  heading scatter is ``sigma = N / (w_ie cos L sqrt(T))``, N the angle random walk, which
+  gives N = 0.0124 deg/h/sqrt(Hz) for 7.90 arcsec. The accelerometer noise adds to it
+  (it limits how well the filter sees the tilt drift: 10 ug/sqrt(Hz) would add 50 %), so
+  the default accelerometer is quiet, 1 ug/sqrt(Hz), with 1e-4 m/s velocity pulses and
+  0.5 arcsec RLG pulses; with those the processor's Kalman filter gives a 1-sigma of 7.90
+  arcsec for ``arw_dph_rthz = 0.0120`` (2.0e-4 deg/sqrt(h)), and a 200-seed Monte-Carlo
+  scatter of 7.5 arcsec at 40 deg/s (``tests/test_sim_noise.py``). That is a very quiet
+  gyro: the paper's repeat scatter is small.
 * Realistic residuals that do not reach heading at first order: gyro biases of a few
   1e-3 deg/h, non-orthogonal true K_g (tens of arcsec; it cancels), r_zb^s 1e-3 away from
   ideal and calibrated to about 2 arcsec, xi = (3, -2, 0) arcsec, accelerometer biases of

@@ -1,0 +1,90 @@
+"""Simulator benchmark (issue 3, item 7): prints its figures.
+
+One 10-minute run at 500 Hz (the paper-like default system, 40 deg/s): time to generate the
+raw data, time to align it, peak memory; then runs per second of a 1,000-run campaign with
+``--jobs`` local processes.
+
+    python benchmarks/simulator.py            # full: 1,000-run campaign with --jobs 2
+    python benchmarks/simulator.py --runs 100 --jobs 2
+
+Anchors measured on this class of machine (issue 3): pyins 1.0.1 takes 5.4 s to generate a
+10-minute 500 Hz turntable record and 12 s more for a 1 Hz EKF; gnss-ins-sim 15 s to
+generate one. Targets: generate + align <= 100 ms (stretch 50 ms), peak memory <= 150 MB.
+"""
+import argparse
+import resource
+import statistics
+import time
+import tracemalloc
+
+import numpy as np
+
+from hse_opt.sim import AlignConfig, RunSpec, TruthConfig, align, generate, run_campaign
+from hse_opt.units import DEG_PER_S
+
+
+def _rss_mb():
+    return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0
+
+
+def one_run(repeats):
+    truth = TruthConfig.default()
+    run = RunSpec(rate=40 * DEG_PER_S, azimuth=0.3, duration=600.0, t_start=7200.0)
+    cfg = AlignConfig.from_truth(truth)
+    rng = np.random.default_rng(0)
+    rss_before = _rss_mb()
+    log = generate(truth, run, rng)                       # warm-up (imports, caches)
+    align(log, cfg)
+    del log
+    tg, ta = [], []
+    for _ in range(repeats):
+        t0 = time.perf_counter()
+        log = generate(truth, run, rng)
+        t1 = time.perf_counter()
+        align(log, cfg)
+        t2 = time.perf_counter()
+        tg.append(t1 - t0)
+        ta.append(t2 - t1)
+        del log
+    tracemalloc.start()
+    log = generate(truth, run, rng)
+    align(log, cfg)
+    _, peak = tracemalloc.get_traced_memory()
+    tracemalloc.stop()
+    n = len(log)
+    print(f"one 10-minute 500 Hz run ({n} samples, {repeats} repeats; median [min]):")
+    print(f"  generate raw data : {1e3 * statistics.median(tg):6.1f} ms  [{1e3 * min(tg):.1f}]")
+    print(f"  align             : {1e3 * statistics.median(ta):6.1f} ms  [{1e3 * min(ta):.1f}]")
+    tot = [a + b for a, b in zip(tg, ta)]
+    print(f"  generate + align  : {1e3 * statistics.median(tot):6.1f} ms  [{1e3 * min(tot):.1f}]"
+          "   (target <= 100 ms, stretch 50 ms)")
+    print(f"  peak memory       : {peak / 2**20:6.1f} MB allocated by generate + align (tracemalloc); "
+          f"process max RSS {_rss_mb():.0f} MB incl. numpy/scipy/casadi imports "
+          f"({rss_before:.0f} MB before the first run)   (target <= 150 MB)")
+
+
+def campaign(runs, jobs):
+    truth = TruthConfig.default()
+    plan = [{"run": i, "rate_dps": 40.0 * (1 if i % 2 else -1), "azimuth_deg": 90.0 * (i % 4),
+             "t_start_s": 3600.0 + 650.0 * i, "duration_s": 600.0} for i in range(runs)]
+    t0 = time.perf_counter()
+    rows = run_campaign(plan, truth, seed=1, jobs=jobs)
+    el = time.perf_counter() - t0
+    assert len(rows) == runs
+    print(f"campaign: {runs} ten-minute runs with --jobs {jobs}: {el:.1f} s, "
+          f"{runs / el:.1f} runs/s ({1e3 * el / runs:.0f} ms per run)")
+
+
+def main(argv=None):
+    p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    p.add_argument("--repeats", type=int, default=10)
+    p.add_argument("--runs", type=int, default=1000)
+    p.add_argument("--jobs", type=int, default=2)
+    a = p.parse_args(argv)
+    one_run(a.repeats)
+    if a.runs:
+        campaign(a.runs, a.jobs)
+
+
+if __name__ == "__main__":
+    main()
