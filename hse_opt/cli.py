@@ -1,28 +1,15 @@
 """The ``hse-opt`` command line.
 
-Exit status: 0 success, 2 bad input or data that cannot answer the question (one line on
-stderr naming what is wrong and what is allowed), 1 anything else.
+Each command lives in :mod:`hse_opt.commands` (one module each). Exit status: 0 success,
+2 bad input or data that cannot answer the question (one line on stderr naming what is wrong
+and what is allowed), 1 anything else.
 """
 import argparse
-import dataclasses
-import json
+import importlib
 import sys
 
-EXAMPLES = {
-    "demo": "example: hse-opt demo --json",
-}
-
-
-def _demo(args):
-    from .model.paper import reproduce, summary
-
-    numbers = reproduce()
-    if args.json:
-        print(json.dumps(dataclasses.asdict(numbers), indent=2))
-    else:
-        print("hse-opt demo: the paper's model evaluated with the symbolic CasADi model")
-        print("\n".join(summary(numbers)))
-    return 0
+#: command modules, in the order ``--help`` lists them
+COMMANDS = ("demo",)
 
 
 def build_parser():
@@ -31,13 +18,12 @@ def build_parser():
         description="Calibration and compensation of the heading-sensitive error of a "
                     "constant-rate biased RLG system.")
     sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
-    demo = sub.add_parser("demo", help="the main job on an embedded default",
-                          description="Reproduce the paper's model numbers with the symbolic model.",
-                          epilog=EXAMPLES["demo"])
-    demo.add_argument("--out", metavar="DIR", help="directory for the report (later issues)")
-    demo.add_argument("--seed", type=int, default=0, help="random seed (default 0)")
-    demo.add_argument("--json", action="store_true", help="print one JSON object on stdout")
-    demo.set_defaults(run=_demo)
+    for name in COMMANDS:
+        mod = importlib.import_module(f"hse_opt.commands.{name}")
+        p = sub.add_parser(mod.NAME, help=mod.HELP, description=getattr(mod, "DESCRIPTION", mod.HELP),
+                           epilog=mod.EXAMPLE, formatter_class=argparse.RawDescriptionHelpFormatter)
+        mod.add_arguments(p)
+        p.set_defaults(run=mod.run)
     return parser
 
 

@@ -1,0 +1,19 @@
+"""One module per ``hse-opt`` command. Each defines ``NAME``, ``HELP``, ``EXAMPLE``,
+``add_arguments(parser)`` and ``run(args) -> int``; :mod:`hse_opt.cli` registers them.
+
+Commands print (the library never does); with ``--json`` stdout carries one JSON object and
+nothing else, messages go to stderr.
+"""
+import json
+import sys
+
+
+def print_json(obj):
+    """Write one JSON object on stdout."""
+    json.dump(obj, sys.stdout, indent=2, allow_nan=False)
+    sys.stdout.write("\n")
+
+
+def message(text):
+    """A message for the user, on stderr."""
+    print(text, file=sys.stderr)
