@@ -235,3 +235,54 @@ def separating_runs(jacobian, X, direction, scale, k=3):
     best = np.argsort(-signal)[:k]
     return [{"rate_dps": float(Xc[0, i] / units.DEG_PER_S), "azimuth_deg": float(np.rad2deg(Xc[1, i])),
              "signal": float(signal[i])} for i in best]
+
+
+def prior_fisher(prior, names):
+    """Prior information (display units) on ``names`` from an earlier calibration.
+
+    ``prior`` is a :class:`~hse_opt.fit.FitResult`, or a mapping in the fit's JSON form
+    (``parameters``: name -> ``std`` (and ``free``), optional ``correlation`` in the same
+    order; without it the estimates are taken as uncorrelated). The covariance of the
+    parameters both share is inverted (the prior's other parameters are marginalised out);
+    parameters the prior does not have get no prior information.
+
+    Returns
+    -------
+    numpy.ndarray, shape (len(names), len(names))
+    """
+    names = tuple(names)
+    if hasattr(prior, "covariance") and hasattr(prior, "names"):
+        p_names = tuple(prior.names)
+        cov = np.asarray(prior.covariance, dtype=float)
+        free = np.asarray(getattr(prior, "free", np.ones(len(p_names), bool)), dtype=bool)
+    elif isinstance(prior, dict) and isinstance(prior.get("parameters"), dict):
+        params = prior["parameters"]
+        p_names = tuple(params)
+        try:
+            std = np.array([float(params[n]["std"]) for n in p_names])
+        except (KeyError, TypeError, ValueError):
+            raise ValueError("prior: every entry of 'parameters' needs a numeric 'std' (display units)") from None
+        corr = np.asarray(prior.get("correlation", np.eye(len(p_names))), dtype=float)
+        if corr.shape != (len(p_names), len(p_names)):
+            raise ValueError(f"prior: 'correlation' has shape {corr.shape}; allowed: ({len(p_names)}, "
+                             f"{len(p_names)}) in the order of 'parameters'")
+        cov = corr * np.outer(std, std)
+        free = np.array([bool(params[n].get("free", True)) and std[i] > 0 for i, n in enumerate(p_names)])
+    else:
+        raise ValueError(f"prior: a FitResult or the fit's JSON mapping is required, got {type(prior).__name__}")
+    if not np.all(np.isfinite(cov)):
+        raise ValueError("prior: the covariance is not finite")
+    shared = [n for n, f in zip(p_names, free) if f and n in names]
+    F = np.zeros((len(names), len(names)))
+    if not shared:
+        return F
+    i = [p_names.index(n) for n in shared]
+    sub = cov[np.ix_(i, i)]
+    try:
+        info = np.linalg.inv(np.linalg.cholesky(sub))
+    except np.linalg.LinAlgError:
+        raise ValueError(f"prior: the covariance of {', '.join(shared)} is not positive definite") from None
+    info = info.T @ info
+    j = [names.index(n) for n in shared]
+    F[np.ix_(j, j)] = info
+    return F
