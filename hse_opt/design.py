@@ -42,8 +42,9 @@ fixture is then not allowed.
 
 Nonlinear parameters (e.g. ``warmup_tau``) enter the information at their nominal values
 (``nominal``) or, robustly, the criterion is averaged over a prior sample of them
-(``prior_sample``). Time-dependent effects see every candidate at the middle of the test
-time; the final plan is evaluated at its real start times.
+(``prior_sample``). Time since power-on is a factor when ``DesignSpace.time_slots`` > 1
+(needed for ``warmup``): each candidate is seen at the middle of its slot; else at the middle
+of the test. The final plan is always evaluated at its real start times.
 
 :func:`monte_carlo` checks a plan's predicted sigmas with the numeric simulator: it
 simulates the plan many times (:func:`hse_opt.sim.run_campaign`, in parallel), fits every
@@ -66,12 +67,13 @@ from . import units
 from .data import Plan
 from .fit import as_model
 from .information import (DEFAULT_ARW, UnidentifiableError, analyse, describe_runs, heading_sigma,
-                          prior_fisher, separating_runs, weighted_jacobian)
+                          separating_runs, weighted_jacobian)
 from .model.measurement import BatchEvaluator, Model
 
 __all__ = ["A", "ApproximateDesign", "C", "Candidates", "Costs", "Criterion", "D", "DesignError",
            "DesignResult", "DesignSpace", "Discrimination", "E", "Evaluation", "MonteCarloResult",
-           "Stand", "apportion", "as_criterion", "design", "evaluate", "monte_carlo", "paper_plan"]
+           "Stand", "apportion", "approximate_design", "as_criterion", "design", "evaluate", "monte_carlo",
+           "paper_plan"]
 
 log = logging.getLogger(__name__)
 
@@ -185,7 +187,7 @@ class _Cvx:
             self.constraints.append(F[0, 0] >= t)
         else:
             self.constraints.append(cp.bmat([[F[:-1, :-1], F[:-1, -1:]],
-                                             [F[-1:, :-1], F[-1:, -1:] - cp.reshape(t, (1, 1))]]) >> 0)
+                                             [F[-1:, :-1], F[-1:, -1:] - cp.reshape(t, (1, 1), order="C")]]) >> 0)
         return t * S.d[-1] ** 2
 
 
@@ -377,9 +379,8 @@ class Discrimination(Criterion):
         p = ca.SX.sym("p", len(ma.names))
         x = ca.SX.sym("x", ma.n_x)
         q0 = mb.nominal
-        row = ca.horzcat(mb.J(q0, x) * ca.DM(mb.scale).T,
-                         (ma.h(p, x) - mb.h(q0, x)) / units.ARCSEC)
-        names = mb.names + ("(lack of fit, arcsec)",)
+        row = ca.horzcat(mb.J(q0, x) * ca.DM(mb.scale).T, ma.h(p, x) - mb.h(q0, x))
+        names = mb.names + ("(lack of fit)",)
         return names, ca.Function("discrimination_rows", [p, x], [row]), self.truth
 
     def interest(self, names):
@@ -460,11 +461,18 @@ class Costs:
         out[1:] = self.azimuth_change * d_az + self.tilt_change * d_tilt + self.rate_change * d_rate
         return out
 
-    def schedule(self, rate, azimuth, tilt_x, tilt_y, duration):
-        """Start times since power-on (s, shape (n,)) of runs done in this order."""
+    def schedule(self, rate, azimuth, tilt_x, tilt_y, duration, not_before=None):
+        """Start times since power-on (s, shape (n,)) of runs done in this order, each
+        waiting, where given, until ``not_before`` (s)."""
         setup = self.setups(rate, azimuth, tilt_x, tilt_y)
         busy = np.concatenate([[0.0], np.asarray(duration, float)[:-1] + self.run_overhead])
-        return np.cumsum(setup + busy)
+        if not_before is None:
+            return np.cumsum(setup + busy)
+        t = np.empty(setup.size)
+        prev = 0.0
+        for i in range(setup.size):
+            prev = t[i] = max(prev + busy[i] + setup[i], not_before[i])
+        return t
 
 
 @dataclass(frozen=True)
@@ -517,13 +525,17 @@ class Stand:
 @dataclass(frozen=True)
 class Candidates:
     """Candidate run settings (SI arrays of one length): ``rate`` (signed, rad/s),
-    ``azimuth`` (rad), ``tilt_x``, ``tilt_y`` (fixture tilt, rad), ``duration`` (s)."""
+    ``azimuth`` (rad), ``tilt_x``, ``tilt_y`` (fixture tilt, rad), ``duration`` (s) and the
+    nominal ``t_start`` (s since power-on: the middle of the run's time slot) and
+    ``not_before`` (s: the start of the slot, before which the run waits)."""
 
     rate: np.ndarray
     azimuth: np.ndarray
     tilt_x: np.ndarray
     tilt_y: np.ndarray
     duration: np.ndarray
+    t_start: np.ndarray
+    not_before: np.ndarray
 
     def __len__(self):
         return int(self.rate.size)
@@ -534,9 +546,18 @@ class Candidates:
     def replace(self, **kw):
         return Candidates(**{f: np.asarray(kw.get(f, getattr(self, f)), float) for f in self._fields()})
 
+    def inputs(self, mm, stand):
+        """Measurement-model inputs (n_x, n) on ``stand``."""
+        return stand.inputs(mm, self.rate, self.azimuth, self.tilt_x, self.tilt_y, self.duration, self.t_start)
+
+    @property
+    def slot(self):
+        """Time-slot label of each candidate (int, in time order)."""
+        return np.unique(np.round(self.t_start, 6), return_inverse=True)[1].ravel()
+
     @staticmethod
     def _fields():
-        return ("rate", "azimuth", "tilt_x", "tilt_y", "duration")
+        return ("rate", "azimuth", "tilt_x", "tilt_y", "duration", "t_start", "not_before")
 
 
 @dataclass(frozen=True)
@@ -563,6 +584,11 @@ class DesignSpace:
     n_tilt_directions : int
     durations : tuple of float
         Allowed alignment durations, s (default 600 s, the paper's 10 minutes).
+    time_slots : int
+        Time since power-on as a factor: the test time is cut into this many slots, the
+        approximate design spends at most its share of the budget in each, and the runs follow
+        slot by slot. Needed for effects that depend on time (``warmup``); with 1 every
+        candidate is seen at the middle of the test.
     """
 
     rates: tuple = (20.0 * units.DEG_PER_S, 60.0 * units.DEG_PER_S)
@@ -574,6 +600,7 @@ class DesignSpace:
     max_tilt: float = 0.0
     n_tilt_directions: int = 8
     durations: tuple = (600.0,)
+    time_slots: int = 1
 
     def __post_init__(self):
         lo, hi = (float(v) for v in self.rates)
@@ -605,6 +632,8 @@ class DesignSpace:
         if not d or not all(np.isfinite(d)) or min(d) <= 0:
             raise ValueError(f"durations = {self.durations!r}; allowed: positive seconds")
         object.__setattr__(self, "durations", d)
+        if isinstance(self.time_slots, bool) or int(self.time_slots) != self.time_slots or self.time_slots < 1:
+            raise ValueError(f"time_slots = {self.time_slots!r}; allowed: an integer >= 1")
 
     @property
     def azimuth_grid(self):
@@ -621,8 +650,10 @@ class DesignSpace:
             return 0.0
         return float(np.max(np.diff(np.concatenate([g, [g[0] + 2 * np.pi]]))))
 
-    def candidates(self):
-        """Every combination of the factors (:class:`Candidates`)."""
+    def candidates(self, warmup=0.0, test_time=0.0):
+        """Every combination of the factors (:class:`Candidates`); a run of slot k of the
+        ``test_time`` after the ``warmup`` (s) is seen at the slot's middle and does not start
+        before the slot does."""
         lo, hi = self.rates
         mags = np.linspace(lo, hi, self.n_rates)
         rates = np.concatenate([mags, -mags]) if self.reverse else self.sense * mags
@@ -630,10 +661,14 @@ class DesignSpace:
         if self.max_tilt > 0:
             ang = np.arange(self.n_tilt_directions) * 2 * np.pi / self.n_tilt_directions
             tilts += [(self.max_tilt * np.cos(a), self.max_tilt * np.sin(a)) for a in ang]
-        grid = list(itertools.product(rates, self.azimuth_grid, range(len(tilts)), self.durations))
-        g = np.array(grid, dtype=float)
-        t = np.array(tilts)[g[:, 2].astype(int)]
-        return Candidates(g[:, 0], g[:, 1], t[:, 0], t[:, 1], g[:, 3])
+        slots = range(int(self.time_slots))
+        g = np.array(list(itertools.product(slots, rates, self.azimuth_grid, range(len(tilts)), self.durations)),
+                     dtype=float)
+        t = np.array(tilts)[g[:, 3].astype(int)]
+        start = warmup + g[:, 0] * test_time / self.time_slots
+        centre = start + 0.5 * test_time / self.time_slots
+        return Candidates(g[:, 1], g[:, 2], t[:, 0], t[:, 1], g[:, 4], np.maximum(start, centre - g[:, 4] / 2),
+                          start)
 
 
 # ======================================================================= features
@@ -650,7 +685,7 @@ class _Rows:
         self.ps = [np.asarray(p, float) for p in ps]
         self.k = len(self.names)
         self.prior = np.zeros((self.k, self.k)) if prior is None else np.asarray(prior, float)
-        self._batch = BatchEvaluator(fn)
+        self._batch = None if fn is None else BatchEvaluator(fn)
 
     def numeric(self, X, sigma):
         """Weighted rows, shape (S, n, k)."""
@@ -762,17 +797,21 @@ def _approximate(crit, rows, spec, guards, cand, cost, budget, max_runs, solver=
     t0 = time.perf_counter()
     n = cost.size
     active = _initial_active(rows, [g.rows for g in guards], cost)
+    slot = np.zeros(n, int) if cand is None else cand.slot
     for it in range(1, 100):
         w_a, mus, status, used = _convex(crit, rows[:, active], spec, [g.take(active) for g in guards],
-                                         cost[active], budget, max_runs, solver)
+                                         cost[active], budget, max_runs, solver, slot[active])
         w = np.zeros(n)
         w[active] = w_a
         loss = _mean_loss(crit, rows, spec, w)
         h = _lagrangian_gradient(crit, rows, spec, guards, mus, w)
-        cert = _certificate(crit, spec.k, loss, h, w, mus, guards, cost, budget, max_runs)
+        cert = _certificate(crit, spec.k, loss, h, w, mus, guards, cost, budget, max_runs, slot)
+        if status != cp.OPTIMAL and not cert >= 0.999:
+            raise DesignError(f"the approximate design's convex program ended {status} ({used}) with a "
+                              f"certified efficiency of only {cert:.4g}")
         if active.size == n or cert >= 1 - 1e-7:
             break
-        value = h * np.minimum(budget / cost, np.inf if max_runs is None else max_runs)
+        value = h * np.minimum(budget / cost / (slot.max() + 1), np.inf if max_runs is None else max_runs)
         order = np.argsort(-value)
         new = order[(value[order] > h @ w * (1 + 1e-9)) & ~np.isin(order, active)][:batch]
         if new.size == 0:
@@ -793,23 +832,29 @@ def _initial_active(rows, guard_rows, cost, size=256):
     return np.unique(np.concatenate(picks))
 
 
-def _convex(crit, rows, spec, guards, cost, budget, max_runs, solver):
+def _convex(crit, rows, spec, guards, cost, budget, max_runs, solver, slot):
     """One convex program (cvxpy): returns run numbers, guard duals, status, solver."""
     n = cost.size
     scale = budget / cost  # runs per unit budget fraction
     u = cp.Variable(n, nonneg=True)  # fraction of the alignment-time budget per candidate
-    cons = [cp.sum(u) <= 1]
+    n_slots = int(slot.max()) + 1 if n else 1
+    if n_slots == 1:
+        cons = [cp.sum(u) <= 1]
+    else:  # each time slot its share of the budget
+        S = np.zeros((n_slots, n))
+        S[slot, np.arange(n)] = 1.0
+        cons = [S @ u <= 1.0 / n_slots]
     if max_runs is not None:
         cons.append(scale @ u <= max_runs)
 
     def info(r, sp):
-        # column scales: the information of spending the whole budget evenly
-        d = np.sqrt(np.mean(r ** 2 * scale[None, :, None], axis=(0, 1)) + np.diag(sp.prior) / n)
-        blind = [nm for nm, v in zip(sp.names, d) if not v > 0]
-        if blind:
-            raise UnidentifiableError(f"no candidate run carries information on {', '.join(blind)}", blind)
         out = []
         for s in range(r.shape[0]):
+            # column scales: the information of spending the whole budget evenly
+            d = np.sqrt(np.mean(r[s] ** 2 * scale[:, None], axis=0) + np.diag(sp.prior) / n)
+            blind = [nm for nm, v in zip(sp.names, d) if not v > 0]
+            if blind:
+                raise UnidentifiableError(f"no candidate run carries information on {', '.join(blind)}", blind)
             rs = r[s] / d[None, :]
             Q = np.einsum("ni,nj->ijn", rs, rs).reshape(sp.k * sp.k, n) * scale[None, :]
             F = cp.reshape(Q @ u, (sp.k, sp.k), order="C") + sp.prior / np.outer(d, d)
@@ -827,11 +872,16 @@ def _convex(crit, rows, spec, guards, cost, budget, max_runs, solver):
 
 
 def _solve(problem, solver):
-    tried = []
+    """Solve with the first solver that reaches ``optimal``; else the first
+    ``optimal_inaccurate`` (its certificate decides, in :func:`_approximate`); else raise
+    with every status."""
+    tried, inaccurate = [], None
     for name in ((solver,) if solver else _SOLVERS):
         try:
             if name == "SCS":
                 problem.solve(solver=name, eps_abs=1e-8, eps_rel=1e-8, max_iters=100000)
+            elif name == "CLARABEL":  # the chordal split of the small dense cones costs accuracy
+                problem.solve(solver=name, chordal_decomposition_enable=False)
             else:
                 problem.solve(solver=name)
         except cp.error.SolverError as err:
@@ -840,6 +890,16 @@ def _solve(problem, solver):
         if problem.status == cp.OPTIMAL:
             return problem.status, name
         tried.append(f"{name}: status {problem.status}")
+        if problem.status == cp.OPTIMAL_INACCURATE and inaccurate is None:
+            inaccurate = (problem.status, name, [v.value for v in problem.variables()],
+                          [c.dual_value for c in problem.constraints])
+    if inaccurate is not None:  # put the first inaccurate solution back
+        for v, val in zip(problem.variables(), inaccurate[2]):
+            v.value = val
+        for c, val in zip(problem.constraints, inaccurate[3]):
+            if val is not None:
+                c.dual_variables[0].value = val
+        return inaccurate[0], inaccurate[1]
     raise DesignError("the approximate design's convex program was not solved: " + "; ".join(tried))
 
 
@@ -864,15 +924,21 @@ def _lagrangian_gradient(crit, rows, spec, guards, mus, w):
     return h
 
 
-def _certificate(crit, k, loss, h, w, mus, guards, cost, budget, max_runs):
+def _certificate(crit, k, loss, h, w, mus, guards, cost, budget, max_runs, slot=None):
     """Efficiency lower bound of ``w`` from weak duality: the optimum is at most the
     Lagrangian's maximum over the feasible set, itself at most its value at ``w`` plus the
     Frank-Wolfe gap (a concave function lies below its tangent)."""
+    slot = np.zeros(cost.size, int) if slot is None else slot
+    n_slots = int(slot.max()) + 1
     if max_runs is None:
-        best = max(0.0, float(np.max(h * budget / cost)))
+        per_slot = np.full(n_slots, -np.inf)
+        np.maximum.at(per_slot, slot, h / cost)
+        best = float(np.sum(np.maximum(per_slot, 0.0)) * budget / n_slots)
     else:
         from scipy.optimize import linprog
-        res = linprog(-h, A_ub=np.vstack([cost, np.ones_like(cost)]), b_ub=[budget, max_runs],
+        S = np.zeros((n_slots, cost.size))
+        S[slot, np.arange(cost.size)] = cost
+        res = linprog(-h, A_ub=np.vstack([S, np.ones_like(cost)]), b_ub=[budget / n_slots] * n_slots + [max_runs],
                       bounds=(0, None), method="highs")
         if res.status != 0:
             raise DesignError(f"equivalence-theorem bound: linprog status {res.status} ({res.message})")
@@ -889,7 +955,7 @@ def _certificate(crit, k, loss, h, w, mus, guards, cost, budget, max_runs):
 def _amortised(cand, w, costs, cost):
     """Per-run cost with each setup (tilt, azimuth, rate) spread over the runs that share it
     in the design ``w`` (at least one): the setup-aware passes of :func:`design`."""
-    tilt = np.round(np.column_stack([cand.tilt_x, cand.tilt_y]) / 1e-12)
+    tilt = np.round(np.column_stack([cand.t_start, cand.tilt_x, cand.tilt_y]) / 1e-9)
     az = np.round(np.mod(cand.azimuth, 2 * np.pi) / 1e-12)[:, None]
     rate = np.round(cand.rate / 1e-12)[:, None]
     out = cost.copy()
@@ -898,6 +964,51 @@ def _amortised(cand, w, costs, cost):
         lab = np.unique(key, axis=0, return_inverse=True)[1].ravel()
         out += c / np.maximum(np.bincount(lab, w)[lab], 1.0)
     return out
+
+
+def approximate_design(features, criterion="D", *, cost=None, budget=1.0, max_runs=None, names=None,
+                       prior=None, solver=None):
+    """The optimal approximate design for any linear(ised) model: the convex program of
+    :func:`design` on given information rows.
+
+    Parameters
+    ----------
+    features : array_like, shape (n, k) or (S, n, k)
+        Row ``a_i`` of each candidate (``a_i a_i^T`` is one run's information), or one set
+        per prior draw (the criterion is averaged over them).
+    criterion : Criterion or str
+    cost : array_like, shape (n,), optional
+        Cost of one run of each candidate (default 1).
+    budget : float
+        ``sum_i w_i cost_i <= budget``.
+    max_runs : float, optional
+        ``sum_i w_i <= max_runs``.
+    names : sequence of str, optional
+        Column names (default ``p0, p1, ...``), for ``c:NAME``.
+    prior : numpy.ndarray, shape (k, k), optional
+        Information added to every design.
+    solver : str, optional
+
+    Returns
+    -------
+    ApproximateDesign
+        ``runs`` is the optimal number of runs of each candidate (``candidates`` is None).
+    """
+    rows = np.asarray(features, dtype=float)
+    if rows.ndim == 2:
+        rows = rows[None]
+    if rows.ndim != 3 or rows.shape[1] < 1 or rows.shape[2] < 1 or not np.all(np.isfinite(rows)):
+        raise ValueError(f"features has shape {np.shape(features)}; allowed: (n, k) or (S, n, k) finite numbers")
+    n, k = rows.shape[1:]
+    cost = np.ones(n) if cost is None else np.asarray(cost, dtype=float)
+    if cost.shape != (n,) or np.any(~np.isfinite(cost)) or np.any(cost <= 0):
+        raise ValueError(f"cost: allowed ({n},) positive numbers")
+    names = tuple(names) if names is not None else tuple(f"p{i}" for i in range(k))
+    if len(names) != k:
+        raise ValueError(f"names: {len(names)} given for {k} feature columns")
+    crit = as_criterion(criterion)
+    spec = _Rows(names, None, [], prior)
+    return _approximate(crit, rows, spec, [], None, cost, _positive("budget", budget), max_runs, solver)
 
 
 # ======================================================================= rounding
@@ -949,10 +1060,49 @@ class _Exact:
     xi: np.ndarray  # the approximate proportions rounded (same order)
 
 
+def _caratheodory(w, rows, guards, cost, slot):
+    """A design with the same information matrices (every sample, every guard), alignment
+    time, number of runs and time per slot as ``w`` on as few candidates as that allows
+    (Caratheodory: move along a null direction of those linear maps until a weight is 0).
+    Interior-point solvers return the most spread-out optimum when it is not unique; fewer
+    support points round to whole runs with less loss and fewer setups."""
+    sup = np.flatnonzero(w > _SUPPORT_TOL * w.max())
+    w = w.copy()
+    w[np.setdiff1d(np.arange(w.size), sup)] = 0.0
+    iu = [np.triu_indices(r.shape[2]) for r in [rows, *[g.rows for g in guards]]]
+    n_slots = int(slot.max()) + 1
+
+    def maps(idx):
+        cols = [r[:, idx][:, :, i] * r[:, idx][:, :, j] for r, (i, j) in zip([rows, *[g.rows for g in guards]], iu)]
+        parts = [c.transpose(1, 0, 2).reshape(idx.size, -1) for c in cols]
+        parts += [cost[idx, None], np.ones((idx.size, 1)), (slot[idx, None] == np.arange(n_slots)[None, :])]
+        A = np.hstack(parts).T
+        return A / np.maximum(np.abs(A).max(axis=1, keepdims=True), 1e-300)
+
+    while sup.size > 1:
+        A = maps(sup)
+        _, s, vt = np.linalg.svd(A, full_matrices=True)
+        rank = int(np.sum(s > 1e-10 * s.max()))
+        if rank >= sup.size:
+            break
+        v = vt[rank]
+        if not np.any(v < 0):
+            v = -v
+        neg = v < 0
+        t = np.min(w[sup][neg] / -v[neg])
+        w[sup] = np.maximum(w[sup] + t * v, 0.0)
+        w[sup[np.argmin(np.where(neg, w[sup] / -np.where(neg, v, -1), np.inf))]] = 0.0
+        sup = sup[w[sup] > _SUPPORT_TOL * w.max()]
+    out = np.zeros_like(w)
+    out[sup] = w[sup]
+    return out
+
+
 def _round(crit, rows, spec, guards, approx_w, cand, cost, costs, budget, max_runs):
     """The largest n whose efficiently rounded plan fits the budget with its setups, then
     polished by one-run exchanges."""
-    sup = np.flatnonzero(approx_w > _SUPPORT_TOL * approx_w.max())
+    approx_w = _caratheodory(approx_w, rows, guards, cost, cand.slot)
+    sup = np.flatnonzero(approx_w > 0)
     xi = approx_w[sup] / approx_w[sup].sum()
     settings, srows, sguards = cand.take(sup), rows[:, sup], [g.take(sup) for g in guards]
     n_max = int(np.floor((budget - costs.warmup) / cost[sup].min() + 1e-9))
@@ -1015,15 +1165,16 @@ def _polish(crit, rows, spec, guards, counts, settings, costs, budget, max_runs,
 # ======================================================================= ordering
 def _orders(settings, counts, costs, rng=None, n_random=0):
     """Run sequences (arrays of setting indices): each setting's runs together, settings
-    grouped by their costliest factor (tilt, azimuth, rate, duration in the order of the
-    change costs), serpentine (the next group starts where the last ended), plain or folded
+    in time-slot order, then grouped by their costliest factor (tilt, azimuth, rate, duration
+    in the order of the change costs), serpentine (the next group starts where the last ended), plain or folded
     (ABBA: first halves of the groups, then the second halves in reverse); ``n_random``
     more with random group orders and folds."""
-    keys = {"tilt": np.column_stack([settings.tilt_x, settings.tilt_y]) / 1e-12,
+    keys = {"slot": settings.t_start[:, None] / 1e-6,
+            "tilt": np.column_stack([settings.tilt_x, settings.tilt_y]) / 1e-12,
             "azimuth": np.mod(settings.azimuth, 2 * np.pi)[:, None] / 1e-12,
             "rate": settings.rate[:, None] / 1e-12, "duration": settings.duration[:, None] / 1e-9}
-    cost = {"tilt": costs.tilt_change, "azimuth": costs.azimuth_change, "rate": costs.rate_change,
-            "duration": 0.0}
+    cost = {"slot": np.inf, "tilt": costs.tilt_change, "azimuth": costs.azimuth_change,
+            "rate": costs.rate_change, "duration": 0.0}
     labels = [np.unique(np.round(keys[f]), axis=0, return_inverse=True)[1].ravel()
               for f in sorted(keys, key=lambda f: -cost[f])]
     key = {int(i): tuple(int(lab[i]) for lab in labels) for i in np.flatnonzero(counts > 0)}
@@ -1036,35 +1187,37 @@ def _orders(settings, counts, costs, rng=None, n_random=0):
 
     root = tree(list(key), 0)
 
-    def expand(t, reverse, r, fold_p):
+    def expand(t, reverse, r, fold_p, top=False):
         if not isinstance(t, list):
             return [t] * int(counts[t])
-        kids = [t[i] for i in r.permutation(len(t))] if r is not None else list(t)
+        kids = [t[i] for i in r.permutation(len(t))] if r is not None and not top else list(t)
         if reverse:
             kids = kids[::-1]
         seqs = [expand(c, j % 2 == 1, r, fold_p) for j, c in enumerate(kids)]
-        fold = len(seqs) > 1 and (r.random() < fold_p if r is not None else fold_p > 0)
+        fold = not top and len(seqs) > 1 and (r.random() < fold_p if r is not None else fold_p > 0)
         if not fold:
             return [i for s in seqs for i in s]
         half = [(len(s) + 1) // 2 for s in seqs]
         return ([i for s, h in zip(seqs, half) for i in s[:h]]
                 + [i for s, h in zip(reversed(seqs), reversed(half)) for i in s[h:]])
 
-    out = [expand(root, False, None, 0.0), expand(root, False, None, 1.0)]
-    out += [expand(root, False, rng, rng.choice([0.0, 0.25, 0.5])) for _ in range(n_random)]
+    out = [expand(root, False, None, 0.0, True), expand(root, False, None, 1.0, True)]
+    out += [expand(root, False, rng, rng.choice([0.0, 0.25, 0.5]), True) for _ in range(n_random)]
     return [np.array(s) for s in dict.fromkeys(tuple(s) for s in out)]
 
 
 def _total_time(settings, seq, costs):
     s = settings.take(seq)
-    t = costs.schedule(s.rate, s.azimuth, s.tilt_x, s.tilt_y, s.duration)
+    t = costs.schedule(s.rate, s.azimuth, s.tilt_x, s.tilt_y, s.duration, s.not_before)
     return float(t[-1] + s.duration[-1])
 
 
 def _min_time(settings, counts, costs, cache=None):
-    """Least total time (s) of a plan with these counts: its setups (the least over the
-    deterministic orders; they depend only on which settings are used, so ``cache`` keeps
-    them by that pattern) plus its alignments."""
+    """Least total time (s) of a plan with these counts over the deterministic orders. In one
+    time slot that is its setups (which depend only on which settings are used, so ``cache``
+    keeps them by that pattern) plus its alignments; with slots, waits count too."""
+    if np.ptp(settings.not_before) > 0:
+        return min(_total_time(settings, seq, costs) for seq in _orders(settings, counts, costs))
     used = counts > 0
     key = used.tobytes()
     if cache is None or key not in cache:
@@ -1085,7 +1238,7 @@ def _pick_order(exact, spec, crit, costs, budget, stand, order, rng):
     best = None
     for seq in _orders(exact.settings, exact.counts, costs, rng, n_random=300):
         s = exact.settings.take(seq)
-        t = costs.schedule(s.rate, s.azimuth, s.tilt_x, s.tilt_y, s.duration)
+        t = costs.schedule(s.rate, s.azimuth, s.tilt_x, s.tilt_y, s.duration, s.not_before)
         total = float(t[-1] + s.duration[-1])
         if total > budget + 1e-6:
             continue
@@ -1171,14 +1324,28 @@ class Evaluation:
 
 
 def _prior(prior, names):
+    """Prior information (k, k, display units) on ``names``: from a Fisher matrix in that
+    order, an object with ``fisher(names)`` (``hse_opt.information.Prior``), or a FitResult
+    (its free parameters' covariance, marginalised to the shared names)."""
     if prior is None:
         return None
+    names = tuple(names)
     if isinstance(prior, np.ndarray):
         if prior.shape != (len(names), len(names)):
             raise ValueError(f"prior information has shape {prior.shape}; allowed: ({len(names)}, {len(names)}) "
                              f"in the order {', '.join(names)}")
         return np.asarray(prior, float)
-    return prior_fisher(prior, names)
+    if hasattr(prior, "fisher"):
+        F = prior.fisher(names)
+        return np.asarray(F[0] if isinstance(F, tuple) else F, float)
+    if not all(hasattr(prior, a) for a in ("names", "covariance", "free", "std")):
+        raise ValueError(f"prior: a FitResult, a Prior or a Fisher matrix is required, got {type(prior).__name__}")
+    keep = [i for i, n in enumerate(prior.names) if prior.free[i] and prior.std[i] > 0 and n in names]
+    F = np.zeros((len(names), len(names)))
+    if keep:
+        j = [names.index(prior.names[i]) for i in keep]
+        F[np.ix_(j, j)] = np.linalg.inv(np.asarray(prior.covariance)[np.ix_(keep, keep)])
+    return F
 
 
 def evaluate(plan, model=None, *, stand=None, tilt_known=True, criterion=None, nominal=None, prior=None):
@@ -1418,15 +1585,14 @@ def design(model=None, criterion="c:lambda2", *, budget, space=None, stand=None,
     if unknown:
         raise ValueError(f"nominal/prior_sample: {unknown} are not parameters of the model(s); allowed: "
                          f"{', '.join(sorted(known))}")
-    cand = space.candidates()
-    cost = cand.duration + costs.run_overhead
     B = budget - costs.warmup
+    cand = space.candidates(costs.warmup, B)
+    cost = cand.duration + costs.run_overhead
     if B < cost.min():
         raise ValueError(f"budget {budget / units.HOUR:.4g} h leaves no time for one alignment after the "
                          f"warm-up of {costs.warmup:g} s; allowed: budget > warm-up + one run")
     mm = model.measurement(tilt_known)
-    t_nom = costs.warmup + 0.5 * B
-    X = stand.inputs(mm, cand.rate, cand.azimuth, cand.tilt_x, cand.tilt_y, cand.duration, t_nom)
+    X = cand.inputs(mm, stand)
     sigma = stand.sigma(cand.duration)
     spec = _criterion_rows(crit, model, tilt_known, samples, _prior(prior, mm.names))
     if isinstance(crit, C):
@@ -1469,12 +1635,9 @@ def design(model=None, criterion="c:lambda2", *, budget, space=None, stand=None,
     status = "off"
     if refine:
         try:
-            status = _refine(crit, spec, exact, stand, mm, space, t_nom)
+            status = _refine(crit, spec, exact, stand, mm, space)
         except _NotSmooth as err:
             status = f"none: criterion {crit.label} is not smooth ({err})"
-        X_s = stand.inputs(mm, exact.settings.rate, exact.settings.azimuth, exact.settings.tilt_x,
-                           exact.settings.tilt_y, exact.settings.duration, t_nom)
-        exact.rows = spec.numeric(X_s, stand.sigma(exact.settings.duration))
     efficiency = crit.efficiency(exact.loss, loss_same, spec.k)
     budget_eff = crit.efficiency(exact.loss, approx.loss, spec.k)
 
@@ -1482,14 +1645,14 @@ def design(model=None, criterion="c:lambda2", *, budget, space=None, stand=None,
     s = exact.settings.take(seq)
     fixture = space.max_tilt > 0
     plan = Plan(run=np.arange(1, seq.size + 1), rate=s.rate, azimuth=np.mod(s.azimuth, 2 * np.pi),
-                t_start=costs.schedule(s.rate, s.azimuth, s.tilt_x, s.tilt_y, s.duration), duration=s.duration,
+                t_start=costs.schedule(s.rate, s.azimuth, s.tilt_x, s.tilt_y, s.duration, s.not_before),
+                duration=s.duration,
                 tilt_x=s.tilt_x if fixture else None, tilt_y=s.tilt_y if fixture else None)
     evaluation = evaluate(plan, model, stand=stand, tilt_known=tilt_known, criterion=crit, nominal=nominal,
                           prior=prior)
     guard_out = []
     for g in guards:
-        g_exact = _Guard(g.model, g.spec, g.spec.numeric(stand.inputs(mm, s.rate, s.azimuth, s.tilt_x, s.tilt_y,
-                                                                      s.duration, t_nom), stand.sigma(s.duration)),
+        g_exact = _Guard(g.model, g.spec, g.spec.numeric(s.inputs(mm, stand), stand.sigma(s.duration)),
                          g.bound, g.d_opt)
         try:
             ev = evaluate(plan, g.model, stand=stand, tilt_known=tilt_known, nominal=nominal, prior=prior)
@@ -1514,7 +1677,7 @@ def _guard_models(identify, model, crit):
     return [as_model(i) for i in items]
 
 
-def _refine(crit, spec, exact, stand, mm, space, t_nom):
+def _refine(crit, spec, exact, stand, mm, space):
     """IPOPT over the distinct azimuths and signed rates of the exact design's settings
     (counts fixed; guards kept at or above their bounds). Updates ``exact`` in place when
     the loss falls; returns IPOPT's status."""
@@ -1528,7 +1691,7 @@ def _refine(crit, spec, exact, stand, mm, space, t_nom):
     lbx = np.concatenate([az_u - half, np.where(r_u > 0, lo, -hi)])
     ubx = np.concatenate([az_u + half, np.where(r_u > 0, hi, -lo)])
     sigma = stand.sigma(st.duration)
-    X0 = stand.inputs(mm, st.rate, st.azimuth, st.tilt_x, st.tilt_y, st.duration, t_nom)
+    X0 = st.inputs(mm, stand)
     xs = [ca.vertcat(v[n_az + ir[i]], v[ia[i]], X0[2:, i]) for i in range(counts.size)]
 
     def mean_over_samples(sp, fun):
@@ -1556,18 +1719,21 @@ def _refine(crit, spec, exact, stand, mm, space, t_nom):
         args.update(lbg=np.array(floors), ubg=np.full(len(g), np.inf))
     sol = solver(**args)
     stats = solver.stats()
-    if not stats["success"]:
-        raise DesignError(f"IPOPT refinement of rates and azimuths failed: {stats['return_status']}")
-    loss = float(sol["f"]) * abs(loss0)
-    if not loss < loss0:  # a worse local point: keep the grid settings
-        return f"{stats['return_status']} (no improvement)"
+    # verify IPOPT's point independently: within the bounds, guards kept, loss lower
     vopt = np.clip(np.array(sol["x"]).ravel(), lbx, ubx)
-    exact.settings = st.replace(azimuth=vopt[:n_az][ia], rate=vopt[n_az:][ir])
-    exact.loss = loss
-    X1 = stand.inputs(mm, exact.settings.rate, exact.settings.azimuth, st.tilt_x, st.tilt_y, st.duration, t_nom)
-    exact.guards = [_Guard(gd.model, gd.spec, gd.spec.numeric(X1, sigma), gd.bound, gd.d_opt)
-                    for gd in exact.guards]
-    return stats["return_status"]
+    new = st.replace(azimuth=vopt[:n_az][ia], rate=vopt[n_az:][ir])
+    X1 = new.inputs(mm, stand)
+    rows = spec.numeric(X1, sigma)
+    loss = _mean_loss(crit, rows, spec, counts)
+    guards = [_Guard(gd.model, gd.spec, gd.spec.numeric(X1, sigma), gd.bound, gd.d_opt) for gd in exact.guards]
+    better = loss < loss0 - 1e-9 * abs(loss0) and all(gd.log_det(counts) >= f for gd, f in zip(guards, floors))
+    status = stats["return_status"]
+    if not better:
+        if not stats["success"]:
+            raise DesignError(f"IPOPT refinement of rates and azimuths failed: {status}")
+        return f"{status} (no improvement: the grid settings are kept)"
+    exact.settings, exact.rows, exact.guards, exact.loss = new, rows, guards, loss
+    return status if stats["success"] else f"{status} (its last point checked: feasible and better, kept)"
 
 
 def paper_plan(azimuth0=0.0, costs=None, azimuths_deg=(0.0, 91.8795, 181.2953, 272.8711)):
