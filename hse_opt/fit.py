@@ -66,7 +66,7 @@ from .model.symbolic import Geometry
 
 __all__ = ["FitResult", "Constraint", "Prior", "SolverError", "fit", "compensate", "compensation",
            "compensated_parameters", "save_fit", "load_fit", "as_model", "replicate_groups",
-           "pure_error", "report_data", "COMPENSATED_COLUMN", "COMPENSATION_STD_COLUMN", "HUBER_C"]
+           "pure_error", "run_sigma", "report_data", "COMPENSATED_COLUMN", "COMPENSATION_STD_COLUMN", "HUBER_C"]
 
 #: Huber's threshold in sigmas (95 % efficiency for Gaussian data)
 HUBER_C = 1.345
@@ -334,8 +334,9 @@ def pure_error(runs):
     return float(np.sqrt(np.sum((y - mean[labels]) ** 2) / dof)), dof
 
 
-def _sigma(runs, robust):
-    """``(sigma (n,) rad, weighting, notes)``; sigma is 1 where it is estimated later."""
+def run_sigma(runs, robust=False):
+    """``(sigma (n,) rad, weighting, notes)`` by the rules of the module docstring; sigma is 1
+    where it is estimated later from the residuals."""
     n = len(runs)
     if runs.heading_std is not None:
         return np.asarray(runs.heading_std, dtype=float), "heading_std", []
@@ -725,7 +726,7 @@ def fit(runs, model=None, *, fix=None, tilt_known=None, bounds=None, constraints
         raise ValueError(f"{runs.source}: {n} runs cannot fit {k - k_eq} free parameters "
                          f"({', '.join(prob.names)}); need more runs than parameters")
 
-    sigma, weighting, more = _sigma(runs, robust)
+    sigma, weighting, more = run_sigma(runs, robust)
     notes += more
     units_free = [q.unit for q, f in zip(mm.params, free) if f]
 
@@ -768,7 +769,7 @@ def fit(runs, model=None, *, fix=None, tilt_known=None, bounds=None, constraints
                                  "than half the runs fit exactly")
             sigma = np.full(n, s)
         hw_new = _huber(res / sigma, huber_c)
-        if np.max(np.abs(hw_new - hw)) < 1e-10:
+        if np.max(np.abs(hw_new - hw)) < 1e-7:  # ~1e-7/n sigma on the estimates
             hw = hw_new
             break
         hw = hw_new
