@@ -523,7 +523,7 @@ def _gauss_newton(prob, w, z, C, d, max_iter=50, mask=None):
 #: tolerances only make its line search fight the rounding of chi2 (see _CHI2_NOISE).
 _IPOPT_OPTIONS = {"ipopt.print_level": 0, "ipopt.sb": "yes", "print_time": False,
                   "ipopt.tol": 1e-6, "ipopt.acceptable_tol": 1e-4, "ipopt.acceptable_iter": 2,
-                  "ipopt.acceptable_compl_inf_tol": 1e-8, "ipopt.bound_relax_factor": 0.0,
+                  "ipopt.compl_inf_tol": 1e-9, "ipopt.acceptable_compl_inf_tol": 1e-9, "ipopt.bound_relax_factor": 0.0,
                   "ipopt.honor_original_bounds": "yes", "ipopt.max_iter": 500,
                   "ipopt.mu_strategy": "adaptive"}
 
@@ -600,19 +600,22 @@ def _ipopt(prob, w, z0):
                              f"them against each other")
         raise SolverError("IPOPT did not solve the fit", status)
     return (np.array(sol["x"]).ravel() * D, np.array(sol["lam_x"]).ravel() / D,
-            np.array(sol["lam_g"]).ravel()[prob.A_eq.shape[0]:], stats["return_status"])
+            np.array(sol["lam_g"]).ravel()[prob.A_eq.shape[0]:], stats["return_status"], D)
 
 
-def _active_set(prob, z, lam_x, lam_g):
+def _active_set(prob, z, lam_x, lam_g, D):
     """Rows ``(C, d)`` of the equalities, binding bounds and active inequalities, with the
-    binding parameter indices and active inequality indices."""
-    tol = 1e-7
-    lam_tol = 1e-8 * max(1.0, np.abs(lam_x).max(initial=0.0), np.abs(lam_g).max(initial=0.0))
-    at_lo = np.isfinite(prob.lb) & (z - prob.lb <= tol * (1 + np.abs(prob.lb))) & (lam_x < -lam_tol)
-    at_hi = np.isfinite(prob.ub) & (prob.ub - z <= tol * (1 + np.abs(prob.ub))) & (lam_x > lam_tol)
+    binding parameter indices and active inequality indices. A bound is active when the
+    solution is within 1e-5 sigma of it (``D``: sigma per parameter) and its multiplier
+    pushes against it."""
+    tol = 1e-5
+    lam_tol = 1e-8 * max(1.0, np.abs(lam_x * D).max(initial=0.0), np.abs(lam_g).max(initial=0.0))
+    at_lo = np.isfinite(prob.lb) & ((z - prob.lb) / D <= tol) & (lam_x * D < -lam_tol)
+    at_hi = np.isfinite(prob.ub) & ((prob.ub - z) / D <= tol) & (lam_x * D > lam_tol)
     g = prob.A_in @ z
-    g_lo = np.isfinite(prob.l_in) & (g - prob.l_in <= tol * (1 + np.abs(prob.l_in))) & (lam_g < -lam_tol)
-    g_hi = np.isfinite(prob.u_in) & (prob.u_in - g <= tol * (1 + np.abs(prob.u_in))) & (lam_g > lam_tol)
+    g_sigma = np.sqrt(np.sum((prob.A_in * D[None, :]) ** 2, axis=1))  # sigma of each combination
+    g_lo = np.isfinite(prob.l_in) & ((g - prob.l_in) / g_sigma <= tol) & (lam_g < -lam_tol)
+    g_hi = np.isfinite(prob.u_in) & ((prob.u_in - g) / g_sigma <= tol) & (lam_g > lam_tol)
     binding = np.flatnonzero(at_lo | at_hi)
     bound_val = np.where(at_lo, prob.lb, prob.ub)[binding]
     act = np.flatnonzero(g_lo | g_hi)
@@ -636,8 +639,8 @@ def _solve(prob, w, z, use_ipopt, notes):
         if not ok:
             raise SolverError("Gauss-Newton did not converge in 50 steps", "max_iter")
         return z, prob.A_eq, np.zeros(0, int), np.zeros(0, int), "qr", "converged"
-    z_ip, lam_x, lam_g, status = _ipopt(prob, w, z)
-    C, d, binding, bound_val, act = _active_set(prob, z_ip, lam_x, lam_g)
+    z_ip, lam_x, lam_g, status, D = _ipopt(prob, w, z)
+    C, d, binding, bound_val, act = _active_set(prob, z_ip, lam_x, lam_g, D)
     z_pol, ok = _gauss_newton(prob, w, z_ip, C, d)
     z_pol[binding] = bound_val
     if ok and _feasible(prob, z_pol) and prob.objective(z_pol, w) <= prob.objective(z_ip, w) + _CHI2_NOISE:
