@@ -56,6 +56,7 @@ from typing import Mapping
 
 import casadi as ca
 import numpy as np
+from scipy.linalg import solve_triangular
 
 from . import units
 from .information import (Prior, UnidentifiableError, analyse, blind_out, invisible, null_space,
@@ -380,8 +381,9 @@ class _Problem:
         """dh/dz (n, k), rad per display unit."""
         return self.mm.jacobian(self.p(z), self.X, self.jit)[:, self.free] * self.scale[None, :]
 
-    def objective(self, z, w):
-        r = w * self.residual(z)
+    def objective(self, z, w, r=None):
+        """chi2 (data and prior) at ``z``; ``r``: the residuals there, when known."""
+        r = w * (self.residual(z) if r is None else r)
         e = self.L @ z - self.Lmu
         return float(r @ r + e @ e)
 
@@ -476,9 +478,10 @@ _CHI2_NOISE = 1e-6
 
 
 # -- Gauss-Newton with QR on the active set ------------------------------------------------------
-def _gauss_newton(prob, w, z, C, d, max_iter=50, mask=None):
+def _gauss_newton(prob, w, z, C, d, max_iter=50, mask=None, tol=1e-6):
     """Minimise ``|w r(z)|^2 + |L z - Lmu|^2`` subject to ``C z = d`` by Gauss-Newton, each step
     by QR in the null space of ``C``. ``mask`` (k,) bool: only those parameters move.
+    Converged when a step is below ``tol`` of every parameter's sigma.
 
     Returns ``(z, converged)``.
     """
@@ -489,31 +492,31 @@ def _gauss_newton(prob, w, z, C, d, max_iter=50, mask=None):
     C = np.vstack([C.reshape(-1, k), held])
     d = np.concatenate([np.asarray(d, dtype=float).ravel(), z[~mask]])
     Z = null_space(C, k)
-    C_pinv = np.linalg.pinv(C) if C.shape[0] else np.zeros((k, 0))
-    z = z + C_pinv @ (d - C @ z) if C.shape[0] else z.copy()
-    if Z.shape[1] == 0:
+    z = z + np.linalg.pinv(C) @ (d - C @ z) if C.shape[0] else z.copy()
+    m = Z.shape[1]
+    if m == 0:
         return z, True
-    f_old = prob.objective(z, w)
+    r = prob.residual(z)
+    f_old = prob.objective(z, w, r)
     for _ in range(max_iter):
-        r = w * prob.residual(z)
-        A = w[:, None] * prob.jacobian(z)
-        M = np.vstack([A, prob.L]) @ Z
-        rhs = np.concatenate([r, prob.Lmu - prob.L @ z])
-        Q, R = np.linalg.qr(M)
-        u = np.linalg.solve(R, Q.T @ rhs)
-        step = Z @ u
+        M = np.vstack([w[:, None] * prob.jacobian(z), prob.L]) @ Z
+        rhs = np.concatenate([w * r, prob.Lmu - prob.L @ z])
+        R_aug = np.linalg.qr(np.column_stack([M, rhs]), mode="r")  # Q' rhs in the last column
+        R = R_aug[:m, :m]
+        step = Z @ solve_triangular(R, R_aug[:m, m])
         # converged when the step is a negligible fraction of each parameter's sigma
-        std = np.linalg.norm(Z @ np.linalg.inv(R), axis=1)
-        if np.all(np.abs(step) <= 1e-6 * std + 1e-14 * np.abs(z)):
+        std = np.linalg.norm(Z @ solve_triangular(R, np.eye(m)), axis=1)
+        if np.all(np.abs(step) <= tol * std + 1e-14 * np.abs(z)):
             return z + step, True
         t = 1.0
         while True:  # step halving keeps the objective from rising on a nonlinear model
             z_new = z + t * step
-            f_new = prob.objective(z_new, w)
+            r_new = prob.residual(z_new)
+            f_new = prob.objective(z_new, w, r_new)
             if f_new <= f_old + _CHI2_NOISE or t < 1e-3:
                 break
             t *= 0.5
-        z, f_old = z_new, f_new
+        z, r, f_old = z_new, r_new, f_new
     return z, False
 
 
@@ -522,9 +525,9 @@ def _gauss_newton(prob, w, z, C, d, max_iter=50, mask=None):
 #: scaled to sigma units); the Gauss-Newton polish converges from there. Tighter IPOPT
 #: tolerances only make its line search fight the rounding of chi2 (see _CHI2_NOISE).
 _IPOPT_OPTIONS = {"ipopt.print_level": 0, "ipopt.sb": "yes", "print_time": False,
-                  "ipopt.tol": 1e-6, "ipopt.acceptable_tol": 1e-4, "ipopt.acceptable_iter": 2,
-                  "ipopt.compl_inf_tol": 1e-9, "ipopt.acceptable_compl_inf_tol": 1e-9, "ipopt.bound_relax_factor": 0.0,
-                  "ipopt.honor_original_bounds": "yes", "ipopt.max_iter": 500,
+                  "ipopt.tol": 1e-6, "ipopt.acceptable_tol": 1e-4, "ipopt.acceptable_iter": 1,
+                  "ipopt.compl_inf_tol": 1e-8, "ipopt.acceptable_compl_inf_tol": 1e-7, "ipopt.bound_relax_factor": 0.0,
+                  "ipopt.honor_original_bounds": "yes", "ipopt.max_iter": 200,
                   "ipopt.mu_strategy": "adaptive"}
 
 
@@ -752,7 +755,7 @@ def fit(runs, model=None, *, fix=None, tilt_known=None, bounds=None, constraints
             advice=advice_for(lin), Z=null_space(eq_lin, int(lin.sum())))
     if prob.nonlinear.any():  # start: the linear parameters solved with the nonlinear ones held
         eq_rows = ~np.any(A_eq[:, ~lin] != 0, axis=1) if A_eq.size else np.zeros(0, bool)
-        z, _ = _gauss_newton(prob, 1 / sigma, z, A_eq[eq_rows], b_eq[eq_rows], mask=lin)
+        z, _ = _gauss_newton(prob, 1 / sigma, z, A_eq[eq_rows], b_eq[eq_rows], max_iter=3, mask=lin)
         z = np.clip(z, prob.lb, prob.ub)
     use_ipopt = bool(prob.nonlinear.any() or np.isfinite(prob.lb).any() or np.isfinite(prob.ub).any()
                      or A_in.shape[0])
