@@ -59,8 +59,8 @@ import numpy as np
 from scipy.linalg import solve_triangular
 
 from . import units
-from .information import (Prior, UnidentifiableError, analyse, blind_out, invisible, null_space,
-                          separation_advice)
+from .information import (Prior, UnidentifiableError, analyse, blind_out, heading_sigma, invisible,
+                          null_space, separation_advice)
 from .model.effects import effect as make_effect
 from .model.measurement import Model, paper_model
 from .model.symbolic import Geometry
@@ -336,19 +336,21 @@ def pure_error(runs):
 
 
 def run_sigma(runs, robust=False):
-    """``(sigma (n,) rad, weighting, notes)`` by the rules of the module docstring; sigma is 1
-    where it is estimated later from the residuals."""
+    """``(sigma (n,) rad, weighting, notes)`` by the rules of the module docstring; where sigma
+    is estimated later from the residuals, the default noise model's (:func:`heading_sigma`)."""
     n = len(runs)
     if runs.heading_std is not None:
         return np.asarray(runs.heading_std, dtype=float), "heading_std", []
+    # to be estimated from the residuals: start from the default noise model
+    guess = np.full(n, float(np.sqrt(np.mean(heading_sigma(runs.duration, runs.latitude) ** 2))))
     if robust:
-        return np.ones(n), "robust-scale", []
+        return guess, "robust-scale", []
     s_pe, dof_pe = pure_error(runs)
     if s_pe is not None and s_pe > 0:
         return np.full(n, s_pe), "pure-error", [
             f"sigma {s_pe / units.ARCSEC:.3g} arcsec from {dof_pe} replicate degrees of freedom "
             f"(pure error)"]
-    return np.ones(n), "residual", []
+    return guess, "residual", []
 
 
 # -- the problem ------------------------------------------------------------------------------
@@ -760,55 +762,44 @@ def fit(runs, model=None, *, fix=None, tilt_known=None, bounds=None, constraints
     use_ipopt = bool(prob.nonlinear.any() or np.isfinite(prob.lb).any() or np.isfinite(prob.ub).any()
                      or A_in.shape[0])
 
+    # solve; with robust weights or a sigma estimated from the residuals, re-solve until the
+    # weights settle (the sigma matters to the solution only against a prior, and to IPOPT's
+    # tolerances)
     hw = np.ones(n)
     if robust:
         notes.append(f"Huber loss, threshold {huber_c:g} sigma (iteratively reweighted)")
-    for it in range(max_iter if robust else 1):
+    again = robust or (weighting == "residual" and (r_prior > 0 or use_ipopt))
+    for _ in range(max_iter):
         z, C, binding, act, method, status = _solve(prob, np.sqrt(hw) / sigma, z, use_ipopt, notes)
-        if not robust:
-            break
         res = prob.residual(z)
-        if weighting == "robust-scale":
-            s = _mad_scale(res)
+        k_eff = null_space(C, k).shape[1]
+        dof = n + r_prior - k_eff
+        if dof <= 0:
+            raise ValueError(f"{runs.source}: no degrees of freedom left ({n} runs, {k_eff} free "
+                             "directions)")
+        new_sigma = sigma
+        if weighting in ("residual", "robust-scale"):
+            s = np.sqrt(np.sum(res ** 2) / dof) if weighting == "residual" else _mad_scale(res)
             if s <= 0:
-                raise ValueError(f"{runs.source}: the robust scale (MAD of the residuals) is 0: more "
-                                 "than half the runs fit exactly")
-            sigma = np.full(n, s)
-        hw_new = _huber(res / sigma, huber_c)
-        if np.max(np.abs(hw_new - hw)) < 1e-7:  # ~1e-7/n sigma on the estimates
-            hw = hw_new
+                raise ValueError(f"{runs.source}: the model fits the runs exactly; sigma cannot be "
+                                 "estimated from the residuals (give heading_std_arcsec)")
+            new_sigma = np.full(n, s)
+        new_hw = _huber(res / new_sigma, huber_c) if robust else hw
+        settled = (np.max(np.abs(new_hw - hw)) < 1e-7  # ~1e-7/n sigma on the estimates
+                   and np.max(np.abs(new_sigma / sigma - 1)) < 1e-6)
+        sigma, hw = new_sigma, new_hw
+        if settled or not again:
             break
-        hw = hw_new
     else:
-        raise SolverError(f"Huber reweighting did not settle in {max_iter} iterations", "max_iter")
+        raise SolverError(f"the weights did not settle in {max_iter} re-solves", "max_iter")
     if robust:
         method += "+huber"
-        if weighting == "robust-scale":
-            notes.append(f"sigma {sigma[0] / units.ARCSEC:.3g} arcsec from the residuals' median "
-                         "absolute deviation")
-
-    res = prob.residual(z)
-    Z = null_space(C, k)
-    k_eff = Z.shape[1]
-    dof = n + r_prior - k_eff
-    if dof <= 0:
-        raise ValueError(f"{runs.source}: no degrees of freedom left ({n} runs, {k_eff} free "
-                         "directions)")
     if weighting == "residual":
-        # one sigma from the residuals; with a prior the data/prior balance depends on it
-        for _ in range(50):
-            s = float(np.sqrt(np.sum(res ** 2) / max(n - k_eff + r_prior, 1))) if r_prior else \
-                float(np.sqrt(np.sum(res ** 2) / dof))
-            if s <= 0:
-                raise ValueError(f"{runs.source}: the model fits every run exactly; sigma cannot be "
-                                 "estimated from the residuals (give heading_std_arcsec)")
-            converged = abs(s / sigma[0] - 1) < 1e-12
-            sigma = np.full(n, s)
-            if not r_prior or converged:
-                break
-            z, C, binding, act, method, status = _solve(prob, 1 / sigma, z, use_ipopt, notes)
-            res = prob.residual(z)
-        notes.append(f"sigma {s / units.ARCSEC:.3g} arcsec estimated from the residuals")
+        notes.append(f"sigma {sigma[0] / units.ARCSEC:.3g} arcsec estimated from the residuals")
+    elif weighting == "robust-scale":
+        notes.append(f"sigma {sigma[0] / units.ARCSEC:.3g} arcsec from the residuals' median absolute "
+                     "deviation")
+    Z = null_space(C, k)
 
     A = prob.jacobian(z) / sigma[:, None]
     F_data = A.T @ A

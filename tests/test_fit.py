@@ -419,3 +419,19 @@ def test_closed_form_c23_used_by_the_procedure(rng):
     runs = _single_position(rng, tilt_jitter=2e-5)
     cal = paper_procedure(runs)
     assert cal.c23 == pytest.approx(np.mean(closed_form.c23(runs.azimuth, runs.pitch, runs.roll)), rel=1e-12)
+
+
+def test_sigma_from_residuals_through_ipopt(rng):
+    # no heading_std and no replicates: one sigma from the residuals; the estimate is the
+    # weighted fit's and the covariance scales by (s / sigma)^2
+    d = design(n_sessions=4, per=12, rates_dps=(40,), sigma_arcsec=3.0)
+    d["azimuth"] = d["azimuth"] + 1e-3 * np.arange(d["run"].size)  # no two runs alike
+    runs = twin(NONLINEAR, d, TRUTH_NONLINEAR, rng)
+    known = fit(runs, NONLINEAR)
+    est = fit(runs.replace(heading_std=None), NONLINEAR)
+    assert est.weighting == "residual" and est.method == "ipopt"
+    assert np.all(np.abs(est.values - known.values) < 1e-4 * known.std)
+    s = np.sqrt(np.sum(known.residuals ** 2) / known.dof)
+    assert est.sigma[0] == pytest.approx(s, rel=1e-6)
+    np.testing.assert_allclose(est.std, known.std * s / (3.0 * units.ARCSEC), rtol=1e-4)
+    assert est.chi2_red == pytest.approx(1.0, rel=1e-9)
