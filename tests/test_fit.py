@@ -435,3 +435,20 @@ def test_sigma_from_residuals_through_ipopt(rng):
     assert est.sigma[0] == pytest.approx(s, rel=1e-6)
     np.testing.assert_allclose(est.std, known.std * s / (3.0 * units.ARCSEC), rtol=1e-4)
     assert est.chi2_red == pytest.approx(1.0, rel=1e-9)
+
+
+def test_report_data_is_consistent(rng):
+    from hse_opt.fit import report_data
+    runs = twin(LINEAR, design(), TRUTH_LINEAR, rng)
+    f = fit(runs, LINEAR, bounds={"delay": (None, 30.0)})
+    d = report_data(f, runs)
+    r = d["runs"]
+    np.testing.assert_allclose(np.add(r["predicted_arcsec"], r["residual_arcsec"]), r["heading_err_arcsec"],
+                               atol=1e-9)
+    mm = LINEAR.measurement(True)  # the prediction is the model at the estimate
+    np.testing.assert_allclose(r["predicted_arcsec"], mm.predict(f.p, mm.inputs_from_runs(runs)) / units.ARCSEC,
+                               atol=1e-9)
+    assert [p["state"] for p in d["parameters"]] == ["free", "free", "free", "at bound"]
+    json.dumps(d, allow_nan=False)
+    with pytest.raises(ValueError, match="not the ones the fit used"):
+        report_data(f, subset(runs, range(10)))
