@@ -757,7 +757,7 @@ def fit(runs, model=None, *, fix=None, tilt_known=None, bounds=None, constraints
             advice=advice_for(lin), Z=null_space(eq_lin, int(lin.sum())))
     if prob.nonlinear.any():  # start: the linear parameters solved with the nonlinear ones held
         eq_rows = ~np.any(A_eq[:, ~lin] != 0, axis=1) if A_eq.size else np.zeros(0, bool)
-        z, _ = _gauss_newton(prob, 1 / sigma, z, A_eq[eq_rows], b_eq[eq_rows], max_iter=3, mask=lin)
+        z, _ = _gauss_newton(prob, 1 / sigma, z, A_eq[eq_rows], b_eq[eq_rows], max_iter=1, mask=lin)
         z = np.clip(z, prob.lb, prob.ub)
     use_ipopt = bool(prob.nonlinear.any() or np.isfinite(prob.lb).any() or np.isfinite(prob.ub).any()
                      or A_in.shape[0])

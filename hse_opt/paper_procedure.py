@@ -153,10 +153,10 @@ def paper_procedure(runs, c23=None):
     intercept = np.sum(W * mean) / W.sum() - slope * om_bar
     res = y - intercept - slope * rate
     dof = n - 2
-    if weighting == "residual":
+    if weighting == "residual":  # the weights were a guess: rescale them to the residuals'
         s = float(np.sqrt(np.sum(res ** 2) / dof))
+        sxx = sxx * (sigma_run[0] / s) ** 2
         sigma_run = np.full(n, s)
-        sxx = sxx / s ** 2  # the weights were 1
     slope_std = float(1.0 / np.sqrt(sxx))
     k = -slope  # the paper's sign
     L = float(lat[0])

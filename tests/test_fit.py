@@ -415,10 +415,15 @@ def test_solver_failure_raises_with_status(rng, monkeypatch):
         fitmod._nlp_solver.cache_clear()
 
 
-def test_closed_form_c23_used_by_the_procedure(rng):
-    runs = _single_position(rng, tilt_jitter=2e-5)
+def test_paper_procedure_without_replicates_matches_numpy_polyfit(rng):
+    runs = _single_position(rng, tilt_jitter=2e-5)  # leveling differs run to run: no replicates
     cal = paper_procedure(runs)
+    assert cal.weighting == "residual"
     assert cal.c23 == pytest.approx(np.mean(closed_form.c23(runs.azimuth, runs.pitch, runs.roll)), rel=1e-12)
+    (slope, icpt), cov = np.polyfit(runs.rate, runs.heading_err, 1, cov=True)
+    assert cal.k_hse == pytest.approx(-slope, rel=1e-10)
+    assert cal.intercept == pytest.approx(icpt, rel=1e-10)
+    assert cal.k_hse_std == pytest.approx(np.sqrt(cov[0, 0]), rel=1e-10)
 
 
 def test_sigma_from_residuals_through_ipopt(rng):
