@@ -65,7 +65,7 @@ from .model.effects import effect as make_effect
 from .model.measurement import Model, paper_model
 from .model.symbolic import Geometry
 
-__all__ = ["FitResult", "Constraint", "Prior", "SolverError", "fit", "compensate", "compensation",
+__all__ = ["FitResult", "Constraint", "Prior", "SolverError", "UnidentifiableError", "fit", "compensate", "compensation",
            "compensated_parameters", "save_fit", "load_fit", "as_model", "replicate_groups",
            "pure_error", "run_sigma", "report_data", "COMPENSATED_COLUMN", "COMPENSATION_STD_COLUMN", "HUBER_C"]
 
