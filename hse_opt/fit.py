@@ -65,9 +65,10 @@ from .model.effects import effect as make_effect
 from .model.measurement import Model, paper_model
 from .model.symbolic import Geometry
 
-__all__ = ["FitResult", "Constraint", "Prior", "SolverError", "UnidentifiableError", "fit", "compensate", "compensation",
-           "compensated_parameters", "save_fit", "load_fit", "as_model", "replicate_groups",
-           "pure_error", "run_sigma", "report_data", "COMPENSATED_COLUMN", "COMPENSATION_STD_COLUMN", "HUBER_C"]
+__all__ = ["FitResult", "Constraint", "Prior", "SolverError", "UnidentifiableError", "fit",
+           "compensate", "compensation", "compensated_parameters", "save_fit", "load_fit", "as_model",
+           "replicate_groups", "pure_error", "run_sigma", "report_data", "COMPENSATED_COLUMN",
+           "COMPENSATION_STD_COLUMN", "HUBER_C"]
 
 #: Huber's threshold in sigmas (95 % efficiency for Gaussian data)
 HUBER_C = 1.345
@@ -528,7 +529,8 @@ def _gauss_newton(prob, w, z, C, d, max_iter=50, mask=None, tol=1e-6):
 #: tolerances only make its line search fight the rounding of chi2 (see _CHI2_NOISE).
 _IPOPT_OPTIONS = {"ipopt.print_level": 0, "ipopt.sb": "yes", "print_time": False,
                   "ipopt.tol": 1e-6, "ipopt.acceptable_tol": 1e-4, "ipopt.acceptable_iter": 1,
-                  "ipopt.compl_inf_tol": 1e-8, "ipopt.acceptable_compl_inf_tol": 1e-7, "ipopt.bound_relax_factor": 0.0,
+                  "ipopt.compl_inf_tol": 1e-8, "ipopt.acceptable_compl_inf_tol": 1e-7,
+                  "ipopt.bound_relax_factor": 0.0,
                   "ipopt.honor_original_bounds": "yes", "ipopt.max_iter": 200,
                   "ipopt.mu_strategy": "adaptive"}
 
