@@ -169,7 +169,7 @@ def pure_error(runs):
     return float(np.sqrt(np.sum((y - mean[labels]) ** 2) / dof)), dof
 
 
-def fit(runs, model=None, *, fix=None, tilt_known=None, max_iter=20):
+def fit(runs, model=None, *, fix=None, tilt_known=None, max_iter=20, start=None):
     """Calibrate ``model`` on ``runs`` by weighted least squares.
 
     Parameters
@@ -181,6 +181,9 @@ def fit(runs, model=None, *, fix=None, tilt_known=None, max_iter=20):
         Parameters held at a value.
     tilt_known : bool, optional
         Use the runs' pitch/roll (default: when the runs have them).
+    start : mapping name -> value (display unit), optional
+        Where the iteration starts for free parameters (default: their nominal values); needed
+        when a parameter's heading signature vanishes at nominal (a product with another).
 
     Returns
     -------
@@ -203,7 +206,7 @@ def fit(runs, model=None, *, fix=None, tilt_known=None, max_iter=20):
     y = np.asarray(runs.heading_err, dtype=float)
     n = y.size
     fix = dict(fix or {})
-    p = mm.vector(fix)
+    p = mm.vector({**(start or {}), **fix})
     free = np.array([name not in fix for name in mm.names])
     k = int(free.sum())
     if n <= k:
@@ -244,7 +247,8 @@ def fit(runs, model=None, *, fix=None, tilt_known=None, max_iter=20):
         step = np.linalg.solve(R, Q.T @ r)  # display units
         p = p.copy()
         p[free] += step * scale[free]
-        if np.all(np.abs(step) <= 1e-10 * (1 + np.abs(p[free] / scale[free]))):
+        # converged when the step is a negligible fraction of each parameter's sigma
+        if np.all(np.abs(step) <= 1e-6 * np.linalg.norm(np.linalg.inv(R), axis=1)):
             status = "converged"
             break
     if status != "converged":
