@@ -454,7 +454,9 @@ class Comparison:
 
     def to_dict(self):
         return {"added": list(self.added),
-                "statistics": {k: {"before": _num(b), "after": _num(a)} for k, b, a in self.statistics},
+                "statistics": {k: {"before": b if isinstance(b, str) else _num(b),
+                                   "after": a if isinstance(a, str) else _num(a)}
+                               for k, b, a in self.statistics},
                 "parameters": {n: {"unit": u, "before": _num(vb), "std_before": _num(sb),
                                    "after": _num(va), "std_after": _num(sa)}
                                for n, u, vb, sb, va, sa in self.parameters},
@@ -1295,12 +1297,14 @@ def diagnostic_plan(sessions=4, runs_per_session=16, rates_dps=(20.0, 40.0, 60.0
     m = len(rates_dps)
     # every |rate| in both senses, consecutive runs changing rate and sense
     order = [rates_dps[i % m] * (-1.0) ** (i + (i // m if m % 2 == 0 else 0)) for i in range(2 * m)]
+    # azimuth step coprime with n_azimuths: every azimuth, neighbours far apart
+    step = next(k for k in (3, 5, 7, 1) if math.gcd(k, n_azimuths) == 1)
     tilts = [(0.0, 0.0), (tilt_arcsec, 0.0), (0.0, tilt_arcsec), (-tilt_arcsec, -tilt_arcsec)]
     rows = {k: [] for k in ("rate", "azimuth", "t_start", "tilt_x", "tilt_y")}
     for s in range(sessions):
         for j in range(runs_per_session):
             rows["rate"].append(order[(j + 2 * s) % len(order)] * units.DEG_PER_S)
-            rows["azimuth"].append(2 * np.pi / n_azimuths * ((3 * j + s) % n_azimuths))
+            rows["azimuth"].append(2 * np.pi / n_azimuths * ((step * j + s) % n_azimuths))
             rows["t_start"].append(j * duration)
             tx, ty = tilts[s % len(tilts)]
             rows["tilt_x"].append(tx * units.ARCSEC)

@@ -52,7 +52,10 @@ def run(args):
     from ..data import load_runs
     from ..fit import as_model
 
-    runs = load_runs(args.runs)
+    try:
+        runs = load_runs(args.runs)
+    except OSError as err:
+        raise ValueError(f"{args.runs}: cannot read the file ({err.strerror or err})") from None
     covariates = None
     if args.covariates is not None:
         covariates = [] if args.covariates.strip().lower() == "none" else \
