@@ -29,3 +29,26 @@ Units
     :mod:`hse_opt.units`; a non-SI name carries its unit (``rate_dps``).
 """
 __version__ = "0.1.0"
+
+#: the public API, imported on first use (``import hse_opt`` stays light): name -> (module, attribute);
+#: attribute None gives the module itself (``hse_opt.diagnose`` is a callable module:
+#: ``hse_opt.diagnose(runs)`` and ``hse_opt.diagnose.refine(runs)`` both work)
+_API = {
+    "diagnose": ("diagnose", None),
+    "Diagnosis": ("diagnose", "Diagnosis"),
+}
+
+
+def __getattr__(name):
+    import importlib
+
+    try:
+        module, attr = _API[name]
+    except KeyError:
+        raise AttributeError(f"module 'hse_opt' has no attribute {name!r}") from None
+    mod = importlib.import_module(f".{module}", __name__)
+    return mod if attr is None else getattr(mod, attr)
+
+
+def __dir__():
+    return sorted(set(globals()) | set(_API))

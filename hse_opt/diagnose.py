@@ -54,6 +54,8 @@ from __future__ import annotations
 
 import dataclasses
 import math
+import sys
+import types
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -337,7 +339,8 @@ class Diagnosis:
         prior = next((c.fit for c in self.candidates if c.effect == name and c.fit is not None), None)
         model = prior.model if prior is not None else self.fit.model + effect
         return diagnose(self.runs, prior if prior is not None else model, fix=dict(self.fix),
-                        tilt_known=self.fit.tilt_known, alpha=self.alpha, covariates=self.covariates)
+                        tilt_known=self.fit.tilt_known, alpha=self.alpha, covariates=self.covariates,
+                        candidates=[c for c in self.candidate_names if c != name])
 
     # -- output ------------------------------------------------------------------------------
     def to_dict(self):
@@ -525,16 +528,7 @@ def diagnose(runs, model=None, *, fix=None, tilt_known=None, alpha=ALPHA, candid
 
     # comparison: influence and outliers
     lev, cooks, stud = null.influence()
-    n, k = null.n, null.k
-    with np.errstate(invalid="ignore"):
-        p_out = np.minimum(1.0, n * 2.0 * stats.t.sf(np.abs(stud), n - k - 1)) if n - k - 1 > 0 \
-            else np.full(n, np.nan)
-    outliers = tuple(int(r) for r in f0.run[np.argsort(-np.nan_to_num(np.abs(stud)))]
-                     if np.nan_to_num(p_out[null.index(r)], nan=1.0) < alpha)
-    d_cut = stats.f.ppf(0.5, k, n - k) if n > k else np.inf
-    hinge = (np.nan_to_num(cooks, nan=np.inf) > d_cut) | (lev > 0.5)
-    influential = tuple(int(r) for r in f0.run[np.argsort(-np.nan_to_num(cooks, nan=np.inf))]
-                        if hinge[null.index(r)])
+    outliers, influential = _flagged(f0.run, lev, cooks, stud, null.k, alpha)
     if np.any(lev > 1 - 1e-9):
         notes.append("runs " + ", ".join(str(int(r)) for r in f0.run[lev > 1 - 1e-9])
                      + " alone determine a parameter (leverage 1): their residuals are 0 by construction")
@@ -626,6 +620,20 @@ def refine(runs, model=None, *, max_steps=4, **kw):
     while steps[-1].verdict != "adequate" and len(steps) <= max_steps and steps[-1].best is not None:
         steps.append(steps[-1].add(steps[-1].best.effect))
     return tuple(steps)
+
+
+def _flagged(run, lev, cooks, stud, k, alpha):
+    """Outliers (externally studentised residual rejecting at ``alpha``, Bonferroni over the
+    runs) and the runs the fit hinges on (Cook's distance above the median of F(k, n - k), or
+    leverage above 0.5), as run ids, most extreme first."""
+    n = run.size
+    with np.errstate(invalid="ignore"):
+        p = n * 2.0 * stats.t.sf(np.abs(stud), n - k - 1) if n - k - 1 > 0 else np.full(n, np.nan)
+    cut = stats.f.ppf(0.5, k, n - k) if n > k else np.inf
+    cooks = np.nan_to_num(cooks, nan=np.inf)  # leverage 1: the fit rests on the run entirely
+    outliers = tuple(int(run[i]) for i in np.argsort(-np.nan_to_num(np.abs(stud))) if p[i] < alpha)
+    influential = tuple(int(run[i]) for i in np.argsort(-cooks) if cooks[i] > cut or lev[i] > 0.5)
+    return outliers, influential
 
 
 # -- fitting -------------------------------------------------------------------------------------
@@ -725,30 +733,18 @@ class _Null:
 
     def __init__(self, f, runs):
         self.f = f
-        self.runs = runs
         self.sigma = np.asarray(f.sigma, float)
         self.r = np.asarray(f.residuals, float) / self.sigma
         mm = f.measurement
-        self.mm = mm
-        self.X = mm.inputs_from_runs(runs)
         free = np.asarray(f.free, bool)
-        A = weighted_jacobian(mm.jacobian(f.p, self.X)[:, free], self.sigma, mm.scale[free])
-        self.A = A
-        self.Q = self._orthonormal(A)
+        self.A = weighted_jacobian(mm.jacobian(f.p, mm.inputs_from_runs(runs))[:, free], self.sigma,
+                                   mm.scale[free])
+        d = np.linalg.norm(self.A, axis=0)
+        self.Q, _ = np.linalg.qr(self.A / np.where(d > 0, d, 1.0))
         self.n = self.r.size
         # profiled parameters count as fitted (FitResult.dof already holds that)
         self.k = self.n - int(f.dof)
         self.rss = float(self.r @ self.r)
-        self._pos = {int(r): i for i, r in enumerate(f.run)}
-
-    def index(self, run_id):
-        return self._pos[int(run_id)]
-
-    @staticmethod
-    def _orthonormal(M):
-        d = np.linalg.norm(M, axis=0)
-        Q, _ = np.linalg.qr(M / np.where(d > 0, d, 1.0))
-        return Q
 
     def basis(self, Z, extra=None):
         """Orthonormal basis (n, q') of the part of span(Z) orthogonal to the model (and to
@@ -1044,7 +1040,7 @@ def _candidate(null, f0, runs, name, fix, refit):
     tested = [i for i, r in zip(tested, reach) if r >= _BLIND]
     if not tested:
         return Candidate(name, description, params, held, False,
-                         "no heading signature in these runs" + _signature_hint(mm1, params)), None
+                         "no heading signature in these runs" + _signature_hint(params)), None
     # identifiable jointly with the model? (the same check the fit makes)
     free0 = [mm1.names.index(n) for n, fr in zip(f0.names, f0.free) if fr]
     cols = free0 + tested
@@ -1081,7 +1077,7 @@ def _candidate(null, f0, runs, name, fix, refit):
     return cand, U
 
 
-def _signature_hint(mm, params):
+def _signature_hint(params):
     if any("*tilt_" in p for p in params):
         return " (it acts through the tilt, which these runs do not carry)"
     return ""
@@ -1407,3 +1403,14 @@ def _run_text(r):
     parts += [f"{c} {r[c]:.4g}" for c in extra]
     return (", ".join(parts) + f": predicted {r['pred_a_arcsec']:.3g} vs {r['pred_b_arcsec']:.3g} arcsec "
             f"({r['separation']:.2g} sigma apart)")
+
+
+class _CallableModule(types.ModuleType):
+    """``hse_opt.diagnose(runs, ...)`` calls :func:`diagnose`: the package exports this module
+    under the function's name."""
+
+    def __call__(self, *args, **kwargs):
+        return diagnose(*args, **kwargs)
+
+
+sys.modules[__name__].__class__ = _CallableModule

@@ -48,8 +48,8 @@ def parse_fix(items):
 
 
 def run(args):
-    from .. import diagnose as dg
     from ..data import load_runs
+    from ..diagnose import ALPHA, compare, diagnose, refine
     from ..fit import as_model
 
     try:
@@ -61,9 +61,9 @@ def run(args):
         covariates = [] if args.covariates.strip().lower() == "none" else \
             [c.strip() for c in args.covariates.split(",") if c.strip()]
     kw = dict(fix=parse_fix(args.fix), covariates=covariates,
-              alpha=dg.ALPHA if args.alpha is None else args.alpha)
+              alpha=ALPHA if args.alpha is None else args.alpha)
     model = as_model(args.effects)
-    steps = dg.refine(runs, model, **kw) if args.refine else (dg.diagnose(runs, model, **kw),)
+    steps = refine(runs, model, **kw) if args.refine else (diagnose(runs, model, **kw),)
     if args.report:
         status = write_report(steps, args.report)
         if status:
@@ -80,7 +80,7 @@ def run(args):
     print("\n".join(steps[0].summary()))
     if len(steps) > 1:
         print()
-        print("\n".join(dg.compare(steps[0], steps[-1]).summary()))
+        print("\n".join(compare(steps[0], steps[-1]).summary()))
         print()
         print("\n".join(steps[-1].summary()))
     return 0
