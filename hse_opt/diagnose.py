@@ -414,7 +414,7 @@ class Diagnosis:
                 out.append(f"  {'':<26} held at nominal (no heading signature here): {', '.join(c.held)}")
         out.append("  (* significant at the family-wise level; RMS in arcsec)")
         if self.structure:
-            out.append("Unexplained structure, in words:")
+            out.append("Structure in the residuals, in words (sparse regression over factor functions):")
             out.extend(f"  - {t.text}" for t in self.structure)
         if self.ambiguous:
             out.append(f"Ambiguous: {', '.join(self.ambiguous)} explain these data equally well.")
@@ -552,11 +552,19 @@ def diagnose(runs, model=None, *, fix=None, tilt_known=None, alpha=ALPHA, candid
 
     tested = [t for t in (chi2_test, lof) if t is not None and t.tested]
     tested += [t for t in factor_tests if t.tested]
-    m = len(tested) + sum(c.testable for c in cands)
+    m = len(tested) + sum(c.p_value is not None for c in cands)
     level = alpha / max(m, 1)
     cands = [dataclasses.replace(c, significant=c.testable and c.p_value is not None and c.p_value < level)
              for c in cands]
     rejected = any(t.p_value < level for t in tested) or any(c.significant for c in cands)
+    if m == 0:
+        notes.append("no test is possible with these runs (too few, or nothing varies): the verdict "
+                     "'adequate' only means that nothing could be checked")
+    elif chi2_test is not None and chi2_test.p_value < level and not any(c.significant for c in cands) \
+            and not any(t.p_value < level for t in tested if t is not chi2_test):
+        notes.append(f"the scatter exceeds the runs' own sigmas (chi2_red {f0.chi2_red:.3g}) but no factor "
+                     "or catalogue effect explains it: the sigmas may be optimistic, or the missing effect "
+                     "follows nothing recorded with the runs")
     cands = _rank(cands)
     ambiguous, cands = _ambiguity(null, cands, bases, alpha)
     proposals = ()
@@ -1063,7 +1071,8 @@ def _candidate(null, f0, runs, name, fix, refit):
         fix1.update({n: mm1.params[mm1.parameter_index(n)].nominal for n in held})
         try:
             f1 = _fit(runs, model1, fix1, f0.tilt_known, start=known)
-        except (UnidentifiableError, RuntimeError, np.linalg.LinAlgError) as err:
+        except (ValueError, RuntimeError, np.linalg.LinAlgError) as err:
+            # the null fit validated the runs: this is the candidate not fitting these runs
             cand = dataclasses.replace(cand, reason=f"refit failed: {err}")
         else:
             cand = dataclasses.replace(cand, delta_bic=float(f1.bic - f0.bic), rms_after=float(
