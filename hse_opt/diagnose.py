@@ -102,8 +102,9 @@ class Test:
         F (or chi-square) statistic; None when the runs cannot test it.
     dof : tuple of int
         Degrees of freedom (numerator, denominator) or (dof,) for chi-square.
-    p_value : float or None
-        None when not computable (``note`` says why).
+    p_value, log_p : float or None
+        The p-value and its logarithm (for ranking far into the tail); None when not computable
+        (``note`` says why).
     best : str
         For a factor, the single function of it that explains most of the residual.
     note : str
@@ -241,6 +242,8 @@ class Diagnosis:
         Parameters held at a value (display units), as given (plus profiled ones).
     candidate_names : tuple of str
         The effects tested as candidates.
+    covariates : tuple of str
+        The covariate columns used as factors and candidates.
     studentized, leverage, cooks : numpy.ndarray, shape (n,)
         Externally studentised residuals, hat-matrix diagonal and Cook's distance per run.
     outliers : tuple of int
@@ -337,8 +340,7 @@ class Diagnosis:
         if name in self.effects:
             raise ValueError(f"effect {name!r} is already in the model ({', '.join(self.effects)})")
         prior = next((c.fit for c in self.candidates if c.effect == name and c.fit is not None), None)
-        model = prior.model if prior is not None else self.fit.model + effect
-        return diagnose(self.runs, prior if prior is not None else model, fix=dict(self.fix),
+        return diagnose(self.runs, prior if prior is not None else self.fit.model + effect, fix=dict(self.fix),
                         tilt_known=self.fit.tilt_known, alpha=self.alpha, covariates=self.covariates,
                         candidates=[c for c in self.candidate_names if c != name])
 
@@ -410,6 +412,8 @@ class Diagnosis:
                            f"{_f(c.rms_after_arcsec):>11}{mark}")
             else:
                 out.append(f"  {c.effect:<26} not testable: {c.reason}")
+            if c.testable and c.reason:
+                out.append(f"  {'':<26} {c.reason}")
             if c.held:
                 out.append(f"  {'':<26} held at nominal (no heading signature here): {', '.join(c.held)}")
         out.append("  (* significant at the family-wise level; RMS in arcsec)")

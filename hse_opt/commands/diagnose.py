@@ -3,13 +3,13 @@ from . import message, print_json
 
 NAME = "diagnose"
 HELP = "compare a model with measured runs: where it fails, which effect is missing"
-DESCRIPTION = (
-    "Fit the model to RUNS.csv and compare: residuals and influence per run, goodness of fit "
-    "(chi-square with the runs' own sigmas, pure-error lack of fit with replicates), residual "
-    "structure against every factor, every catalogue effect not in the model ranked by a score "
-    "test, Delta-BIC and the residual RMS after refitting, unexplained structure in words, and "
-    "the verdict (adequate or missing-effect). --refine adds the best significant effect and "
-    "diagnoses again until the verdict is adequate.")
+DESCRIPTION = """\
+Fit the model to RUNS.csv and compare it with the measurements: residuals and influence per
+run, goodness of fit (chi-square with the runs' own sigmas; pure-error lack of fit when
+settings are replicated), residual structure against every factor, every catalogue effect not
+in the model ranked by a score test, Delta-BIC and the residual RMS after refitting, the
+unexplained structure in words, and the verdict (adequate or missing-effect). --refine adds the
+best significant effect and diagnoses again until the verdict is adequate."""
 EXAMPLE = """examples:
   hse-opt diagnose RUNS.csv
   hse-opt diagnose RUNS.csv --effects hse,warmup --json
