@@ -66,8 +66,8 @@ import numpy as np
 from . import units
 from .data import Plan
 from .fit import as_model
-from .information import (DEFAULT_ARW, UnidentifiableError, analyse, describe_runs, heading_sigma,
-                          separating_runs, weighted_jacobian)
+from .information import (DEFAULT_ARW, Prior, UnidentifiableError, analyse, heading_sigma,
+                          separation_advice, weighted_jacobian)
 from .model.measurement import BatchEvaluator, Model
 
 __all__ = ["A", "ApproximateDesign", "C", "Candidates", "Costs", "Criterion", "D", "DesignError",
@@ -438,7 +438,7 @@ class Costs:
         Per alignment beyond its duration (data saving, restart).
     """
 
-    warmup: float = 1800.0
+    warmup: float = 3600.0
     azimuth_change: float = 600.0
     rate_change: float = 60.0
     tilt_change: float = 1200.0
@@ -952,20 +952,6 @@ def _certificate(crit, k, loss, h, w, mus, guards, cost, budget, max_runs, slot=
     return float(abs(loss) / (abs(loss) + gap)) if loss < 0 else 0.0
 
 
-def _amortised(cand, w, costs, cost):
-    """Per-run cost with each setup (tilt, azimuth, rate) spread over the runs that share it
-    in the design ``w`` (at least one): the setup-aware passes of :func:`design`."""
-    tilt = np.round(np.column_stack([cand.t_start, cand.tilt_x, cand.tilt_y]) / 1e-9)
-    az = np.round(np.mod(cand.azimuth, 2 * np.pi) / 1e-12)[:, None]
-    rate = np.round(cand.rate / 1e-12)[:, None]
-    out = cost.copy()
-    for key, c in ((tilt, costs.tilt_change), (np.hstack([tilt, az]), costs.azimuth_change),
-                   (np.hstack([tilt, az, rate]), costs.rate_change)):
-        lab = np.unique(key, axis=0, return_inverse=True)[1].ravel()
-        out += c / np.maximum(np.bincount(lab, w)[lab], 1.0)
-    return out
-
-
 def approximate_design(features, criterion="D", *, cost=None, budget=1.0, max_runs=None, names=None,
                        prior=None, solver=None):
     """The optimal approximate design for any linear(ised) model: the convex program of
@@ -1162,6 +1148,32 @@ def _polish(crit, rows, spec, guards, counts, settings, costs, budget, max_runs,
     return counts
 
 
+def _prune(crit, rows, spec, guards, w, cand, cost, costs, budget, max_runs, solver, exact):
+    """Greedy setup-aware search: remove one stand position (time slot, tilt, azimuth) of the
+    approximate design's support at a time, re-solve on the candidates of the others and
+    round; keep the best removal while the rounded plan's loss falls."""
+    pos = np.unique(np.column_stack([cand.t_start, cand.tilt_x, cand.tilt_y, np.mod(cand.azimuth, 2 * np.pi)])
+                    .round(9), axis=0, return_inverse=True)[1].ravel()
+    keep = set(np.unique(pos[w > _SUPPORT_TOL * w.max()]).tolist())
+    while len(keep) > 1:
+        trials = []
+        for g in sorted(keep):
+            idx = np.flatnonzero(np.isin(pos, sorted(keep - {g})))
+            try:
+                sub = _approximate(crit, rows[:, idx], spec, [gd.take(idx) for gd in guards], cand.take(idx),
+                                   cost[idx], budget - costs.warmup, max_runs, solver or _SOLVERS[0])
+                trial = _round(crit, rows[:, idx], spec, [gd.take(idx) for gd in guards], sub.runs, cand.take(idx),
+                               cost[idx], costs, budget, max_runs)
+            except (ValueError, DesignError):  # the others cannot identify the model, or meet a guard
+                continue
+            trials.append((trial.loss, g, trial))
+        if not trials or min(trials, key=lambda t: t[0])[0] >= exact.loss:
+            break
+        loss, g, exact = min(trials, key=lambda t: t[0])
+        keep.discard(g)
+    return exact
+
+
 # ======================================================================= ordering
 def _orders(settings, counts, costs, rng=None, n_random=0):
     """Run sequences (arrays of setting indices): each setting's runs together, settings
@@ -1324,28 +1336,22 @@ class Evaluation:
 
 
 def _prior(prior, names):
-    """Prior information (k, k, display units) on ``names``: from a Fisher matrix in that
-    order, an object with ``fisher(names)`` (``hse_opt.information.Prior``), or a FitResult
-    (its free parameters' covariance, marginalised to the shared names)."""
+    """Prior information (k, k, display units) on ``names`` from a Fisher matrix in that
+    order, a :class:`~hse_opt.information.Prior` or a FitResult (the earlier calibration;
+    its other parameters are marginalised out)."""
     if prior is None:
         return None
-    names = tuple(names)
     if isinstance(prior, np.ndarray):
         if prior.shape != (len(names), len(names)):
             raise ValueError(f"prior information has shape {prior.shape}; allowed: ({len(names)}, {len(names)}) "
                              f"in the order {', '.join(names)}")
         return np.asarray(prior, float)
-    if hasattr(prior, "fisher"):
-        F = prior.fisher(names)
-        return np.asarray(F[0] if isinstance(F, tuple) else F, float)
-    if not all(hasattr(prior, a) for a in ("names", "covariance", "free", "std")):
-        raise ValueError(f"prior: a FitResult, a Prior or a Fisher matrix is required, got {type(prior).__name__}")
-    keep = [i for i, n in enumerate(prior.names) if prior.free[i] and prior.std[i] > 0 and n in names]
-    F = np.zeros((len(names), len(names)))
-    if keep:
-        j = [names.index(prior.names[i]) for i in keep]
-        F[np.ix_(j, j)] = np.linalg.inv(np.asarray(prior.covariance)[np.ix_(keep, keep)])
-    return F
+    if not isinstance(prior, Prior):
+        if not hasattr(prior, "covariance"):
+            raise ValueError(f"prior: a FitResult, a Prior or a Fisher matrix is required, got "
+                             f"{type(prior).__name__}")
+        prior = Prior.from_fit(prior)
+    return prior.fisher(names)[0]
 
 
 def evaluate(plan, model=None, *, stand=None, tilt_known=True, criterion=None, nominal=None, prior=None):
@@ -1390,13 +1396,8 @@ def evaluate(plan, model=None, *, stand=None, tilt_known=True, criterion=None, n
     Aw = weighted_jacobian(mm.jacobian(p, X), sigma, mm.scale)
     F0 = _prior(prior, mm.names)
 
-    def advice(direction):
-        shared = describe_runs(X)
-        cand = separating_runs(lambda Xc: mm.jacobian(p, Xc), X, direction, mm.scale)
-        return ("; ".join(shared) + ". " if shared else "") + "Runs that would separate them: " + ", ".join(
-            f"{c['rate_dps']:+.4g} deg/s at azimuth {c['azimuth_deg']:.4g} deg" for c in cand)
-
-    info = analyse(Aw.T @ Aw + (0 if F0 is None else F0), mm.names, [q.unit for q in mm.params], advice=advice)
+    info = analyse(Aw.T @ Aw + (0 if F0 is None else F0), mm.names, [q.unit for q in mm.params],
+                   advice=lambda d: separation_advice(mm, p, X, np.ones(len(mm.names), bool), d))
     mid = plan.t_start + plan.duration / 2
     bias = info.covariance @ (Aw.T @ ((mid - mid.mean()) * DRIFT_UNIT / sigma))
     label, value = "", float("nan")
@@ -1503,7 +1504,7 @@ class DesignResult:
 
 def design(model=None, criterion="c:lambda2", *, budget, space=None, stand=None, costs=None,
            max_runs=None, tilt_known=True, nominal=None, prior_sample=None, prior=None,
-           identify=None, identify_efficiency=0.25, setup_passes=2, refine=True,
+           identify=None, identify_efficiency=0.25, prune=True, refine=True,
            order="trend-robust", rng=None, solver=None):
     """The test plan that minimises ``criterion`` within the stand-time ``budget``.
 
@@ -1538,9 +1539,10 @@ def design(model=None, criterion="c:lambda2", *, budget, space=None, stand=None,
         design model itself when the criterion may leave it unidentifiable (c, T).
     identify_efficiency : float
         In (0, 1).
-    setup_passes : int
-        Extra approximate designs with each setup's time spread over the runs sharing it
-        (reweighted from the previous pass); the best rounded plan is kept.
+    prune : bool
+        Setup-aware search: drop stand positions (time slot, tilt, azimuth) of the
+        approximate design one at a time, re-solving on the rest, while the rounded plan --
+        which has more time for runs with fewer setups -- gets better.
     refine : bool
         Move rates and azimuths off the candidate grid with IPOPT.
     order : {'trend-robust', 'min-setup'}
@@ -1611,15 +1613,9 @@ def design(model=None, criterion="c:lambda2", *, budget, space=None, stand=None,
     notes = []
     if approx.certified_efficiency < 0.999:
         notes.append(f"the approximate design is certified only to efficiency {approx.certified_efficiency:.4f}")
-    args = (crit, rows, spec, guards)
-    exact = _round(*args, approx.runs, cand, cost, costs, budget, max_runs)
-    w = approx.runs
-    for _ in range(int(setup_passes)):
-        w = _approximate(crit, rows, spec, guards, cand, _amortised(cand, w, costs, cost), B, max_runs,
-                         solver).runs
-        other = _round(*args, w, cand, cost, costs, budget, max_runs)
-        if other.loss < exact.loss:
-            exact = other
+    exact = _round(crit, rows, spec, guards, approx.runs, cand, cost, costs, budget, max_runs)
+    if prune:
+        exact = _prune(crit, rows, spec, guards, approx.runs, cand, cost, costs, budget, max_runs, solver, exact)
     if not np.isfinite(exact.loss):
         raise UnidentifiableError(f"{int(exact.counts.sum())} whole runs within the budget cannot identify "
                                   f"the model for criterion {crit.label}", spec.names)
@@ -1756,8 +1752,13 @@ class MonteCarloResult:
     Attributes
     ----------
     names, units : tuple of str
-    predicted_std, empirical_std, mean : numpy.ndarray, shape (n_p,)
-        Display units.
+    predicted_std : numpy.ndarray, shape (n_p,)
+        The design's prediction (its heading-noise model), display units.
+    empirical_std, mean : numpy.ndarray, shape (n_p,)
+        Scatter and mean of the replicates' estimates, display units.
+    run_scatter_ratio : float
+        The simulated alignments' own heading scatter (each run of the plan across the
+        replicates, pooled) over the noise model's sigma: how far the noise model is off.
     estimates : numpy.ndarray, shape (n_rep, n_p)
     n_rep : int
     """
@@ -1767,6 +1768,7 @@ class MonteCarloResult:
     predicted_std: np.ndarray
     empirical_std: np.ndarray
     mean: np.ndarray
+    run_scatter_ratio: float
     estimates: np.ndarray
     n_rep: int
 
@@ -1775,10 +1777,16 @@ class MonteCarloResult:
         """Empirical / predicted sigma of each parameter."""
         return self.empirical_std / self.predicted_std
 
+    @property
+    def propagated_std(self):
+        """The prediction with the noise model scaled to the simulated alignments' scatter:
+        what the design's information propagation predicts from the real run noise."""
+        return self.predicted_std * self.run_scatter_ratio
+
     def to_dict(self):
-        return {"n_rep": self.n_rep, "parameters": {
-            n: {"predicted_std": float(p), "empirical_std": float(e), "ratio": float(e / p), "mean": float(m),
-                "unit": u}
+        return {"n_rep": self.n_rep, "run_scatter_ratio": self.run_scatter_ratio, "parameters": {
+            n: {"predicted_std": float(p), "empirical_std": float(e), "ratio": float(e / p),
+                "propagated_std": float(p * self.run_scatter_ratio), "mean": float(m), "unit": u}
             for n, u, p, e, m in zip(self.names, self.units, self.predicted_std, self.empirical_std, self.mean)}}
 
 
@@ -1846,5 +1854,8 @@ def monte_carlo(plan, model=None, n_rep=100, *, truth=None, seed=0, jobs=1, tilt
         res = fit(Runs.from_columns({k: [row[k] for row in part] for k in keys}, source=f"replicate {r}"),
                   model, tilt_known=tilt_known)
         est[r] = [res.values[res.names.index(nm)] for nm in pred.names]
-    return MonteCarloResult(pred.names, pred.units, pred.std, est.std(axis=0, ddof=1), est.mean(axis=0), est,
-                            n_rep)
+    # every replicate repeats each run's deterministic errors: the scatter across them is noise
+    h = np.array([row["heading_err_arcsec"] for row in out]).reshape(n_rep, n) * units.ARCSEC
+    ratio = float(np.sqrt(np.mean(h.var(axis=0, ddof=1) / stand.sigma(plan.duration) ** 2)))
+    return MonteCarloResult(pred.names, pred.units, pred.std, est.std(axis=0, ddof=1), est.mean(axis=0), ratio,
+                            est, n_rep)

@@ -222,10 +222,10 @@ def test_refinement_reaches_a_stationary_point_of_the_criterion(plan_b):
 
 
 # ----------------------------------------------------------------- drift, order
-def test_drift_bias_matches_a_least_squares_fit_of_drifting_noise_free_data(plan_b):
+def test_drift_bias_matches_a_least_squares_fit_of_drifting_noise_free_data():
     # independent: scipy's least squares on the model's predictions (no Jacobian formula)
     from scipy.optimize import least_squares
-    p = plan_b.plan
+    p = paper_plan()
     stand = Stand()
     mm = Model(["hse"]).measurement(True)
     X_ = stand.inputs(mm, p.rate, p.azimuth, 0.0, 0.0, p.duration, p.t_start)
@@ -233,8 +233,10 @@ def test_drift_bias_matches_a_least_squares_fit_of_drifting_noise_free_data(plan
     mid = p.t_start + p.duration / 2
     y = mm.predict(mm.vector(offset=2.0, lambda2=4.2), X_) + (units.ARCSEC / units.HOUR) * mid
     sol = least_squares(lambda q: (mm.predict(mm.vector(offset=q[0], lambda2=q[1]), X_) - y) / sig, [0.0, 0.0],
-                        x_scale=[1.0, 0.1], xtol=1e-14, ftol=1e-14, gtol=1e-14)
-    assert sol.x[1] - 4.2 == pytest.approx(plan_b.evaluation.drift_bias[1], rel=1e-4, abs=1e-7)
+                        diff_step=1e-6)
+    bias = evaluate(p, "hse").drift_bias
+    assert abs(bias[1]) > 0.05  # arcsec per arcsec/h: this plan is not trend-free
+    assert sol.x[1] - 4.2 == pytest.approx(bias[1], rel=2e-3)
 
 
 def test_trend_robust_order_beats_the_quickest_on_drift():
@@ -277,7 +279,7 @@ def test_prior_information_from_a_fit():
                 latitude=X_[4], duration=prior_plan.duration, t_start=prior_plan.t_start, pitch=X_[2], roll=X_[3],
                 heading_std=sig)
     res = fit(runs, "hse")
-    F = _prior(res, ("offset", "lambda2", "bias_z"))
+    F = _prior(res, ("offset", "lambda2", "bias_z"))  # the fit's information, marginalised
     assert F[:2, :2] == pytest.approx(np.linalg.inv(res.covariance), rel=1e-9)
     assert np.all(F[2] == 0)
     kw = dict(budget=3 * 3600.0, space=DesignSpace(reverse=True))
@@ -291,8 +293,8 @@ def test_prior_information_from_a_fit():
 
 
 def test_tilt_unknown_designs_free_c23_coefficients():
-    r = design("hse", "c:lambda2*tilt_const", budget=3 * 3600.0, tilt_known=False,
-               space=DesignSpace(reverse=True))
+    r = design("hse", "c:lambda2*tilt_const", budget=4 * 3600.0, tilt_known=False,
+               space=DesignSpace(reverse=True, azimuth_step=45 * units.DEG))
     assert "lambda2*tilt_const" in r.evaluation.names and r.evaluation.tilt_known is False
     with pytest.raises(ValueError, match="tilt_known=True"):
         design("hse", budget=3 * 3600.0, tilt_known=False, space=DesignSpace(max_tilt=0.1 * units.DEG))
@@ -328,7 +330,7 @@ def test_discrimination_design_separates_axis_bias_from_sync_delay():
 # ------------------------------------------------------------------------ errors
 @pytest.mark.parametrize("kwargs,match", [
     (dict(budget=-1.0), "budget"),
-    (dict(budget=1000.0), "no time for one alignment"),
+    (dict(budget=3000.0), "no time for one alignment"),
     (dict(budget=3600.0 * 3, criterion="F"), "criterion"),
     (dict(budget=3600.0 * 3, criterion="c:lambda3"), "lambda3"),
     (dict(budget=3600.0 * 3, order="random"), "order"),
@@ -362,7 +364,7 @@ def test_bad_inputs_raise_value_errors(make, match):
 
 def test_too_small_a_budget_names_the_unidentifiable_parameters():
     with pytest.raises(UnidentifiableError) as err:
-        design(EXT, "D", budget=1800.0 + 2 * 600.0 + 60.0, space=DesignSpace(reverse=True))
+        design(EXT, "D", budget=3600.0 + 2 * 600.0 + 60.0, space=DesignSpace(reverse=True))
     assert set(err.value.names) <= {"offset", "lambda2", "bias_z", "delay"} and err.value.names
 
 
@@ -390,10 +392,16 @@ def test_ipopt_failure_raises_with_its_return_status(monkeypatch):
 # -------------------------------------------------------------- Monte Carlo
 @pytest.mark.slow
 def test_monte_carlo_scatter_matches_the_prediction():
-    """600 simulated 10-minute alignments (150 replicates of a 4-run plan): the empirical
-    sigma of each estimate is within 15% of the design's prediction (sampling error of one
-    sigma ratio at 150 replicates: 5.8%)."""
-    r = design("hse", "c:lambda2", budget=1800.0 + 4 * 600.0 + 60.0, space=DesignSpace(reverse=True))
+    """600 simulated 10-minute alignments (150 replicates of a 4-run plan, sampling error of one
+    sigma ratio 5.8%): the empirical sigma of each estimate is within 15% of the design's
+    information propagated from the alignments' own scatter, and within 25% of the plain
+    prediction (the simulator's alignments scatter more than the ARW noise model: quantization,
+    warm-up transients; the ratio is reported)."""
+    r = design("hse", "c:lambda2", budget=3600.0 + 4 * 600.0 + 60.0, space=DesignSpace(reverse=True))
     assert r.n_runs == 4
     mc = monte_carlo(r.plan, "hse", n_rep=150, seed=5, jobs=2, progress=False)
-    assert np.all(np.abs(mc.ratio - 1) < 0.15), mc.to_dict()
+    assert np.all(np.abs(mc.empirical_std / mc.propagated_std - 1) < 0.15), mc.to_dict()
+    assert np.all(np.abs(mc.ratio - 1) < 0.25), mc.to_dict()
+    assert 1.0 < mc.run_scatter_ratio < 1.25
+    # the estimates are unbiased within their sampling error where the model is the truth's
+    assert abs(mc.mean[1] - 4.2) < 4 * mc.empirical_std[1] / np.sqrt(150)
