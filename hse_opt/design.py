@@ -53,9 +53,10 @@ replicate and compares the empirical scatter of each estimate with the predictio
 from __future__ import annotations
 
 import itertools
-import logging
 import sys
 import time
+import types
+import warnings
 from dataclasses import dataclass, field
 from functools import cached_property
 
@@ -75,7 +76,6 @@ __all__ = ["A", "ApproximateDesign", "C", "Candidates", "Costs", "Criterion", "D
            "Stand", "apportion", "approximate_design", "as_criterion", "design", "evaluate", "monte_carlo",
            "paper_plan"]
 
-log = logging.getLogger(__name__)
 
 #: a heading drift of this size (rad/s) is the unit of the reported drift bias: 1 arcsec/h
 DRIFT_UNIT = units.ARCSEC / units.HOUR
@@ -878,12 +878,9 @@ def _solve(problem, solver):
     tried, inaccurate = [], None
     for name in ((solver,) if solver else _SOLVERS):
         try:
-            if name == "SCS":
-                problem.solve(solver=name, eps_abs=1e-8, eps_rel=1e-8, max_iters=100000)
-            elif name == "CLARABEL":  # the chordal split of the small dense cones costs accuracy
-                problem.solve(solver=name, chordal_decomposition_enable=False)
-            else:
-                problem.solve(solver=name)
+            with warnings.catch_warnings():  # an inaccurate solution is judged by its certificate
+                warnings.simplefilter("ignore", UserWarning)
+                _run_solver(problem, name)
         except cp.error.SolverError as err:
             tried.append(f"{name}: solver error ({str(err).splitlines()[0]})")
             continue
@@ -901,6 +898,15 @@ def _solve(problem, solver):
                 c.dual_variables[0].value = val
         return inaccurate[0], inaccurate[1]
     raise DesignError("the approximate design's convex program was not solved: " + "; ".join(tried))
+
+
+def _run_solver(problem, name):
+    if name == "SCS":
+        problem.solve(solver=name, eps_abs=1e-8, eps_rel=1e-8, max_iters=100000)
+    elif name == "CLARABEL":  # the chordal split of the small dense cones costs accuracy
+        problem.solve(solver=name, chordal_decomposition_enable=False)
+    else:
+        problem.solve(solver=name)
 
 
 def _mean_loss(crit, rows, spec, w):
@@ -1150,27 +1156,33 @@ def _polish(crit, rows, spec, guards, counts, settings, costs, budget, max_runs,
 
 def _prune(crit, rows, spec, guards, w, cand, cost, costs, budget, max_runs, solver, exact):
     """Greedy setup-aware search: remove one stand position (time slot, tilt, azimuth) of the
-    approximate design's support at a time, re-solve on the candidates of the others and
-    round; keep the best removal while the rounded plan's loss falls."""
+    approximate design's support at a time -- the lightest first -- re-solve on the
+    candidates of the others and round; keep the first removal that gives a better rounded
+    plan, and go on until none does."""
     pos = np.unique(np.column_stack([cand.t_start, cand.tilt_x, cand.tilt_y, np.mod(cand.azimuth, 2 * np.pi)])
                     .round(9), axis=0, return_inverse=True)[1].ravel()
-    keep = set(np.unique(pos[w > _SUPPORT_TOL * w.max()]).tolist())
-    while len(keep) > 1:
-        trials = []
-        for g in sorted(keep):
+    weight = np.bincount(pos, w)
+    keep = set(np.flatnonzero(weight > _SUPPORT_TOL * w.max()).tolist())
+    improved = True
+    while improved and len(keep) > 1:
+        improved = False
+        for g in sorted(keep, key=lambda g: weight[g]):
             idx = np.flatnonzero(np.isin(pos, sorted(keep - {g})))
+            sub_guards = [gd.take(idx) for gd in guards]
             try:
-                sub = _approximate(crit, rows[:, idx], spec, [gd.take(idx) for gd in guards], cand.take(idx),
-                                   cost[idx], budget - costs.warmup, max_runs, solver or _SOLVERS[0])
-                trial = _round(crit, rows[:, idx], spec, [gd.take(idx) for gd in guards], sub.runs, cand.take(idx),
-                               cost[idx], costs, budget, max_runs)
+                sub = _approximate(crit, rows[:, idx], spec, sub_guards, cand.take(idx), cost[idx],
+                                   budget - costs.warmup, max_runs, solver or _SOLVERS[0])
+                trial = _round(crit, rows[:, idx], spec, sub_guards, sub.runs, cand.take(idx), cost[idx], costs,
+                               budget, max_runs)
             except (ValueError, DesignError):  # the others cannot identify the model, or meet a guard
                 continue
-            trials.append((trial.loss, g, trial))
-        if not trials or min(trials, key=lambda t: t[0])[0] >= exact.loss:
-            break
-        loss, g, exact = min(trials, key=lambda t: t[0])
-        keep.discard(g)
+            if trial.loss < exact.loss:
+                exact, improved = trial, True
+                keep.discard(g)
+                full = np.zeros(pos.size)
+                full[idx] = sub.runs
+                weight = np.bincount(pos, full, minlength=weight.size)
+                break
     return exact
 
 
@@ -1331,6 +1343,7 @@ class Evaluation:
                  f"{self.n_runs} runs, {self.total_time / units.HOUR:.3f} h from power-on to the last run's end",
                  f"  {'parameter':<20}{'predicted sigma':>22}{'bias per arcsec/h drift':>28}"]
         for n, s, b, u in zip(self.names, self.std, self.drift_bias, self.units):
+            b = 0.0 if abs(b) < 1e-9 * s else b  # rounding of a trend-free order
             lines.append(f"  {n:<20}{s:>14.4g} {u:<7}{b:>+20.3g} {u}")
         return lines
 
@@ -1703,7 +1716,7 @@ def _refine(crit, spec, exact, stand, mm, space):
     loss0 = exact.loss
     f = mean_over_samples(spec, lambda F: crit.loss(F, _CASADI, spec.names))
     g = [mean_over_samples(gd.spec, _CASADI.log_det) for gd in exact.guards]
-    floors = [min(gd.bound, gd.log_det(counts)) - 1e-9 for gd in exact.guards]
+    floors = [min(gd.bound, gd.log_det(counts)) for gd in exact.guards]
     nlp = {"x": v, "f": f / abs(loss0)}  # order 1, so that IPOPT's barrier starts small against it
     if g:
         nlp["g"] = ca.vertcat(*g)
@@ -1712,7 +1725,7 @@ def _refine(crit, spec, exact, stand, mm, space):
         "ipopt.bound_push": 1e-10, "ipopt.bound_frac": 1e-10, "ipopt.mu_init": 1e-6})
     args = {"x0": np.concatenate([az_u, r_u]), "lbx": lbx, "ubx": ubx}
     if g:
-        args.update(lbg=np.array(floors), ubg=np.full(len(g), np.inf))
+        args.update(lbg=np.array(floors) + 1e-7, ubg=np.full(len(g), np.inf))  # inside: IPOPT's tolerance
     sol = solver(**args)
     stats = solver.stats()
     # verify IPOPT's point independently: within the bounds, guards kept, loss lower
@@ -1722,7 +1735,8 @@ def _refine(crit, spec, exact, stand, mm, space):
     rows = spec.numeric(X1, sigma)
     loss = _mean_loss(crit, rows, spec, counts)
     guards = [_Guard(gd.model, gd.spec, gd.spec.numeric(X1, sigma), gd.bound, gd.d_opt) for gd in exact.guards]
-    better = loss < loss0 - 1e-9 * abs(loss0) and all(gd.log_det(counts) >= f for gd, f in zip(guards, floors))
+    # (guards to 1e-6 in log det, i.e. 1e-6/k in D-efficiency: IPOPT's tolerance and the clipping to the bounds)
+    better = loss < loss0 - 1e-9 * abs(loss0) and all(gd.log_det(counts) >= f - 1e-6 for gd, f in zip(guards, floors))
     status = stats["return_status"]
     if not better:
         if not stats["success"]:
@@ -1803,7 +1817,9 @@ def monte_carlo(plan, model=None, n_rep=100, *, truth=None, seed=0, jobs=1, tilt
     Parameters
     ----------
     plan : hse_opt.data.Plan
-    model : Model, str or sequence of str, optional
+    model : Model, str, sequence of str, or a list of models
+        A list of :class:`~hse_opt.model.Model` (or ``"a,b"`` strings) fits every replicate
+        with each and returns one result per model.
     n_rep : int
         Replicates, >= 2.
     truth : hse_opt.sim.TruthConfig, optional
@@ -1818,7 +1834,7 @@ def monte_carlo(plan, model=None, n_rep=100, *, truth=None, seed=0, jobs=1, tilt
 
     Returns
     -------
-    MonteCarloResult
+    MonteCarloResult, or a tuple of them for a list of models
     """
     from .data import Runs
     from .fit import fit
@@ -1826,13 +1842,15 @@ def monte_carlo(plan, model=None, n_rep=100, *, truth=None, seed=0, jobs=1, tilt
 
     if isinstance(n_rep, bool) or int(n_rep) != n_rep or n_rep < 2:
         raise ValueError(f"n_rep = {n_rep!r}; allowed: an integer >= 2")
-    n_rep, model = int(n_rep), as_model(model)
+    n_rep = int(n_rep)
+    several = isinstance(model, list) and all(isinstance(m, (Model, str)) for m in model)
+    models = [as_model(m) for m in model] if several else [as_model(model)]
     truth = truth or TruthConfig.default()
     if any(v != 0 for v in truth.stand.tilt):
         raise ValueError("truth stand.tilt_arcsec (a tilt fixed in n) is not in the design's Stand model; "
                          "allowed: [0, 0] (the base tilt is stand.mount_tilt_arcsec)")
     stand = Stand(latitude=truth.site.latitude, tilt=tuple(truth.stand.mount_tilt), arw=truth.gyro.arw)
-    pred = evaluate(plan, model, stand=stand, tilt_known=tilt_known)
+    preds = [evaluate(plan, m, stand=stand, tilt_known=tilt_known) for m in models]
     cols, n = plan.to_columns(), plan.run.size
     rows = [{k: (r * n + i + 1 if k == "run" else float(v[i])) for k, v in cols.items()}
             for r in range(n_rep) for i in range(n)]
@@ -1848,14 +1866,28 @@ def monte_carlo(plan, model=None, n_rep=100, *, truth=None, seed=0, jobs=1, tilt
             bar.close()
     keys = ("run", "rate_dps", "azimuth_deg", "heading_err_arcsec", "latitude_deg", "duration_s", "t_start_s",
             "pitch_arcsec", "roll_arcsec", "heading_std_arcsec")
-    est = np.empty((n_rep, len(pred.names)))
-    for r in range(n_rep):
-        part = out[r * n:(r + 1) * n]
-        res = fit(Runs.from_columns({k: [row[k] for row in part] for k in keys}, source=f"replicate {r}"),
-                  model, tilt_known=tilt_known)
-        est[r] = [res.values[res.names.index(nm)] for nm in pred.names]
+    replicates = [Runs.from_columns({k: [row[k] for row in out[r * n:(r + 1) * n]] for k in keys},
+                                    source=f"replicate {r}") for r in range(n_rep)]
     # every replicate repeats each run's deterministic errors: the scatter across them is noise
     h = np.array([row["heading_err_arcsec"] for row in out]).reshape(n_rep, n) * units.ARCSEC
     ratio = float(np.sqrt(np.mean(h.var(axis=0, ddof=1) / stand.sigma(plan.duration) ** 2)))
-    return MonteCarloResult(pred.names, pred.units, pred.std, est.std(axis=0, ddof=1), est.mean(axis=0), ratio,
-                            est, n_rep)
+    results = []
+    for m, pred in zip(models, preds):
+        est = np.empty((n_rep, len(pred.names)))
+        for r, runs in enumerate(replicates):
+            res = fit(runs, m, tilt_known=tilt_known)
+            est[r] = [res.values[res.names.index(nm)] for nm in pred.names]
+        results.append(MonteCarloResult(pred.names, pred.units, pred.std, est.std(axis=0, ddof=1),
+                                        est.mean(axis=0), ratio, est, n_rep))
+    return tuple(results) if several else results[0]
+
+
+class _CallableModule(types.ModuleType):
+    """``hse_opt.design(model, criterion, budget=...)`` calls :func:`design`: the package
+    exports this module under the function's name."""
+
+    def __call__(self, *args, **kwargs):
+        return design(*args, **kwargs)
+
+
+sys.modules[__name__].__class__ = _CallableModule

@@ -405,3 +405,51 @@ def test_monte_carlo_scatter_matches_the_prediction():
     assert 1.0 < mc.run_scatter_ratio < 1.25
     # the estimates are unbiased within their sampling error where the model is the truth's
     assert abs(mc.mean[1] - 4.2) < 4 * mc.empirical_std[1] / np.sqrt(150)
+
+
+# ------------------------------------------------------------------ command line
+def test_cli_design_writes_a_plan_and_the_json_contract(tmp_path, capsys):
+    import json
+    from hse_opt.cli import main
+    from hse_opt.data import load_plan
+    out = tmp_path / "PLAN.csv"
+    assert main(["design", "--budget-h", "4", "--reverse", "--json", "-o", str(out)]) == 0
+    d = json.loads(capsys.readouterr().out)  # one JSON object and nothing else
+    assert {"criterion", "n_runs", "total_time_h", "predicted_std", "efficiency"} <= set(d)
+    assert d["criterion"] == "c:lambda2" and d["total_time_h"] <= 4.0
+    assert d["predicted_std"]["lambda2"]["unit"] == "arcsec"
+    plan = load_plan(out)
+    assert plan.run.size == d["n_runs"]
+    before = out.read_bytes()
+    assert main(["design", "--evaluate", str(out), "--json"]) == 0
+    e = json.loads(capsys.readouterr().out)
+    assert e["predicted_std"]["lambda2"]["value"] == pytest.approx(d["predicted_std"]["lambda2"]["value"], rel=1e-6)
+    assert e["total_time_h"] == pytest.approx(d["total_time_h"]) and out.read_bytes() == before
+    assert main(["design", "--evaluate", str(out)]) == 0
+    assert "predicted sigma" in capsys.readouterr().out
+
+
+def test_cli_design_errors_exit_2_and_name_the_problem(tmp_path, capsys):
+    from hse_opt.cli import main
+    from hse_opt.data import save_plan
+    p = tmp_path / "ONE.csv"
+    save_plan(paper_plan(), p)
+    assert main(["design", "--evaluate", str(p), "--effects", "axis_bias,sync_delay,warmup"]) == 2
+    err = capsys.readouterr().err
+    assert str(p) in err and "warmup" in err
+    assert main(["design", "--budget-h", "4"]) == 2
+    assert "-o PLAN.csv is required" in capsys.readouterr().err
+    assert main(["design", "--rates", "20-60", "-o", str(tmp_path / "x.csv")]) == 2
+    assert "--rates" in capsys.readouterr().err
+    assert main(["design", "--criterion", "c:nope", "-o", str(tmp_path / "x.csv")]) == 2
+    assert "nope" in capsys.readouterr().err and not (tmp_path / "x.csv").exists()
+
+
+def test_design_vs_paper_study_runs_and_passes_its_assertions():
+    import subprocess
+    import sys
+    from pathlib import Path
+    script = Path(__file__).resolve().parents[1] / "studies" / "design_vs_paper.py"
+    out = subprocess.run([sys.executable, str(script)], capture_output=True, text=True, timeout=600)
+    assert out.returncode == 0, out.stderr
+    assert "OK: the optimised plans meet the targets" in out.stdout
