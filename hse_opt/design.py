@@ -16,12 +16,14 @@ the information matrix into a loss; :func:`design` minimises it within a test-ti
    Frank-Wolfe gap of the (Lagrangian) objective over all candidates bounds the loss of
    optimality (``ApproximateDesign.certified_efficiency``). The solver's ``problem.status``
    is checked; a failure raises :class:`DesignError` with it.
-3. **Exact design** -- efficient rounding (Pukelsheim & Rieder 1992, :func:`apportion`) of
-   the approximate proportions to ``n`` whole runs, ``n`` the largest for which the plan with
-   its setup times (:class:`Costs`) fits the budget, then a one-run exchange polish. Its
-   *efficiency* is measured against the approximate optimum for the same number of runs
-   (``efficiency``) and for the whole budget (``budget_efficiency``, which also counts the
-   time the setups take).
+3. **Exact design** -- the approximate design's support is first reduced (Caratheodory: same
+   information matrices on fewer candidates), then rounded efficiently (Pukelsheim & Rieder
+   1992, :func:`apportion`) to ``n`` whole runs, ``n`` the largest for which the plan with its
+   setup times (:class:`Costs`) fits the budget, then polished by one-run exchanges. Setups
+   are not linear in the run numbers: a greedy search drops stand positions while the rounded
+   plan gets better (``prune``). The *efficiency* is measured against the approximate
+   optimum for the same alignment time (``efficiency``) and for the whole budget
+   (``budget_efficiency``, which also counts the time the setups take).
 4. **Refinement** -- IPOPT (CasADi) moves the exact design's rates and azimuths off the
    candidate grid (runs sharing an azimuth or a rate keep sharing it, so setups do not grow).
 5. **Run order** -- runs sharing a setting run together and settings are grouped by their
@@ -57,8 +59,7 @@ import sys
 import time
 import types
 import warnings
-from dataclasses import dataclass, field
-from functools import cached_property
+from dataclasses import dataclass
 
 import casadi as ca
 import cvxpy as cp
@@ -1190,9 +1191,9 @@ def _prune(crit, rows, spec, guards, w, cand, cost, costs, budget, max_runs, sol
 def _orders(settings, counts, costs, rng=None, n_random=0):
     """Run sequences (arrays of setting indices): each setting's runs together, settings
     in time-slot order, then grouped by their costliest factor (tilt, azimuth, rate, duration
-    in the order of the change costs), serpentine (the next group starts where the last ended), plain or folded
-    (ABBA: first halves of the groups, then the second halves in reverse); ``n_random``
-    more with random group orders and folds."""
+    in the order of the change costs), serpentine (the next group starts where the last
+    ended), plain or folded (ABBA: first halves of the groups, then the second halves in
+    reverse); ``n_random`` more with random group orders and folds."""
     keys = {"slot": settings.t_start[:, None] / 1e-6,
             "tilt": np.column_stack([settings.tilt_x, settings.tilt_y]) / 1e-12,
             "azimuth": np.mod(settings.azimuth, 2 * np.pi)[:, None] / 1e-12,
@@ -1381,8 +1382,8 @@ def evaluate(plan, model=None, *, stand=None, tilt_known=True, criterion=None, n
         Also report this criterion's loss.
     nominal : mapping name -> value, optional
         Values (display units) at which the model is linearised.
-    prior : FitResult, mapping or numpy.ndarray, optional
-        Prior information (:func:`hse_opt.information.prior_fisher`).
+    prior : FitResult, Prior or numpy.ndarray, optional
+        Prior information (see :func:`design`).
 
     Returns
     -------
@@ -1542,9 +1543,9 @@ def design(model=None, criterion="c:lambda2", *, budget, space=None, stand=None,
     prior_sample : mapping name -> array, optional
         Draws (display units, equal numbers) over which the criterion is averaged: a design
         robust to the nonlinear parameters.
-    prior : FitResult, mapping or numpy.ndarray, optional
-        Prior information from an earlier calibration
-        (:func:`~hse_opt.information.prior_fisher`).
+    prior : FitResult, Prior or numpy.ndarray, optional
+        Prior information from an earlier calibration (a FitResult or
+        :class:`~hse_opt.information.Prior`; or a Fisher matrix in the model's order).
     identify : Model, str or sequence, optional
         Models the plan must also identify (a list of effect names is one model; a list of
         models or ``"a,b"`` strings is several), each with a D-efficiency of at least
