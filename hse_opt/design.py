@@ -75,7 +75,7 @@ from .model.measurement import BatchEvaluator, Model
 __all__ = ["A", "ApproximateDesign", "C", "Candidates", "Costs", "Criterion", "D", "DesignError",
            "DesignResult", "DesignSpace", "Discrimination", "E", "Evaluation", "MonteCarloResult",
            "Stand", "apportion", "approximate_design", "as_criterion", "design", "evaluate", "monte_carlo",
-           "paper_plan"]
+           "paper_plan", "plan_lines"]
 
 
 #: a heading drift of this size (rad/s) is the unit of the reported drift bias: 1 arcsec/h
@@ -187,8 +187,8 @@ class _Cvx:
         if k == 1:
             self.constraints.append(F[0, 0] >= t)
         else:
-            self.constraints.append(cp.bmat([[F[:-1, :-1], F[:-1, -1:]],
-                                             [F[-1:, :-1], F[-1:, -1:] - cp.reshape(t, (1, 1), order="C")]]) >> 0)
+            corner = F[-1:, -1:] - cp.reshape(t, (1, 1), order="C")
+            self.constraints.append(cp.bmat([[F[:-1, :-1], F[:-1, -1:]], [F[-1:, :-1], corner]]) >> 0)
         return t * S.d[-1] ** 2
 
 
@@ -663,8 +663,8 @@ class DesignSpace:
             ang = np.arange(self.n_tilt_directions) * 2 * np.pi / self.n_tilt_directions
             tilts += [(self.max_tilt * np.cos(a), self.max_tilt * np.sin(a)) for a in ang]
         slots = range(int(self.time_slots))
-        g = np.array(list(itertools.product(slots, rates, self.azimuth_grid, range(len(tilts)), self.durations)),
-                     dtype=float)
+        g = np.array(list(itertools.product(slots, rates, self.azimuth_grid, range(len(tilts)),
+                                            self.durations)), dtype=float)
         t = np.array(tilts)[g[:, 3].astype(int)]
         start = warmup + g[:, 0] * test_time / self.time_slots
         centre = start + 0.5 * test_time / self.time_slots
@@ -945,8 +945,8 @@ def _certificate(crit, k, loss, h, w, mus, guards, cost, budget, max_runs, slot=
         from scipy.optimize import linprog
         S = np.zeros((n_slots, cost.size))
         S[slot, np.arange(cost.size)] = cost
-        res = linprog(-h, A_ub=np.vstack([S, np.ones_like(cost)]), b_ub=[budget / n_slots] * n_slots + [max_runs],
-                      bounds=(0, None), method="highs")
+        res = linprog(-h, A_ub=np.vstack([S, np.ones_like(cost)]),
+                      b_ub=[budget / n_slots] * n_slots + [max_runs], bounds=(0, None), method="highs")
         if res.status != 0:
             raise DesignError(f"equivalence-theorem bound: linprog status {res.status} ({res.message})")
         best = float(-res.fun)
@@ -991,7 +991,8 @@ def approximate_design(features, criterion="D", *, cost=None, budget=1.0, max_ru
     if rows.ndim == 2:
         rows = rows[None]
     if rows.ndim != 3 or rows.shape[1] < 1 or rows.shape[2] < 1 or not np.all(np.isfinite(rows)):
-        raise ValueError(f"features has shape {np.shape(features)}; allowed: (n, k) or (S, n, k) finite numbers")
+        raise ValueError(f"features has shape {np.shape(features)}; allowed: (n, k) or (S, n, k) finite "
+                         "numbers")
     n, k = rows.shape[1:]
     cost = np.ones(n) if cost is None else np.asarray(cost, dtype=float)
     if cost.shape != (n,) or np.any(~np.isfinite(cost)) or np.any(cost <= 0):
@@ -1066,7 +1067,8 @@ def _caratheodory(w, rows, guards, cost, slot):
     n_slots = int(slot.max()) + 1
 
     def maps(idx):
-        cols = [r[:, idx][:, :, i] * r[:, idx][:, :, j] for r, (i, j) in zip([rows, *[g.rows for g in guards]], iu)]
+        cols = [r[:, idx][:, :, i] * r[:, idx][:, :, j]
+                for r, (i, j) in zip([rows, *[g.rows for g in guards]], iu)]
         parts = [c.transpose(1, 0, 2).reshape(idx.size, -1) for c in cols]
         parts += [cost[idx, None], np.ones((idx.size, 1)), (slot[idx, None] == np.arange(n_slots)[None, :])]
         A = np.hstack(parts).T
@@ -1114,7 +1116,8 @@ def _round(crit, rows, spec, guards, approx_w, cand, cost, costs, budget, max_ru
                   _mean_loss(crit, srows, spec, counts), xi[keep])
 
 
-def _polish(crit, rows, spec, guards, counts, settings, costs, budget, max_runs, cache, max_iter=500, screen=24):
+def _polish(crit, rows, spec, guards, counts, settings, costs, budget, max_runs, cache, max_iter=500,
+            screen=24):
     """One-run exchanges (move a run between settings, or add one where time allows) that
     lower the loss, keep each guard at or above its bound (or where it started) and fit the
     budget. Moves are screened by their first-order effect (the directional derivatives);
@@ -1331,7 +1334,8 @@ class Evaluation:
             "tilt_known": self.tilt_known,
             "n_runs": self.n_runs,
             "total_time_h": self.total_time / units.HOUR,
-            "predicted_std": {n: {"value": float(s), "unit": u} for n, s, u in zip(self.names, self.std, self.units)},
+            "predicted_std": {n: {"value": float(s), "unit": u}
+                              for n, s, u in zip(self.names, self.std, self.units)},
             "drift_bias_per_arcsec_per_h": {n: {"value": float(b), "unit": u}
                                             for n, b, u in zip(self.names, self.drift_bias, self.units)},
             "condition": float(self.condition),
@@ -1341,7 +1345,8 @@ class Evaluation:
     def summary(self):
         """Report lines."""
         lines = [f"model {'+'.join(self.effects)} (tilt {'known' if self.tilt_known else 'unknown'}): "
-                 f"{self.n_runs} runs, {self.total_time / units.HOUR:.3f} h from power-on to the last run's end",
+                 f"{self.n_runs} runs, {self.total_time / units.HOUR:.3f} h from power-on to the last run's "
+                 "end",
                  f"  {'parameter':<20}{'predicted sigma':>22}{'bias per arcsec/h drift':>28}"]
         for n, s, b, u in zip(self.names, self.std, self.drift_bias, self.units):
             b = 0.0 if abs(b) < 1e-9 * s else b  # rounding of a trend-free order
@@ -1357,8 +1362,8 @@ def _prior(prior, names):
         return None
     if isinstance(prior, np.ndarray):
         if prior.shape != (len(names), len(names)):
-            raise ValueError(f"prior information has shape {prior.shape}; allowed: ({len(names)}, {len(names)}) "
-                             f"in the order {', '.join(names)}")
+            raise ValueError(f"prior information has shape {prior.shape}; allowed: ({len(names)}, "
+                             f"{len(names)}) in the order {', '.join(names)}")
         return np.asarray(prior, float)
     if not isinstance(prior, Prior):
         if not hasattr(prior, "covariance"):
@@ -1492,7 +1497,8 @@ class DesignResult:
             "budget_efficiency": float(self.budget_efficiency),
             "approximate": {"status": a.status, "solver": a.solver, "n_candidates": int(a.runs.size),
                             "support": int(a.support.size), "iterations": a.iterations, "n_active": a.n_active,
-                            "certified_efficiency": float(a.certified_efficiency), "solve_time_s": a.solve_time},
+                            "certified_efficiency": float(a.certified_efficiency),
+                            "solve_time_s": a.solve_time},
             "setup_time_h": self.setup_time / units.HOUR, "alignment_time_h": self.alignment_time / units.HOUR,
             "refinement": self.refinement, "guards": [dict(g) for g in self.guards], "notes": list(self.notes),
         })
@@ -1501,8 +1507,9 @@ class DesignResult:
     def summary(self):
         """Report lines."""
         a = self.approximate
-        lines = [f"criterion {self.criterion}: {self.n_runs} runs in {self.total_time / units.HOUR:.3f} h "
-                 f"(setups {self.setup_time / units.HOUR:.3f} h, alignments {self.alignment_time / units.HOUR:.3f} h)",
+        hours = lambda t: f"{t / units.HOUR:.3f} h"  # noqa: E731
+        lines = [f"criterion {self.criterion}: {self.n_runs} runs in {hours(self.total_time)} (setups "
+                 f"{hours(self.setup_time)}, alignments {hours(self.alignment_time)})",
                  f"approximate design: {a.runs.size} candidates ({a.n_active} active after {a.iterations} "
                  f"round(s)), {a.support.size} in the support, {a.solver} {a.status} in {a.solve_time:.2f} s, "
                  f"certified efficiency >= {a.certified_efficiency:.6f}",
@@ -1626,10 +1633,12 @@ def design(model=None, criterion="c:lambda2", *, budget, space=None, stand=None,
     approx = _approximate(crit, rows, spec, guards, cand, cost, B, max_runs, solver)
     notes = []
     if approx.certified_efficiency < 0.999:
-        notes.append(f"the approximate design is certified only to efficiency {approx.certified_efficiency:.4f}")
+        notes.append(f"the approximate design is certified only to efficiency "
+                     f"{approx.certified_efficiency:.4f}")
     exact = _round(crit, rows, spec, guards, approx.runs, cand, cost, costs, budget, max_runs)
     if prune:
-        exact = _prune(crit, rows, spec, guards, approx.runs, cand, cost, costs, budget, max_runs, solver, exact)
+        exact = _prune(crit, rows, spec, guards, approx.runs, cand, cost, costs, budget, max_runs, solver,
+                       exact)
     if not np.isfinite(exact.loss):
         raise UnidentifiableError(f"{int(exact.counts.sum())} whole runs within the budget cannot identify "
                                   f"the model for criterion {crit.label}", spec.names)
@@ -1671,7 +1680,8 @@ def design(model=None, criterion="c:lambda2", *, budget, space=None, stand=None,
             std = {}
             notes.append(f"the plan does not identify {'+'.join(g.model.effect_names)}: {err}")
         guard_out.append({"effects": list(g.model.effect_names), "min_efficiency": float(identify_efficiency),
-                          "d_efficiency": float(np.exp((g.d_opt + g_exact.log_det(np.ones(seq.size))) / g.spec.k)),
+                          "d_efficiency": float(np.exp((g.d_opt + g_exact.log_det(np.ones(seq.size)))
+                                                       / g.spec.k)),
                           "std": std})
     return DesignResult(plan, evaluation, crit.label, efficiency, rounding_eff, budget_eff, approx,
                         float(costs.setups(s.rate, s.azimuth, s.tilt_x, s.tilt_y).sum()),
@@ -1737,7 +1747,8 @@ def _refine(crit, spec, exact, stand, mm, space):
     loss = _mean_loss(crit, rows, spec, counts)
     guards = [_Guard(gd.model, gd.spec, gd.spec.numeric(X1, sigma), gd.bound, gd.d_opt) for gd in exact.guards]
     # (guards to 1e-6 in log det, i.e. 1e-6/k in D-efficiency: IPOPT's tolerance and the clipping to the bounds)
-    better = loss < loss0 - 1e-9 * abs(loss0) and all(gd.log_det(counts) >= f - 1e-6 for gd, f in zip(guards, floors))
+    better = (loss < loss0 - 1e-9 * abs(loss0)
+              and all(gd.log_det(counts) >= f - 1e-6 for gd, f in zip(guards, floors)))
     status = stats["return_status"]
     if not better:
         if not stats["success"]:
@@ -1757,6 +1768,28 @@ def paper_plan(azimuth0=0.0, costs=None, azimuths_deg=(0.0, 91.8795, 181.2953, 2
     dur = np.full(rate.size, 600.0)
     return Plan(run=np.arange(1, rate.size + 1), rate=rate, azimuth=np.mod(az, 2 * np.pi),
                 t_start=costs.schedule(rate, az, np.zeros(rate.size), np.zeros(rate.size), dur), duration=dur)
+
+
+def plan_lines(plan):
+    """Runs grouped by setting, in order: ``runs 1-5  -60 deg/s  az 294.62 deg ...``."""
+    cols = plan.to_columns()
+    keys = [cols["rate_dps"], cols["azimuth_deg"], cols["duration_s"]]
+    if "tilt_x_arcsec" in cols:
+        keys += [cols["tilt_x_arcsec"], cols["tilt_y_arcsec"]]
+    key = np.round(np.column_stack(keys), 6)
+    lines, i, n = [], 0, key.shape[0]
+    while i < n:
+        j = i
+        while j + 1 < n and np.array_equal(key[j + 1], key[i]):
+            j += 1
+        ids = f"{plan.run[i]}" if i == j else f"{plan.run[i]}-{plan.run[j]}"
+        text = (f"  runs {ids:<8} {key[i, 0]:+8.3f} deg/s  azimuth {key[i, 1]:8.3f} deg  {key[i, 2]:g} s"
+                f"  from {plan.t_start[i] / units.HOUR:6.3f} h")
+        if key.shape[1] > 3:
+            text += f"  tilt ({key[i, 3]:+.0f}, {key[i, 4]:+.0f}) arcsec"
+        lines.append(text)
+        i = j + 1
+    return lines
 
 
 # ======================================================================= Monte Carlo
@@ -1802,7 +1835,8 @@ class MonteCarloResult:
         return {"n_rep": self.n_rep, "run_scatter_ratio": self.run_scatter_ratio, "parameters": {
             n: {"predicted_std": float(p), "empirical_std": float(e), "ratio": float(e / p),
                 "propagated_std": float(p * self.run_scatter_ratio), "mean": float(m), "unit": u}
-            for n, u, p, e, m in zip(self.names, self.units, self.predicted_std, self.empirical_std, self.mean)}}
+            for n, u, p, e, m in zip(self.names, self.units, self.predicted_std, self.empirical_std,
+                                     self.mean)}}
 
 
 def monte_carlo(plan, model=None, n_rep=100, *, truth=None, seed=0, jobs=1, tilt_known=True, progress=True,

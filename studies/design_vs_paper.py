@@ -35,7 +35,8 @@ import argparse
 import numpy as np
 
 from hse_opt import units
-from hse_opt.design import Costs, DesignSpace, Stand, design, evaluate, monte_carlo, paper_plan
+from hse_opt.design import (Costs, DesignSpace, Stand, design, evaluate, monte_carlo, paper_plan,
+                             plan_lines)
 from hse_opt.information import UnidentifiableError
 from hse_opt.sim import TruthConfig
 
@@ -108,20 +109,10 @@ def main():
 
     print("\nthe optimised plans (runs in order):")
     for (key, label), r in results.items():
-        c = r.plan.to_columns()
-        blocks, i = [], 0
-        while i < r.n_runs:
-            j = i
-            while j + 1 < r.n_runs and all(np.isclose(c[k][j + 1], c[k][i]) for k in c if k not in ("run", "t_start_s")):
-                j += 1
-            tilt = (f" tilt ({c['tilt_x_arcsec'][i]:+.0f},{c['tilt_y_arcsec'][i]:+.0f})"
-                    if "tilt_x_arcsec" in c and (c["tilt_x_arcsec"][i] or c["tilt_y_arcsec"][i]) else "")
-            blocks.append(f"{j - i + 1}x[{c['rate_dps'][i]:+.0f} dps @ {c['azimuth_deg'][i]:.1f} deg{tilt}]")
-            i = j + 1
-        print(f"  ({key}) {label:<15} {' '.join(blocks)}")
-        print(f"      setups {r.setup_time / units.HOUR:.2f} h; drift bias of lambda2 "
+        print(f"  ({key}) for the {label}: setups {r.setup_time / units.HOUR:.2f} h; drift bias of lambda2 "
               f"{r.evaluation.drift_bias[r.evaluation.names.index('lambda2')]:+.3g} arcsec per arcsec/h; "
               f"refinement {r.refinement}")
+        print("\n".join("  " + line for line in plan_lines(r.plan)))
 
     if args.reps:
         print(f"\nMonte Carlo: {args.reps} simulated campaigns of each plan, each fitted with both models "
@@ -142,8 +133,8 @@ def main():
                 prop = mc.empirical_std[i] / mc.propagated_std[i]
                 checks.append((name, m, mc.ratio[i], prop))
                 print(f"{name:<34}{'hse' if m == PAPER else 'ext':>9}{mc.predicted_std[i]:>11.4g}"
-                      f"{mc.empirical_std[i]:>11.4g}{mc.ratio[i]:>8.3f}{mc.run_scatter_ratio:>8.3f}{prop:>18.3f}"
-                      f"{mc.mean[i]:>9.4g}")
+                      f"{mc.empirical_std[i]:>11.4g}{mc.ratio[i]:>8.3f}{mc.run_scatter_ratio:>8.3f}"
+                      f"{prop:>18.3f}{mc.mean[i]:>9.4g}")
         if args.reps >= 100:
             worst = max(checks, key=lambda c: abs(c[3] - 1))
             assert abs(worst[3] - 1) < 0.15, f"Monte Carlo off the propagated prediction: {worst}"

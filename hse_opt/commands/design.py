@@ -34,8 +34,10 @@ def add_arguments(parser):
     parser.add_argument("--effects", metavar="a,b", default="", help="catalogue effects to add to 'hse'")
     parser.add_argument("--criterion", default="c:lambda2", metavar="D|A|E|c:NAME",
                         help="optimality criterion (default c:lambda2)")
-    parser.add_argument("--rates", default="20:60", metavar="LO:HI", help="|bias rate| limits, deg/s (default 20:60)")
-    parser.add_argument("--n-rates", type=int, default=5, metavar="N", help="rate levels between the limits (default 5)")
+    parser.add_argument("--rates", default="20:60", metavar="LO:HI",
+                        help="|bias rate| limits, deg/s (default 20:60)")
+    parser.add_argument("--n-rates", type=int, default=5, metavar="N",
+                        help="rate levels between the limits (default 5)")
     parser.add_argument("--reverse", action="store_true", help="allow both rotation senses")
     parser.add_argument("--negative", action="store_true", help="turn the negative sense when not --reverse")
     parser.add_argument("--azimuth-step-deg", type=float, default=15.0, metavar="DEG",
@@ -58,7 +60,8 @@ def add_arguments(parser):
     parser.add_argument("--azimuth-change-s", type=float, default=600.0, help="time to change the azimuth, s")
     parser.add_argument("--rate-change-s", type=float, default=60.0, help="time to change rate or sense, s")
     parser.add_argument("--tilt-change-s", type=float, default=1200.0, help="time to reset the tilt fixture, s")
-    parser.add_argument("--run-overhead-s", type=float, default=0.0, help="per alignment beyond its duration, s")
+    parser.add_argument("--run-overhead-s", type=float, default=0.0,
+                        help="per alignment beyond its duration, s")
     parser.add_argument("--tilt-unknown", action="store_true",
                         help="the runs will not carry pitch/roll: tilt-coupled terms as free C23 coefficients")
     parser.add_argument("--identify", metavar="a,b", default=None,
@@ -70,7 +73,8 @@ def add_arguments(parser):
     parser.add_argument("--prior", metavar="FIT.json", help="an earlier calibration as prior information")
     parser.add_argument("--order", choices=("trend-robust", "min-setup"), default="trend-robust",
                         help="run order (default trend-robust)")
-    parser.add_argument("--no-refine", dest="refine", action="store_false", help="keep rates/azimuths on the grid")
+    parser.add_argument("--no-refine", dest="refine", action="store_false",
+                        help="keep rates and azimuths on the candidate grid")
     parser.add_argument("--seed", type=int, default=0, help="seed of the run-order search (default 0)")
     parser.add_argument("--json", action="store_true", help="print one JSON object on stdout")
 
@@ -110,34 +114,10 @@ def _nominal(items):
     return out
 
 
-def plan_lines(plan):
-    """Runs grouped by setting, in order: ``runs 1-5  -60 deg/s  az 294.62 deg ...``."""
-    from .. import units
-
-    cols = plan.to_columns()
-    keys = [cols["rate_dps"], cols["azimuth_deg"], cols["duration_s"]]
-    if "tilt_x_arcsec" in cols:
-        keys += [cols["tilt_x_arcsec"], cols["tilt_y_arcsec"]]
-    key = np.round(np.column_stack(keys), 6)
-    lines, i, n = [], 0, key.shape[0]
-    while i < n:
-        j = i
-        while j + 1 < n and np.array_equal(key[j + 1], key[i]):
-            j += 1
-        ids = f"{plan.run[i]}" if i == j else f"{plan.run[i]}-{plan.run[j]}"
-        text = (f"  runs {ids:<8} {key[i, 0]:+8.3f} deg/s  azimuth {key[i, 1]:8.3f} deg  {key[i, 2]:g} s"
-                f"  from {plan.t_start[i] / units.HOUR:6.3f} h")
-        if key.shape[1] > 3:
-            text += f"  tilt ({key[i, 3]:+.0f}, {key[i, 4]:+.0f}) arcsec"
-        lines.append(text)
-        i = j + 1
-    return lines
-
-
 def run(args):
     from .. import units
     from ..data import load_plan, save_plan
-    from ..design import Costs, DesignSpace, design, evaluate
+    from ..design import Costs, DesignSpace, design, evaluate, plan_lines
     from ..fit import as_model, load_fit
     from ..information import UnidentifiableError
 
@@ -153,11 +133,13 @@ def run(args):
             ev = evaluate(plan, model, stand=stand, tilt_known=tilt_known, criterion=args.criterion,
                           nominal=_nominal(args.nominal), prior=prior)
         except UnidentifiableError as err:
-            raise UnidentifiableError(f"{args.evaluate}: {err}", err.names, err.direction, err.condition) from None
+            raise UnidentifiableError(f"{args.evaluate}: {err}", err.names, err.direction,
+                                      err.condition) from None
         if args.json:
             print_json({**ev.to_dict(), "source": args.evaluate})
         else:
-            print(f"hse-opt design --evaluate {args.evaluate}: criterion {ev.criterion} = {ev.criterion_value:.6g}")
+            print(f"hse-opt design --evaluate {args.evaluate}: criterion {ev.criterion} = "
+                  f"{ev.criterion_value:.6g}")
             print("\n".join(ev.summary()))
             print("\n".join(plan_lines(plan)))
         return 0
@@ -167,7 +149,8 @@ def run(args):
     lo, hi = _pair(args.rates, "--rates", sep=":")
     space = DesignSpace(rates=(lo * units.DEG_PER_S, hi * units.DEG_PER_S), n_rates=args.n_rates,
                         reverse=args.reverse, sense=-1 if args.negative else 1,
-                        azimuth_step=args.azimuth_step_deg * units.DEG, max_tilt=args.max_tilt_arcsec * units.ARCSEC,
+                        azimuth_step=args.azimuth_step_deg * units.DEG,
+                        max_tilt=args.max_tilt_arcsec * units.ARCSEC,
                         durations=tuple(float(d) for d in args.durations_s.split(",")),
                         time_slots=args.time_slots)
     costs = Costs(warmup=args.warmup_s, azimuth_change=args.azimuth_change_s, rate_change=args.rate_change_s,
