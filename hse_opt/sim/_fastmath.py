@@ -42,18 +42,22 @@ class PhaseTable:
         return c, s
 
 
-def rotate_small(c, s, d):
+def rotate_small(c, s, d, out=None):
     """cos and sin of ``phase + d`` from ``c = cos(phase)``, ``s = sin(phase)`` and a small
-    ``d`` (|d| <= :data:`MAX_DEVIATION`, rad); arrays of one shape."""
+    ``d`` (|d| <= :data:`MAX_DEVIATION`, rad); arrays of one shape. Returns ``(cos, sin)``,
+    written into ``out`` (shape (2, ...)) when given (``out`` must not overlap the inputs)."""
     d2 = d * d
     cd = d2 * (d2 / 24.0 - 0.5)
     cd += 1.0
     sd = d2 * (-1.0 / 6.0)
     sd += 1.0
     sd *= d
-    cn = c * cd
+    if out is None:
+        out = np.empty((2,) + np.shape(c))
+    cn, sn = out[0], out[1]
+    np.multiply(c, cd, out=cn)
     cn -= s * sd
-    sn = s * cd
+    np.multiply(s, cd, out=sn)
     sn += c * sd
     return cn, sn
 
@@ -63,26 +67,29 @@ def cos_sin_linear(phi0, dphi, n):
     return PhaseTable(dphi, n).cos_sin(phi0, n)
 
 
-def cos_sin(phase, table=None):
+def cos_sin(phase, table=None, out=None):
     """cos and sin of a phase sequence that is nearly linear in its index (rad, shape (n,)).
 
     The phase is split into the line ``phase[0] + k * dphi`` and a deviation; ``dphi`` is
     ``table.dphi`` when a :class:`PhaseTable` of at least ``n`` entries is given, else the
     slope through the first and last samples. Deviations within :data:`MAX_DEVIATION` use
-    the fast path, larger ones ``np.cos``/``np.sin``.
+    the fast path, larger ones ``np.cos``/``np.sin``. Returns ``(cos, sin)``, written into
+    ``out`` (shape (2, n)) when given.
     """
     phase = np.asarray(phase, dtype=float)
     n = phase.shape[0]
-    if n < 3:
-        return np.cos(phase), np.sin(phase)
+    if out is None:
+        out = np.empty((2, n))
     if table is None or table.c.shape[0] < n:
-        table = PhaseTable((phase[-1] - phase[0]) / (n - 1), n)
+        table = PhaseTable((phase[-1] - phase[0]) / max(n - 1, 1), n)
     d = phase - phase[0]
     d -= table.dphi * np.arange(n, dtype=float)
-    if not np.abs(d).max() <= MAX_DEVIATION:
-        return np.cos(phase), np.sin(phase)
+    if n < 3 or not np.abs(d).max() <= MAX_DEVIATION:
+        np.cos(phase, out=out[0])
+        np.sin(phase, out=out[1])
+        return out[0], out[1]
     c, s = table.cos_sin(float(phase[0]), n)
-    return rotate_small(c, s, d)
+    return rotate_small(c, s, d, out=out)
 
 
 def apply3(M, X, out=None):

@@ -43,7 +43,7 @@ import numpy as np
 
 from hse_opt import units
 from hse_opt.frames import dcm_to_zyx, earth_rate_n, skew
-from hse_opt.sim._fastmath import PhaseTable, apply3, cos_sin
+from hse_opt.sim._fastmath import PhaseTable, cos_sin
 from hse_opt.sim.rawlog import RawLog
 
 __all__ = ["AlignConfig", "AlignResult", "AlignHistory", "align", "triad"]
@@ -212,7 +212,19 @@ def triad(f_b0, w_b0):
 
 
 def _blocks(log, config):
-    """Calibrate, project into b0 and block-sum. Returns dict of block sums and geometry."""
+    """Calibrate, project into b0 and block-sum.
+
+    Returns a dict: ``dth``, ``dv`` (3, nb) block sums of the calibrated gyro and
+    accelerometer increments projected into b0 (table turn removed from the gyro z);
+    ``rot`` (nb,) complex block sums of ``exp(i alpha)`` times the sample period (the
+    projection of a vector fixed in b: ``sum rot_z(alpha_k) v dt``); geometry ``L``,
+    ``m``, ``nb``, ``dt``, ``rate``, ``block_time``.
+
+    The projection is linear, so the calibration matrices are applied to block sums: for
+    each block the processor forms ``sum cos(alpha_k) x_k``, ``sum sin(alpha_k) x_k`` and
+    ``sum x_k`` of the raw increments ``x_k`` (one batched matrix product), then the 3x3
+    calibration and the turn into b0.
+    """
     n = len(log)
     enc = log.encoder
     span = enc[-1] - enc[0]
@@ -231,39 +243,55 @@ def _blocks(log, config):
         nb_need = 2 * m
         raise ValueError(f"raw log: {nint} usable samples make {nb} filter blocks; at least "
                          f"{nb_need} (two revolutions) are needed")
-    A_g = np.asarray(config.C_s_b_cal) @ np.asarray(config.K_g_cal)
-    A_a = np.asarray(config.C_s_b_cal) @ np.asarray(config.A_acc_cal)
-    gyro = log.gyro.T
-    accel = log.accel.T
-    dth_sum = np.empty((3, nb))
-    dv_sum = np.empty((3, nb))
-    per_chunk = max(1, _CHUNK_TARGET // L)
-    ptab = PhaseTable(span / (n - 1), per_chunk * L)
-    for b0 in range(0, nb, per_chunk):
-        b1 = min(nb, b0 + per_chunk)
-        i0, i1 = 1 + b0 * L, 1 + b1 * L          # rows of the log (row i: interval i-1 -> i)
-        e = enc[i0 - 1:i1]
-        amid = 0.5 * (e[1:] + e[:-1])
-        da = np.diff(e)
-        c, s = cos_sin(amid, ptab)
-        kb = b1 - b0
-        for src, A, out, turn in ((gyro, A_g, dth_sum, da), (accel, A_a, dv_sum, None)):
-            x = apply3(A, src[:, i0:i1])
-            hx = c * x[0]
-            hx -= s * x[1]
-            hy = s * x[0]
-            hy += c * x[1]
-            out[0, b0:b1] = hx.reshape(kb, L).sum(axis=1)
-            out[1, b0:b1] = hy.reshape(kb, L).sum(axis=1)
-            z = x[2] if turn is None else x[2] - turn
-            out[2, b0:b1] = z.reshape(kb, L).sum(axis=1)
+    nu = nb * L                                # rows 1 .. nu of the log are used
+    # cos and sin of the encoder angle at each interval's midpoint, chunk by chunk
+    cs = np.empty((2, nu))
+    per_chunk = max(1, _CHUNK_TARGET // L) * L
+    ptab = PhaseTable(span / nint, per_chunk)
+    for i0 in range(0, nu, per_chunk):
+        i1 = min(nu, i0 + per_chunk)
+        e = enc[i0:i1 + 1]
+        amid = e[1:] + e[:-1]
+        amid *= 0.5
+        cos_sin(amid, ptab, out=cs[:, i0:i1])
+    W = cs.reshape(2, nb, L).transpose(1, 0, 2)          # (nb, 2, L)
+    rot = W.sum(axis=2)
     # exact average of a rotating vector over an interval: divide by sinc(d alpha / 2)
-    da_mean = span / nint
-    corr = 1.0 / np.sinc(da_mean / (2 * np.pi))   # np.sinc(x) = sin(pi x) / (pi x)
-    dth_sum[:2] *= corr
-    dv_sum[:2] *= corr
-    return {"dth": dth_sum, "dv": dv_sum, "L": L, "m": m, "nb": nb, "dt": dt, "rate": rate,
-            "block_time": L * dt}
+    corr = 1.0 / np.sinc(span / nint / (2 * np.pi))    # np.sinc(x) = sin(pi x) / (pi x)
+    out = {}
+    for name, src, A in (("dth", log.gyro, np.asarray(config.C_s_b_cal) @ np.asarray(config.K_g_cal)),
+                         ("dv", log.accel, np.asarray(config.C_s_b_cal) @ np.asarray(config.A_acc_cal))):
+        X = src[1:nu + 1].T.reshape(3, nb, L)
+        CS = np.matmul(W, X.transpose(1, 2, 0)) @ A.T     # (nb, 2, 3): sum cos y, sum sin y
+        y = A @ X.sum(axis=2)                            # (3, nb): sum y, y = A x
+        s = np.empty((3, nb))
+        s[0] = CS[:, 0, 0] - CS[:, 1, 1]
+        s[1] = CS[:, 1, 0] + CS[:, 0, 1]
+        s[:2] *= corr
+        s[2] = y[2]
+        out[name] = s
+    out["dth"][2] -= np.diff(enc[0:nu + 1:L])           # the table turn of each block
+    out.update(rot=(rot[:, 0] + 1j * rot[:, 1]) * (corr * dt), L=L, m=m, nb=nb, dt=dt, rate=rate,
+               block_time=L * dt)
+    return out
+
+
+def _coarse(dth, dv, rot, T):
+    """Mean rate and specific force in b0 with the table-fixed parts fitted out.
+
+    A vector fixed in the turntable top b (a gyro or accelerometer bias, or the table rate
+    leaking through a misaligned r_zb^s) turns with the table in b0; its block sums are
+    ``rot_j v``. The horizontal block sums are fitted as ``T w + rot_j v`` (least squares,
+    complex form), so the mean ``w`` is free of them even when the blocks do not span whole
+    revolutions exactly; the vertical parts are plain means.
+    """
+    means = []
+    for x in (dth, dv):
+        z = x[0] + 1j * x[1]
+        A = np.column_stack([np.full(z.shape, T, dtype=complex), rot])
+        sol = np.linalg.lstsq(A, z, rcond=None)[0]
+        means.append(np.array([sol[0].real, sol[0].imag, x[2].mean() / T]))
+    return means
 
 
 def _expm(A):
@@ -343,11 +371,9 @@ def align(log, config=None):
     dth, dv, nb, m, T = blk["dth"], blk["dv"], blk["nb"], blk["m"], blk["block_time"]
     w_n = earth_rate_n(lat)
 
-    # coarse alignment over whole revolutions
+    # coarse alignment: TRIAD on the means, table-fixed parts fitted out
     n_rev = nb // m
-    nc = n_rev * m
-    f_mean = dv[:, :nc].sum(axis=1) / (nc * T)
-    w_mean = dth[:, :nc].sum(axis=1) / (nc * T)
+    w_mean, f_mean = _coarse(dth, dv, blk["rot"], T)
     C0 = triad(f_mean, w_mean)
     g = float(np.linalg.norm(f_mean))
 
