@@ -187,3 +187,18 @@ def test_fast_cos_sin_matches_numpy():
     c, s = cos_sin_linear(-2.0, 0.003, 100003)
     ph = -2.0 + 0.003 * np.arange(100003)
     assert np.abs(c - np.cos(ph)).max() < 1e-13 and np.abs(s - np.sin(ph)).max() < 1e-13
+
+
+def test_fast_normal_is_standard_normal():
+    """The Box-Muller noise source against the normal distribution (KS test, moments) and
+    its independence from sample to sample."""
+    from scipy import stats
+
+    from hse_opt.sim._fastmath import normal_f32
+    z = normal_f32(np.random.default_rng(3), (3, 200001), 2.5).astype(float).ravel() / 2.5
+    assert z.dtype == float and z.size == 600003
+    assert stats.kstest(z, "norm").pvalue > 0.01
+    assert abs(z.mean()) < 5 / math.sqrt(z.size) and abs(z.std() - 1) < 5 / math.sqrt(2 * z.size)
+    assert abs(stats.kurtosis(z)) < 5 * math.sqrt(24 / z.size)
+    for lag in (1, 2, (z.size + 1) // 2):       # including the Box-Muller pair offset
+        assert abs(np.corrcoef(z[lag:], z[:-lag])[0, 1]) < 5 / math.sqrt(z.size)

@@ -41,6 +41,12 @@ class PhaseTable:
         s += cb * s0
         return c, s
 
+    def sin(self, phi0, m):
+        """Array (m,) of ``sin(phi0 + k dphi)``."""
+        s = self.s[:m] * math.cos(phi0)
+        s += self.c[:m] * math.sin(phi0)
+        return s
+
 
 def rotate_small(c, s, d, out=None):
     """cos and sin of ``phase + d`` from ``c = cos(phase)``, ``s = sin(phase)`` and a small
@@ -92,15 +98,29 @@ def cos_sin(phase, table=None, out=None):
     return rotate_small(c, s, d, out=out)
 
 
-def apply3(M, X, out=None):
-    """``M @ X`` for a 3x3 ``M`` and ``X`` of shape (3, k), row by row into ``out`` (3, k).
+def normal_f32(rng, shape, scale=1.0):
+    """Gaussian white noise, float32, of standard deviation ``scale``: the Box-Muller
+    transform of float32 uniforms from ``rng`` (a numpy Generator).
 
-    Plain ufuncs instead of BLAS: no worker threads on a shared machine, and the rows stay
-    in cache when ``k`` is a chunk."""
-    if out is None:
-        out = np.empty_like(X)
-    for i in range(3):
-        np.multiply(X[0], M[i, 0], out=out[i])
-        out[i] += M[i, 1] * X[1]
-        out[i] += M[i, 2] * X[2]
-    return out
+    Exact in distribution up to the 24-bit resolution of the uniforms (the tails are cut at
+    5.77 sigma, a probability of 8e-9 per sample). About three times faster than
+    ``Generator.standard_normal(dtype=float32)`` (the ziggurat) here, where numpy's float32
+    log/sqrt/sin/cos are vectorised: the simulator draws 1.8 million samples per 10-minute
+    run.
+    """
+    n = int(np.prod(shape))
+    h = (n + 1) // 2
+    u = rng.random(2 * h, dtype=np.float32)
+    r, a = u[:h], u[h:]
+    np.subtract(np.float32(1.0), r, out=r)                 # (0, 1]: log is finite
+    np.log(r, out=r)
+    r *= np.float32(-2.0)
+    np.sqrt(r, out=r)
+    r *= np.float32(scale)
+    a *= np.float32(2.0 * math.pi)
+    out = np.empty(2 * h, dtype=np.float32)
+    np.cos(a, out=out[:h])
+    np.sin(a, out=out[h:])
+    out[:h] *= r
+    out[h:] *= r
+    return out[:n].reshape(shape)

@@ -340,6 +340,42 @@ def _filter_matrices(C0, w_n, g, rate, T, config):
     return Phi, Qd
 
 
+def _kalman(Phi, Qd, Rv, P, vel):
+    """The fine-alignment Kalman filter over the blocks: state 9 (x0 = 0, covariance ``P``),
+    time update ``Phi``, ``Qd``, measurement of states 3, 4 (velocity) ``vel`` (2, nb) with
+    noise variance ``Rv`` each. Returns the attitude states (nb, 3) and their covariance
+    (nb, 3, 3) after each update.
+
+    Written for the interpreter: preallocated 9x9 work arrays, ``np.dot`` with ``out=``
+    (single-threaded for these sizes), the 2x2 innovation inverse in closed form."""
+    dot = np.dot
+    nb = vel.shape[1]
+    P = np.array(P, dtype=float)
+    x, xp, dx = np.zeros(9), np.empty(9), np.empty(9)
+    T1, T2, K, Si, r = np.empty((9, 9)), np.empty((9, 9)), np.empty((9, 2)), np.empty((2, 2)), np.empty(2)
+    xs, Ps = np.empty((nb, 3)), np.empty((nb, 3, 3))
+    PhiT = Phi.T.copy()
+    PH, HP = P[:, 3:5], P[3:5]                    # views: P H^T and H P
+    for j in range(nb):
+        dot(Phi, P, out=T1)
+        dot(T1, PhiT, out=P)
+        P += Qd
+        S00, S11, S01 = P[3, 3] + Rv, P[4, 4] + Rv, P[3, 4]
+        det = S00 * S11 - S01 * S01
+        Si[0, 0], Si[1, 1] = S11 / det, S00 / det
+        Si[0, 1] = Si[1, 0] = -S01 / det
+        dot(PH, Si, out=K)
+        dot(Phi, x, out=xp)
+        r[0], r[1] = vel[0, j] - xp[3], vel[1, j] - xp[4]
+        dot(K, r, out=dx)
+        np.add(xp, dx, out=x)
+        dot(K, HP, out=T2)
+        P -= T2
+        xs[j] = x[:3]
+        Ps[j] = P[:3, :3]
+    return xs, Ps
+
+
 def align(log, config=None):
     """Align one raw log.
 
@@ -395,29 +431,11 @@ def align(log, config=None):
 
     Phi, Qd = _filter_matrices(C0, w_n, g, blk["rate"], T, config)
     Rv = config.accel_pulse ** 2 / 12.0 + config.velocity_floor ** 2
-    x = np.zeros(9)
     P = np.diag([config.sigma0_tilt ** 2, config.sigma0_tilt ** 2, config.sigma0_heading ** 2,
                  config.velocity_floor ** 2, config.velocity_floor ** 2,
                  config.sigma0_gyro_bias ** 2, config.sigma0_gyro_bias ** 2,
                  config.sigma0_accel_bias ** 2, config.sigma0_accel_bias ** 2])
-    xs = np.empty((nb, 3))
-    Ps = np.empty((nb, 3, 3))
-    PhiT = Phi.T.copy()
-    dot = np.dot                     # np.dot: single-threaded for these 9x9 products
-    for j in range(nb):
-        x = dot(Phi, x)
-        P = dot(dot(Phi, P), PhiT)
-        P += Qd
-        S00 = P[3, 3] + Rv
-        S11 = P[4, 4] + Rv
-        S01 = P[3, 4]
-        det = S00 * S11 - S01 * S01
-        PH = P[:, 3:5]
-        K = dot(PH, np.array([[S11, -S01], [-S01, S00]]) / det)
-        x += dot(K, vel[:, j] - x[3:5])
-        P -= dot(K, PH.T)
-        xs[j] = x[0:3]
-        Ps[j] = P[0:3, 0:3]
+    xs, Ps = _kalman(Phi, Qd, Rv, P, vel)
 
     # corrected attitude: C = (I + [(phi - psi) x]) C0, psi = (psi_N, psi_E, 0)
     delta = xs.copy()
