@@ -68,9 +68,9 @@ def campaign(runs, jobs):
     plan = [{"run": i, "rate_dps": 40.0 * (1 if i % 2 else -1), "azimuth_deg": 90.0 * (i % 4),
              "t_start_s": 3600.0 + 650.0 * i, "duration_s": 600.0} for i in range(runs)]
     t0 = time.perf_counter()
-    rows = run_campaign(plan, truth, seed=1, jobs=jobs)
+    result = run_campaign(plan, truth, seed=1, jobs=jobs)
     el = time.perf_counter() - t0
-    assert len(rows) == runs
+    assert len(result) == runs
     print(f"campaign: {runs} ten-minute runs with --jobs {jobs}: {el:.1f} s, "
           f"{runs / el:.1f} runs/s ({1e3 * el / runs:.0f} ms per run)")
 

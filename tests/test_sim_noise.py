@@ -10,6 +10,7 @@ from hse_opt.sim.campaign import run_campaign
 from hse_opt.sim.truth import TruthConfig
 
 W_IE = 7.292115e-5
+ARCSEC = math.pi / 180 / 3600
 
 # Paper Table 1 (heading error before compensation, arcsec), three 10-minute alignments at
 # each of four stand positions, 40 deg/s (shared/data/paper_table1.csv)
@@ -28,9 +29,9 @@ def monte_carlo():
     truth = TruthConfig.default()
     plan = [{"run": i, "rate_dps": 40.0, "azimuth_deg": 30.0, "t_start_s": 7200.0, "duration_s": 600.0}
             for i in range(200)]
-    rows = run_campaign(plan, truth, seed=20130401, jobs=1)
-    err = np.array([r["heading_err_arcsec"] for r in rows])
-    std = np.array([r["heading_std_arcsec"] for r in rows])
+    runs = run_campaign(plan, truth, seed=20130401, jobs=1)
+    err = runs.heading_err / ARCSEC
+    std = runs.heading_std / ARCSEC
     return truth, err, std
 
 

@@ -106,6 +106,7 @@ import numpy as np
 
 from hse_opt import units
 from hse_opt.frames import R_ZB_S_IDEAL, c_b_s, skew
+from hse_opt.sim._io import atomic_path
 
 if sys.version_info >= (3, 11):
     import tomllib
@@ -115,7 +116,7 @@ else:  # pragma: no cover
 __all__ = [
     "Harmonic", "SiteConfig", "TimingConfig", "TableConfig", "EncoderConfig", "GyroConfig",
     "MountConfig", "AccelConfig", "StandConfig", "ThermalConfig", "TruthConfig", "RunSpec",
-    "EFFECT_KEYS", "MAX_TILT", "load_truth", "save_truth", "validate_run", "temperature",
+    "EFFECT_KEYS", "MAX_TILT", "RunError", "load_truth", "save_truth", "validate_run", "temperature",
     "gyro_matrices",
 ]
 
@@ -566,7 +567,7 @@ class TruthConfig:
         import tomli_w
         text = tomli_w.dumps(self.to_dict())
         if path is not None:
-            with open(path, "w", encoding="utf-8") as fh:
+            with atomic_path(path) as tmp, open(tmp, "w", encoding="utf-8") as fh:
                 fh.write(text)
         return text
 
@@ -656,31 +657,22 @@ class RunSpec:
     tilt: tuple = (0.0, 0.0)
     alpha0: float | None = None
 
-    @classmethod
-    def from_plan_row(cls, row):
-        """From a PLAN.csv row (mapping of column name -> value in the column's unit)."""
-        def num(name, default=None):
-            if name not in row or row[name] in (None, ""):
-                if default is None:
-                    raise ValueError(f"PLAN column {name!r} is missing")
-                return default
-            try:
-                v = float(row[name])
-            except (TypeError, ValueError):
-                raise ValueError(f"PLAN column {name} = {row[name]!r}: a number is required") from None
-            if not math.isfinite(v):
-                raise ValueError(f"PLAN column {name} = {row[name]!r}: a finite number is required")
-            return v
-        return cls(rate=num("rate_dps") * units.DEG_PER_S,
-                   azimuth=num("azimuth_deg") * units.DEG,
-                   duration=num("duration_s"),
-                   t_start=num("t_start_s"),
-                   tilt=(num("tilt_x_arcsec", 0.0) * units.ARCSEC,
-                         num("tilt_y_arcsec", 0.0) * units.ARCSEC))
+
+class RunError(ValueError):
+    """A run the system cannot make. ``column`` is the PLAN column at fault, ``problem`` the
+    message (what is wrong and what is allowed)."""
+
+    def __init__(self, column, problem):
+        self.column, self.problem = column, problem
+        super().__init__(problem)
+
+    def __reduce__(self):
+        return type(self), (self.column, self.problem)
 
 
 def validate_run(truth, run):
-    """Check a run against the system; ValueError naming the PLAN column and what is allowed.
+    """Check a run against the system; :class:`RunError` naming the PLAN column and what is
+    allowed.
 
     Checks: a finite non-zero rate outside the gyros' lock-in zone (each gyro's input rate
     ``|Omega r_g . r_zb^s|``, less the Earth rate, must exceed ``gyro.lockin_dps``), a duration
@@ -690,29 +682,29 @@ def validate_run(truth, run):
     for name, v in (("rate_dps", run.rate), ("azimuth_deg", run.azimuth),
                     ("duration_s", run.duration), ("t_start_s", run.t_start)):
         if not math.isfinite(v):
-            raise ValueError(f"{name} = {v!r} is not allowed: a finite number is required")
+            raise RunError(name, f"{name} = {v!r} is not allowed: a finite number is required")
     mats = gyro_matrices(truth)
     axes_s = np.linalg.inv(mats["K_g"])                       # rows: gyro axes in s
     proj = np.abs(axes_s @ mats["C_b_s"][:, 2])               # |cos| between axis and z_b
     from hse_opt.frames import EARTH_RATE
     min_rate = (truth.gyro.lockin + EARTH_RATE) / proj.min()
     if not abs(run.rate) > min_rate:
-        raise ValueError(
-            f"rate_dps = {run.rate / units.DEG_PER_S:g} is inside the gyros' lock-in zone "
+        raise RunError(
+            "rate_dps", f"rate_dps = {run.rate / units.DEG_PER_S:g} is inside the gyros' lock-in zone "
             f"(gyro.lockin_dps = {truth.gyro.lockin / units.DEG_PER_S:g} on each gyro's input "
             f"rate): allowed |rate_dps| > {min_rate / units.DEG_PER_S:.4g}")
     t_rev = 2 * math.pi / abs(run.rate)
     if run.duration < t_rev:
-        raise ValueError(f"duration_s = {run.duration:g} is shorter than one table revolution: "
+        raise RunError("duration_s", f"duration_s = {run.duration:g} is shorter than one table revolution: "
                          f"allowed duration_s >= {t_rev:.4g} s at rate_dps = "
                          f"{run.rate / units.DEG_PER_S:g}")
     if run.duration > 86400.0:
-        raise ValueError(f"duration_s = {run.duration:g} is not allowed: at most 86400 s")
+        raise RunError("duration_s", f"duration_s = {run.duration:g} is not allowed: at most 86400 s")
     if run.t_start < 0:
-        raise ValueError(f"t_start_s = {run.t_start:g} is not allowed: time since power-on >= 0")
+        raise RunError("t_start_s", f"t_start_s = {run.t_start:g} is not allowed: time since power-on >= 0")
     for i, name in enumerate(("tilt_x_arcsec", "tilt_y_arcsec")):
         total = run.tilt[i] + truth.stand.mount_tilt[i]
         if abs(total) > MAX_TILT:
-            raise ValueError(f"{name} = {run.tilt[i] / units.ARCSEC:g}: |tilt| too large (with "
+            raise RunError(name, f"{name} = {run.tilt[i] / units.ARCSEC:g}: |tilt| too large (with "
                              f"stand.mount_tilt_arcsec {truth.stand.mount_tilt[i] / units.ARCSEC:g}); "
                              f"allowed |total tilt| <= {MAX_TILT / units.ARCSEC:.0f} arcsec")
