@@ -231,18 +231,18 @@ def _blocks(log, config):
     duration = log.t[-1] - log.t[0]
     rate = span / duration
     if not abs(span) >= 2 * np.pi:
-        raise ValueError(f"raw log: the table turned {abs(span) / (2 * np.pi):.3f} revolutions; "
+        raise ValueError(f"raw log: the table turned {abs(span) / (2 * np.pi):.5f} revolutions; "
                          "the alignment needs at least one whole revolution")
     dt = duration / (n - 1)
     rev_samples = 2 * np.pi / (abs(rate) * dt)
-    m = max(1, int(round(rev_samples * dt * config.filter_rate)))
-    L = max(1, int(round(rev_samples / m)))
+    # at least 3 blocks per revolution: the table-fixed (once per revolution) states stay
+    # observable
+    m = max(3, int(round(rev_samples * dt * config.filter_rate)))
     nint = n - 1                               # intervals with an encoder angle at both ends
+    # m blocks of L samples make one revolution; a log of barely one revolution gets blocks
+    # one sample shorter, so that it still holds m of them
+    L = max(1, min(int(round(rev_samples / m)), nint // m))
     nb = nint // L
-    if nb < 2 * m:
-        nb_need = 2 * m
-        raise ValueError(f"raw log: {nint} usable samples make {nb} filter blocks; at least "
-                         f"{nb_need} (two revolutions) are needed")
     nu = nb * L                                # rows 1 .. nu of the log are used
     # cos and sin of the encoder angle at each interval's midpoint, chunk by chunk
     cs = np.empty((2, nu))
@@ -392,8 +392,7 @@ def align(log, config=None):
     Raises
     ------
     ValueError
-        The log is too short (fewer than two revolutions of filter blocks), has no table
-        turn, or no latitude is known.
+        The table turned less than one revolution, or no latitude is known.
     """
     if not isinstance(log, RawLog):
         raise ValueError("align: a RawLog is required (see hse_opt.sim.rawlog)")

@@ -676,7 +676,7 @@ def validate_run(truth, run):
 
     Checks: a finite non-zero rate outside the gyros' lock-in zone (each gyro's input rate
     ``|Omega r_g . r_zb^s|``, less the Earth rate, must exceed ``gyro.lockin_dps``), a duration
-    of at least one table revolution (and at most one day), ``t_start >= 0`` and each
+    of at least one table revolution plus one sample (and at most one day), ``t_start >= 0`` and each
     total tilt component within :data:`MAX_TILT`.
     """
     for name, v in (("rate_dps", run.rate), ("azimuth_deg", run.azimuth),
@@ -693,11 +693,12 @@ def validate_run(truth, run):
             "rate_dps", f"rate_dps = {run.rate / units.DEG_PER_S:g} is inside the gyros' lock-in zone "
             f"(gyro.lockin_dps = {truth.gyro.lockin / units.DEG_PER_S:g} on each gyro's input "
             f"rate): allowed |rate_dps| > {min_rate / units.DEG_PER_S:.4g}")
-    t_rev = 2 * math.pi / abs(run.rate)
-    if run.duration < t_rev:
-        raise RunError("duration_s", f"duration_s = {run.duration:g} is shorter than one table revolution: "
-                         f"allowed duration_s >= {t_rev:.4g} s at rate_dps = "
-                         f"{run.rate / units.DEG_PER_S:g}")
+    # one revolution of encoder span: the first sample's increment has no angle at its start
+    t_min = 2 * math.pi / abs(run.rate) + truth.timing.sample_period
+    if run.duration < t_min:
+        raise RunError("duration_s", f"duration_s = {run.duration:g} is shorter than one table "
+                       f"revolution plus one sample: allowed duration_s >= {t_min:.6g} s at "
+                       f"rate_dps = {run.rate / units.DEG_PER_S:g}")
     if run.duration > 86400.0:
         raise RunError("duration_s", f"duration_s = {run.duration:g} is not allowed: at most 86400 s")
     if run.t_start < 0:
