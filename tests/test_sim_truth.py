@@ -27,6 +27,23 @@ def test_toml_round_trip_default_and_modified(tmp_path):
     assert back.encoder.harmonics[0].phase == pytest.approx(30 * math.pi / 180, rel=1e-15)
 
 
+def test_toml_round_trip_is_exact_for_any_values(tmp_path):
+    """Values with all 17 digits, from every unit, come back bit for bit (TRUTH.toml written
+    with --write-truth reproduces the simulation exactly)."""
+    rng = np.random.default_rng(7)
+    p = tmp_path / "t.toml"
+    for _ in range(20):
+        t = TruthConfig.default().updated({
+            "site": {"latitude_deg": rng.uniform(-80, 80)},
+            "gyro": {"eps_arcsec": list(rng.normal(0, 5, 3)), "arw_dph_rthz": rng.uniform(0, 0.1),
+                     "bias_dph": list(rng.normal(0, 0.01, 3)), "sf_nonlinearity_ppm_per_dps": list(rng.normal(0, 1, 3))},
+            "encoder": {"sync_delay_us": rng.normal(0, 50), "harmonics": [
+                {"order": 1, "amplitude_arcsec": rng.normal(), "phase_deg": rng.uniform(0, 360)}]},
+            "accel": {"vrw_ug_rthz": rng.uniform(0, 10)}, "stand": {"mount_tilt_arcsec": list(rng.normal(0, 300, 2))}})
+        t.to_toml(p)
+        assert load_truth(p) == t
+
+
 def test_units_in_key_names_convert_to_si():
     t = TruthConfig.default().updated({
         "site": {"latitude_deg": 30.0},

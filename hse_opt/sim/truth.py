@@ -100,11 +100,14 @@ import difflib
 import math
 import sys
 from dataclasses import dataclass, field
+from decimal import Decimal
 from typing import Any
 
 import numpy as np
 
 from hse_opt import units
+# the exact decimal <-> SI conversions of the file formats (one implementation, in data.py)
+from hse_opt.data import _to_si, _to_text
 from hse_opt.frames import R_ZB_S_IDEAL, c_b_s, skew
 from hse_opt.sim._io import atomic_path
 
@@ -137,11 +140,10 @@ _UNIT = {
 
 def _p(key, unit, default, *, n=None, lo=None, hi=None, integer=False, doc=""):
     """A schema field: TOML ``key`` in ``unit``; ``default`` given in that unit; bounds in it."""
-    f = _UNIT[unit]
     if n is None:
-        dflt = int(default) if integer else float(default) * f
+        dflt = int(default) if integer else _to_si(default, _UNIT[unit])
     else:
-        dflt = tuple(float(v) * f for v in default)
+        dflt = tuple(_to_si(v, _UNIT[unit]) for v in default)
     return field(default=dflt, metadata=dict(key=key, unit=unit, n=n, lo=lo, hi=hi,
                                             integer=integer, doc=doc))
 
@@ -346,6 +348,30 @@ def _unknown(name, valid, where):
     return ValueError(f"unknown key {name!r} in {where}{hint} Valid keys: {', '.join(sorted(valid))}")
 
 
+def _is_number(v):
+    return isinstance(v, (int, float, Decimal)) and not isinstance(v, bool)
+
+
+def _shown(raw):
+    """A value as the user wrote it, for messages (TOML floats are read as Decimal)."""
+    if isinstance(raw, (list, tuple)):
+        return [_shown(v) for v in raw]
+    return float(raw) if isinstance(raw, Decimal) else raw
+
+
+def _si(value, unit):
+    """A value in ``unit`` (TOML Decimal, float or int) -> SI float: the decimal as written
+    times the unit factor, rounded once (as :mod:`hse_opt.data` reads CSV files)."""
+    return _to_si(str(value) if isinstance(value, Decimal) else value, _UNIT[unit])
+
+
+def _display(x, unit, decimals):
+    """SI float -> the shortest decimal in ``unit`` that :func:`_si` reads back exactly;
+    a Decimal for the TOML file, else its float."""
+    text = _to_text(x, _UNIT[unit])
+    return Decimal(text) if decimals else float(text)
+
+
 def _check_bounds(where, value, meta):
     lo, hi = meta["lo"], meta["hi"]
     vals = value if isinstance(value, (list, tuple)) else [value]
@@ -353,25 +379,24 @@ def _check_bounds(where, value, meta):
         if not math.isfinite(v) or (lo is not None and v < lo) or (hi is not None and v > hi):
             rng = f"[{lo}, {hi}]" if lo is not None and hi is not None else (
                 f">= {lo}" if lo is not None else f"<= {hi}" if hi is not None else "finite")
-            raise ValueError(f"{where} = {value!r} is not allowed: each value must be finite "
+            raise ValueError(f"{where} = {_shown(value)!r} is not allowed: each value must be finite "
                              f"and in {rng} {meta['unit']}")
 
 
 def _parse_value(where, raw, meta):
     n = meta["n"]
     if n is None:
-        if isinstance(raw, bool) or not isinstance(raw, (int, float)):
-            raise ValueError(f"{where} = {raw!r} is not allowed: a number in {meta['unit']} is required")
+        if not _is_number(raw):
+            raise ValueError(f"{where} = {_shown(raw)!r} is not allowed: a number in {meta['unit']} is required")
         if meta["integer"] and (not float(raw).is_integer()):
-            raise ValueError(f"{where} = {raw!r} is not allowed: an integer is required")
+            raise ValueError(f"{where} = {_shown(raw)!r} is not allowed: an integer is required")
         _check_bounds(where, raw, meta)
-        return int(raw) if meta["integer"] else float(raw) * _UNIT[meta["unit"]]
-    if (not isinstance(raw, (list, tuple)) or len(raw) != n
-            or any(isinstance(v, bool) or not isinstance(v, (int, float)) for v in raw)):
-        raise ValueError(f"{where} = {raw!r} is not allowed: a list of {n} numbers in "
+        return int(raw) if meta["integer"] else _si(raw, meta["unit"])
+    if not isinstance(raw, (list, tuple)) or len(raw) != n or not all(_is_number(v) for v in raw):
+        raise ValueError(f"{where} = {_shown(raw)!r} is not allowed: a list of {n} numbers in "
                          f"{meta['unit']} is required")
     _check_bounds(where, list(raw), meta)
-    return tuple(float(v) * _UNIT[meta["unit"]] for v in raw)
+    return tuple(_si(v, meta["unit"]) for v in raw)
 
 
 def _parse_harmonics(where, raw):
@@ -394,17 +419,17 @@ def _parse_harmonics(where, raw):
             raise ValueError(f"{w}.order = {order!r} is not allowed: an integer >= 1 is required")
         amp, ph = h["amplitude_arcsec"], h.get("phase_deg", 0.0)
         for k, v in (("amplitude_arcsec", amp), ("phase_deg", ph)):
-            if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v):
-                raise ValueError(f"{w}.{k} = {v!r} is not allowed: a finite number is required")
+            if not _is_number(v) or not math.isfinite(v):
+                raise ValueError(f"{w}.{k} = {_shown(v)!r} is not allowed: a finite number is required")
         if abs(amp) > 3600.0:
-            raise ValueError(f"{w}.amplitude_arcsec = {amp!r} is not allowed: |amplitude| <= 3600 arcsec")
-        out.append(Harmonic(order, float(amp) * units.ARCSEC, float(ph) * units.DEG))
+            raise ValueError(f"{w}.amplitude_arcsec = {_shown(amp)!r} is not allowed: |amplitude| <= 3600 arcsec")
+        out.append(Harmonic(order, _si(amp, "arcsec"), _si(ph, "deg")))
     return tuple(out)
 
 
-def _harmonics_to_toml(hs):
-    return [{"order": h.order, "amplitude_arcsec": h.amplitude / units.ARCSEC,
-             "phase_deg": h.phase / units.DEG} for h in hs]
+def _harmonics_to_toml(hs, decimals):
+    return [{"order": h.order, "amplitude_arcsec": _display(h.amplitude, "arcsec", decimals),
+             "phase_deg": _display(h.phase, "deg", decimals)} for h in hs]
 
 
 @dataclass(frozen=True)
@@ -523,8 +548,10 @@ class TruthConfig:
             sections[sname] = dataclasses.replace(current, **changes)
         return cls(**sections)
 
-    def to_dict(self):
-        """The TOML-shaped dict (unit-named keys, values in those units)."""
+    def to_dict(self, decimals=False):
+        """The TOML-shaped dict (unit-named keys, values in those units): each value the
+        shortest decimal that reads back to exactly the same SI float, as ``decimal.Decimal``
+        with ``decimals=True`` (what :meth:`to_toml` writes), else as float."""
         out = {}
         for sname, scls in _SECTIONS.items():
             sec = getattr(self, sname)
@@ -532,15 +559,15 @@ class TruthConfig:
             for f in dataclasses.fields(scls):
                 v = getattr(sec, f.name)
                 if (scls, f.name) in _HARMONIC_CLS_FIELDS:
-                    sd[f.name] = _harmonics_to_toml(v)
+                    sd[f.name] = _harmonics_to_toml(v, decimals)
                     continue
                 m = f.metadata
                 if m["integer"]:
                     sd[m["key"]] = int(v)
                 elif m["n"] is None:
-                    sd[m["key"]] = _clean(v / _UNIT[m["unit"]])
+                    sd[m["key"]] = _display(v, m["unit"], decimals)
                 else:
-                    sd[m["key"]] = [_clean(x / _UNIT[m["unit"]]) for x in v]
+                    sd[m["key"]] = [_display(x, m["unit"], decimals) for x in v]
             out[sname] = sd
         return out
 
@@ -554,7 +581,7 @@ class TruthConfig:
         """Load ``TRUTH.toml``; missing keys take the default system's values."""
         with open(path, "rb") as fh:
             try:
-                d = tomllib.load(fh)
+                d = tomllib.load(fh, parse_float=Decimal)    # exact: see _si
             except tomllib.TOMLDecodeError as exc:
                 raise ValueError(f"{path}: not valid TOML: {exc}") from None
         try:
@@ -563,19 +590,14 @@ class TruthConfig:
             raise ValueError(f"{path}: {exc}") from None
 
     def to_toml(self, path=None):
-        """Write (or, with ``path=None``, return) the TOML text; every key is written."""
+        """Write (or, with ``path=None``, return) the TOML text; every key is written, and
+        reading it back gives exactly this configuration."""
         import tomli_w
-        text = tomli_w.dumps(self.to_dict())
+        text = tomli_w.dumps(self.to_dict(decimals=True))
         if path is not None:
             with atomic_path(path) as tmp, open(tmp, "w", encoding="utf-8") as fh:
                 fh.write(text)
         return text
-
-
-def _clean(x):
-    """Round-trip-safe float for TOML (drop the last-bit noise of unit conversions)."""
-    r = float(f"{x:.15g}")
-    return r if r != 0 else 0.0
 
 
 def load_truth(path):
