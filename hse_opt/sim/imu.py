@@ -114,31 +114,31 @@ class _Sensor:
     the pulses are scaled back by q.
     """
 
-    def __init__(self, M, v0, bias_dt, sigma, q, phase):
+    def __init__(self, M, v0, bias_dt, sigma, q, phase, extra=(), z=None):
         self.k = 1.0 / q if q else 1.0
         self.q = q
         M = np.asarray(M, dtype=float)
-        # row i of M @ (x, y, z) with x = Ci v0x + Si v0y, y = Ci v0y - Si v0x
-        self.a = (M[:, 0] * v0[0] + M[:, 1] * v0[1]) * self.k
-        self.b = (M[:, 0] * v0[1] - M[:, 1] * v0[0]) * self.k
-        self.c = M[:, 2] * self.k
-        self.bias = np.asarray(bias_dt, dtype=float) * self.k
+        bias = np.asarray(bias_dt, dtype=float)
+        # outputs = M @ (x, y, z) with x = Ci v0x + Si v0y, y = Ci v0y - Si v0x: one column
+        # per basis row (Ci, Si, z, *extra); ``extra`` are the coefficient vectors of further
+        # basis rows (time-varying biases). A constant z increment ``z`` goes into the bias.
+        cols = [M[:, 0] * v0[0] + M[:, 1] * v0[1], M[:, 0] * v0[1] - M[:, 1] * v0[0]]
+        if z is None:
+            cols += [M[:, 2], *extra]
+        else:
+            bias = bias + M[:, 2] * z
+        self.B = np.column_stack(cols) * self.k
+        self.bias = (bias * self.k)[:, None]
         self.sigma = sigma * self.k
         self.rem = None if not q else np.asarray(phase, dtype=float).copy()
 
-    def rows(self, Ci, Si, z, out):
-        """Signal rows into ``out`` (3, m), in counts when quantized; ``z`` (the b-frame z
-        increment) is an array (m,) or a scalar."""
-        scalar_z = np.ndim(z) == 0
-        for i in range(3):
-            r = out[i]
-            np.multiply(Ci, self.a[i], out=r)
-            r += self.b[i] * Si
-            if scalar_z:
-                r += self.c[i] * z + self.bias[i]
-            else:
-                r += self.c[i] * z
-                r += self.bias[i]
+    def rows(self, V, out):
+        """Signal rows ``B @ V + bias`` into ``out`` (3, m), in counts when quantized; ``V``
+        (k, m) holds the basis rows (the first columns of B are used)."""
+        # a (3 x k) by (k x m) product, k <= 5, m <= CHUNK: BLAS stays on one thread below
+        # its threading threshold (m n k < 262144 in OpenBLAS)
+        np.dot(self.B, V[:self.B.shape[1]], out=out)
+        out += self.bias
         return out
 
     def finish(self, out, rng, dest):
@@ -206,15 +206,19 @@ def generate(truth, run, rng=None):
     thermal_xi = bool(mount.warmup_xi_z or mount.xi_z_tempco)
     need_temp = bool(mount.xi_z_tempco or tc.any())
     gq = 0.0 if scale else g.pulse      # with a scale-factor error, quantize after scaling
+    # time-varying gyro biases as extra basis rows: the warm-up transient's integral over
+    # each interval, -tau d(exp(-t_on / tau)), and the temperature term dt (temp_mid - ref)
+    extra = ([bw * -g.bias_warmup_tau] if bw.any() else []) + ([tc * dt] if tc.any() else [])
     gyro_s = _Sensor(G, w0, (np.asarray(g.bias) + g.axis_bias * G[:, 2]) * dt,
                      g.arw * math.sqrt(dt), gq,
-                     rng.uniform(0.0, 1.0, 3) if (gq and rng is not None) else np.full(3, 0.5))
+                     rng.uniform(0.0, 1.0, 3) if (gq and rng is not None) else np.full(3, 0.5), extra)
     gcount = None
     if scale and g.pulse:
         gcount = _Sensor(np.eye(3), np.zeros(3), np.zeros(3), 0.0, g.pulse,
                          rng.uniform(0.0, 1.0, 3) if rng is not None else np.full(3, 0.5))
     acc_s = _Sensor(A, f0, np.asarray(a.bias) * dt, a.vrw * math.sqrt(dt), a.pulse,
-                    rng.uniform(0.0, 1.0, 3) if (a.pulse and rng is not None) else np.full(3, 0.5))
+                    rng.uniform(0.0, 1.0, 3) if (a.pulse and rng is not None) else np.full(3, 0.5),
+                    z=f0[2] * dt)
 
     gyro = np.empty((3, n))
     accel = np.empty((3, n))
@@ -238,7 +242,8 @@ def generate(truth, run, rng=None):
     ptab = PhaseTable(W * dt, size)
     rtab = PhaseTable(nu * dt, size) if tb.ripple else None
     kidx = np.arange(size, dtype=float)
-    buf = np.empty((3, size - 1))
+    buf = np.empty(3 * (size - 1))                    # signal rows, (3, m) views of it
+    vbuf = np.empty((3 + len(extra)) * (size - 1))    # basis rows, (k, m) views of it
     for i0 in range(0, n, CHUNK):
         i1 = min(n, i0 + CHUNK)
         m = i1 - i0
@@ -284,26 +289,23 @@ def generate(truth, run, rng=None):
             dbeta = np.diff(d_beta)
             dbeta += W * dt
         r = dt / dbeta
-        Ci = np.diff(sa)
-        Ci *= r                                       # int cos(beta) dt over each interval
-        Si = np.diff(ca)
-        Si *= -r                                      # int sin(beta) dt
-        zg = dbeta + w0[2] * dt                       # z increment: turn + Earth rate
-
-        out = buf[:, :m]
-        gyro_s.rows(Ci, Si, zg, out)
+        V = vbuf[:(3 + len(extra)) * m].reshape(-1, m)   # basis rows of this chunk
+        np.subtract(sa[1:], sa[:-1], out=V[0])
+        V[0] *= r                                     # int cos(beta) dt over each interval
+        np.subtract(ca[1:], ca[:-1], out=V[1])
+        V[1] *= -r                                    # int sin(beta) dt
+        np.add(dbeta, w0[2] * dt, out=V[2])           # z increment: turn + Earth rate
+        row = 3
         if bw.any():
-            e = np.diff(expo["bias"])
-            e *= -g.bias_warmup_tau * gyro_s.k
-            for i in range(3):
-                out[i] += bw[i] * e
+            np.subtract(expo["bias"][1:], expo["bias"][:-1], out=V[row])
+            row += 1
         if tc.any():   # thermal terms vary over minutes: midpoint rule, error < 1e-12 relative
-            tmid = temp[1:] + temp[:-1]
-            tmid *= 0.5
-            tmid -= thermal.reference_c
-            tmid *= dt * gyro_s.k
-            for i in range(3):
-                out[i] += tc[i] * tmid
+            np.add(temp[1:], temp[:-1], out=V[row])
+            V[row] *= 0.5
+            V[row] -= thermal.reference_c
+
+        out = buf[:3 * m].reshape(3, m)
+        gyro_s.rows(V, out)
         if scale:
             out *= 1.0 + sf + nl * (np.abs(out) / dt)
         if gcount is None:
@@ -313,7 +315,7 @@ def generate(truth, run, rng=None):
             out *= gcount.k                               # to counts, then quantize
             gcount.finish(out, rng, gyro[:, i0:i1])
 
-        acc_s.rows(Ci, Si, f0[2] * dt, out)
+        acc_s.rows(V, out)
         acc_s.finish(out, rng, accel[:, i0:i1])
 
         am = encoder[i0:i1]
