@@ -439,6 +439,16 @@ def test_temperature_covariate():
     _agree(sim, model, min_signal=10.0)
 
 
+def test_every_catalogue_effect_is_compared():
+    """A catalogue effect added to the model needs its simulator comparison here."""
+    from hse_opt.model import CATALOGUE
+    compared = {"hse", "axis_bias", "sync_delay", "scale_nonlinearity", "warmup", "azimuth_harmonic2",
+                "encoder_harmonic"}
+    assert set(CATALOGUE) == compared
+    for name in compared:
+        assert f"def test_{name}(" in open(__file__).read()
+
+
 # -- the explained differences, tested -----------------------------------------------------------
 def test_leveling_term():
     """Explained difference 1 is real and exact: for a turn of the IMU about z_b (xi_z up to
