@@ -10,11 +10,17 @@ Steps
    divided by ``sinc(d alpha / 2)`` (the exact average of a rotating vector over the
    interval). On a static base b0 is fixed in n, so the projected record is that of a
    quasi-static IMU in which every b-frame constant error rotates at the table rate.
+   The projection is linear, so it is done on block sums: per block, the sums of
+   ``cos(alpha_mid) x``, ``sin(alpha_mid) x`` and ``x`` of the raw increments ``x`` (one
+   batched matrix product), then the calibration and the turn.
 3. Blocks. The projected increments are summed over blocks of ``L`` samples chosen so that a
    whole number ``m`` of blocks makes one revolution (``m`` = revolution time x
-   ``filter_rate``, rounded); the filter runs once per block.
-4. Coarse alignment (TRIAD) over the largest whole number of revolutions in the record:
-   the down axis from the mean specific force, east from ``down x`` mean rate.
+   ``filter_rate``, rounded, at least 3); the filter runs once per block.
+4. Coarse alignment (TRIAD): the down axis from the mean specific force, east from
+   ``down x`` mean rate. The means are fitted together with the table-fixed parts (a vector
+   fixed in b turns with the table in b0: biases, the table rate leaking through a
+   misaligned axis, up to several times the Earth rate), so they are free of them even
+   though ``m L`` samples match a revolution only to within a few samples.
 5. Fine alignment: a linear Kalman filter on the error of a navigation solution that is
    integrated open loop from the coarse attitude ``C0`` (horizontal attitude from the
    measured rates, velocity from the specific force, no Coriolis term in the navigation or
@@ -164,11 +170,11 @@ class AlignResult:
     heading_std, pitch_std, roll_std : float
         The filter's 1-sigma, averaged over the smoothing window.
     coarse_heading, coarse_pitch, coarse_roll : float
-        The TRIAD coarse alignment over whole revolutions.
+        The coarse alignment (step 4).
     rate : float
         Mean table rate from the encoder, rad/s.
     n_revolutions : int
-        Whole revolutions used by the coarse alignment.
+        Whole revolutions of filter blocks in the record.
     block_samples, blocks_per_revolution : int
         Filter block length (samples) and blocks per revolution.
     history : AlignHistory
