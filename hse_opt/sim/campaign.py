@@ -22,13 +22,13 @@ of each row (the thermal model and the warm-up transients are functions of it).
 from __future__ import annotations
 
 import contextlib
-import math
 from concurrent.futures import ProcessPoolExecutor, as_completed
 from dataclasses import dataclass
 
 import numpy as np
 
 from hse_opt import units
+from hse_opt.frames import wrap_angle
 from hse_opt.data import DataError, Plan, Runs
 from hse_opt.sim.align import AlignConfig, align
 from hse_opt.sim.imu import generate, true_attitude
@@ -39,10 +39,6 @@ __all__ = ["RunResult", "simulate_run", "simulate_alignment", "default_align_con
 
 #: covariate column the simulator adds to RUNS (the run's mean IMU temperature)
 TEMP_COLUMN = "temp_c"
-
-
-def _wrap(a):
-    return (a + math.pi) % (2 * math.pi) - math.pi
 
 
 def _tuning_truth(truth):
@@ -118,8 +114,8 @@ def simulate_run(truth, run, rng, align_config=None):
     RunResult
     """
     res, _, meta = simulate_alignment(truth, run, rng, align_config)
-    return RunResult(heading_err=_wrap(res.heading - run.azimuth), pitch=res.pitch, roll=res.roll,
-                     heading_std=res.heading_std, temp_c=float(meta["temp_c"]))
+    return RunResult(heading_err=float(wrap_angle(res.heading - run.azimuth)), pitch=res.pitch,
+                     roll=res.roll, heading_std=res.heading_std, temp_c=float(meta["temp_c"]))
 
 
 def simulate_heading_error(truth, rate, azimuth, latitude=None, duration=600.0, *,
@@ -171,7 +167,7 @@ def simulate_heading_error(truth, rate, azimuth, latitude=None, duration=600.0, 
                   tilt=tuple(tilt), alpha0=alpha0)
     res, att, _ = simulate_alignment(truth.noise_free(), run, None, cfg)
     ref = run.azimuth if reference == "stand" else att["heading"]
-    return _wrap(res.heading - ref)
+    return float(wrap_angle(res.heading - ref))
 
 
 # -- plans and campaigns -------------------------------------------------------------------------

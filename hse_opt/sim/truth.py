@@ -101,7 +101,6 @@ import math
 import sys
 from dataclasses import dataclass, field
 from decimal import Decimal
-from typing import Any
 
 import numpy as np
 
