@@ -72,8 +72,9 @@ def test_eps_only_against_eq14_over_random_configurations():
         az = rng.uniform(0, 2 * np.pi)
         tilt = tuple(rng.uniform(-400, 400, 2) * ARCSEC)
         t = IDEAL.updated({"gyro": {"eps_arcsec": list(eps)}, "site": {"latitude_deg": lat}})
-        hp = simulate_heading_error(t, rate, az, duration=600.0, tilt=tilt)
-        hm = simulate_heading_error(t, -rate, az, duration=600.0, tilt=tilt)
+        dur = 2 * np.pi / rate * 20                 # 20 revolutions (noise is off)
+        hp = simulate_heading_error(t, rate, az, duration=dur, tilt=tilt)
+        hm = simulate_heading_error(t, -rate, az, duration=dur, tilt=tilt)
         psi, theta, gamma = az, tilt[1], tilt[0]
         c23 = _c23(psi, theta, gamma)
         lam2 = eps.sum() * ARCSEC
