@@ -45,9 +45,9 @@ Explained differences (asserted where they occur)
    the whole computed b0 frame about z_b0, and the heading error is its vertical part,
    ``rho C33``. The model turns only the Earth rate about z_b0 and keeps the true vertical,
    giving ``rho (C33 + C13 tan L)`` (C13: north component of z_b0, i.e. the tilt). The
-   difference ``rho C13 tan L`` is second order (0.4 arcsec at rho = 100 arcsec, a tilt of
-   1000 arcsec, L = 60 deg; below 0.005 arcsec at the paper's few-arcsec errors and 1e-3
-   tilt). The tests add it to the model and show it is exact (:func:`test_leveling_term`).
+   difference ``rho C13 tan L`` is second order (0.8 arcsec at rho = 100 arcsec, a north
+   tilt of 1000 arcsec, L = 60 deg; below 0.005 arcsec at the paper's few-arcsec errors and
+   1e-3 tilt). The tests add it to the model and show it is exact (:func:`test_leveling_term`).
 2. **Filter weighting of a time-varying error.** The ``warmup`` effect takes the uniform
    mean of ``exp(-t/tau)`` over the run; the alignment's Kalman filter does not weight the
    east-rate error of the run uniformly. The difference grows with the change of the
