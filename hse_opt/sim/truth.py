@@ -483,7 +483,7 @@ class TruthConfig:
     def ideal(cls):
         """A perfect system: every error, noise and quantization off (latitude, gravity,
         sampling kept), ideal rotation axis; the start for one-error-at-a-time studies."""
-        d = cls().to_dict()
+        d = cls().to_dict(decimals=True)
         zero3 = [0.0, 0.0, 0.0]
         ideal_r = [float(v) for v in R_ZB_S_IDEAL]
         d["table"].update(rate_error_ppm=0.0, ripple_ppm=0.0)
