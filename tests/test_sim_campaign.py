@@ -202,6 +202,14 @@ def test_cli_simulate_bad_plan_exits_2_naming_file_row_column(tmp_path, capsys, 
     assert not out.exists()                     # nothing written
 
 
+def test_cli_simulate_unwritable_output_exits_2(tmp_path, capsys):
+    plan = tmp_path / "PLAN.csv"
+    _write_plan(plan, _plan(1))
+    out = tmp_path / "no_such_dir" / "RUNS.csv"
+    assert main(["simulate", str(plan), "-o", str(out), "--no-progress"]) == 2
+    assert "no_such_dir/RUNS.csv: cannot write the runs" in capsys.readouterr().err
+
+
 def test_cli_simulate_bad_truth_exits_2_naming_key(tmp_path, capsys):
     plan, out, truth = tmp_path / "PLAN.csv", tmp_path / "RUNS.csv", tmp_path / "bad.toml"
     _write_plan(plan, _plan(1))

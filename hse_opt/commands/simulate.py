@@ -30,12 +30,12 @@ def add_arguments(parser):
                         help="no progress bar on stderr")
 
 
-def _read(what, reader, path):
-    """Read an input file; an unreadable file is bad input (exit status 2)."""
+def _io(action, what, fun, path, *args):
+    """Read or write a file; a file that cannot be read or written is bad input (exit 2)."""
     try:
-        return reader(path)
+        return fun(*args, path) if args else fun(path)
     except OSError as err:
-        raise ValueError(f"{path}: cannot read the {what}: {err.strerror or err}") from None
+        raise ValueError(f"{path}: cannot {action} the {what}: {err.strerror or err}") from None
 
 
 def run(args):
@@ -44,12 +44,15 @@ def run(args):
     from ..data import load_plan, save_runs
     from ..sim import TruthConfig, run_campaign
 
-    truth = _read("truth", TruthConfig.from_toml, args.truth) if args.truth else TruthConfig.default()
-    plan = _read("plan", load_plan, args.plan)
+    truth = _io("read", "truth", TruthConfig.from_toml, args.truth) if args.truth else TruthConfig.default()
+    plan = _io("read", "plan", load_plan, args.plan)
     client = None
     if args.dask:
         from distributed import Client
-        client = Client(args.dask)
+        try:
+            client = Client(args.dask)
+        except OSError as err:
+            raise ValueError(f"--dask {args.dask}: cannot connect to the scheduler: {err}") from None
     # tqdm: on stderr, off with --no-progress and when stderr is not a terminal
     with tqdm(total=len(plan), unit="run", desc="simulate", file=sys.stderr,
               disable=None if args.progress else True) as bar:
@@ -59,8 +62,8 @@ def run(args):
         finally:
             if client is not None:
                 client.close()
-    save_runs(runs, args.output)
+    _io("write", "runs", save_runs, args.output, runs)
     if args.write_truth:
-        truth.to_toml(args.write_truth)
+        _io("write", "truth", truth.to_toml, args.write_truth)
     message(f"hse-opt simulate: {len(runs)} runs written to {args.output}")
     return 0
