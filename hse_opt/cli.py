@@ -9,7 +9,7 @@ import importlib
 import sys
 
 #: command modules, in the order ``--help`` lists them
-COMMANDS = ("demo", "simulate")
+COMMANDS = ("demo", "simulate", "fit", "compensate", "diagnose")
 
 
 def build_parser():
