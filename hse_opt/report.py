@@ -1,0 +1,629 @@
+"""Plots and the self-contained HTML report of a fit, a diagnosis and a design.
+
+A report is a list of :class:`Section` objects rendered into one HTML file that needs
+nothing else to be viewed: no scripts, no web fonts, no network. Every plot is a matplotlib
+figure saved as SVG and embedded as a ``data:`` URI in an ``<img>``, so it stays sharp at
+any zoom, its internal ids cannot clash with another plot's, and the page opens offline.
+
+Plots use matplotlib's object API (:class:`matplotlib.figure.Figure`, no ``pyplot`` and no
+global state beyond a temporary ``rc_context``), so the library works on headless
+machines and in worker processes. Each ``plot_*`` function returns the Figure, for
+notebooks; each ``*_section`` function returns a :class:`Section`.
+
+Units at the edge: heading errors and residuals in arcsec, rates in deg/s, azimuths in deg,
+times in h, parameters in their display units (``Param.unit``).
+
+Sections
+--------
+:func:`fit_section`
+    parameter table (value, sigma, unit), fit statistics, the calibration line of heading
+    error against bias rate (the paper's Fig. 2), heading error against azimuth with the
+    model before and after compensation (Fig. 3), residuals against every factor.
+:func:`comparison_section`
+    the before/after of adding an effect: statistics side by side, residuals before and
+    after against every factor.
+:func:`write_report`
+    renders sections into ``DIR/report.html``, written whole (temporary file + rename).
+"""
+from __future__ import annotations
+
+import base64
+import contextlib
+import html
+import io
+import json
+import os
+import secrets
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from . import __version__, units
+from .model.measurement import RUN_FIELDS
+
+__all__ = ["Section", "Figure", "fit_section", "comparison_section", "render_html",
+           "write_report", "plot_calibration_line", "plot_azimuth", "plot_residuals",
+           "plot_before_after", "factors", "REPORT_NAME"]
+
+#: file name of the report inside the report directory
+REPORT_NAME = "report.html"
+
+_RC = {
+    "figure.dpi": 100, "savefig.dpi": 100, "font.size": 9, "axes.titlesize": 10,
+    "axes.labelsize": 9, "legend.fontsize": 8, "axes.grid": True, "grid.alpha": 0.3,
+    "axes.spines.top": False, "axes.spines.right": False,
+    "svg.fonttype": "path",          # text as paths: no font needed to view the page
+    "svg.hashsalt": "hse_opt",       # deterministic ids: the same data give the same file
+}
+_COLORS = ("#1f77b4", "#d62728", "#2ca02c", "#9467bd", "#ff7f0e", "#8c564b", "#e377c2",
+           "#17becf", "#7f7f7f", "#bcbd22")
+#: at most this many lines (azimuth groups, rates) in one panel; beyond it points are coloured
+#: by value instead
+_MAX_LINES = 6
+
+
+# -- building blocks -------------------------------------------------------------------------
+@dataclass(frozen=True)
+class Figure:
+    """One embedded plot: an SVG document with its caption.
+
+    Attributes
+    ----------
+    svg : bytes
+        The SVG document.
+    caption : str
+        Plain text shown under the plot.
+    alt : str
+        Text alternative of the image.
+    """
+
+    svg: bytes
+    caption: str
+    alt: str
+
+    def html(self):
+        uri = "data:image/svg+xml;base64," + base64.b64encode(self.svg).decode("ascii")
+        return (f'<figure><img class="plot" src="{uri}" alt="{html.escape(self.alt)}">'
+                f"<figcaption>{html.escape(self.caption)}</figcaption></figure>")
+
+
+@dataclass(frozen=True)
+class Section:
+    """One section of a report.
+
+    Attributes
+    ----------
+    title : str
+    blocks : tuple
+        Parts in order: :class:`Figure` objects and HTML fragments (str, already escaped).
+    data : dict
+        The section's numbers (JSON-serialisable), embedded in the page for machines.
+    """
+
+    title: str
+    blocks: tuple
+    data: dict = field(default_factory=dict)
+
+    @property
+    def figures(self):
+        return tuple(b for b in self.blocks if isinstance(b, Figure))
+
+    def html(self, anchor):
+        body = "\n".join(b.html() if isinstance(b, Figure) else b for b in self.blocks)
+        return f'<section id="{anchor}"><h2>{html.escape(self.title)}</h2>\n{body}\n</section>'
+
+
+def _new_figure(width, height):
+    from matplotlib.figure import Figure as MplFigure
+    return MplFigure(figsize=(width, height), layout="constrained")
+
+
+def _svg(fig):
+    import matplotlib
+    buf = io.BytesIO()
+    with matplotlib.rc_context(_RC):
+        fig.savefig(buf, format="svg", metadata={"Date": None})
+    return buf.getvalue()
+
+
+def _embed(fig, caption, alt):
+    return Figure(_svg(fig), caption, alt)
+
+
+def _plotting(fn):
+    """Run a plot function inside the report's matplotlib style."""
+    def wrapper(*args, **kw):
+        import matplotlib
+        with matplotlib.rc_context(_RC):
+            return fn(*args, **kw)
+    wrapper.__name__, wrapper.__doc__ = fn.__name__, fn.__doc__
+    return wrapper
+
+
+def _fmt(x, digits=4):
+    """A number for a table cell."""
+    if x is None:
+        return "&ndash;"
+    if isinstance(x, (bool, np.bool_)):
+        return "yes" if x else "no"
+    if isinstance(x, (int, np.integer)):
+        return str(int(x))
+    x = float(x)
+    if not np.isfinite(x):
+        return html.escape(str(x))
+    return f"{x:.{digits}g}"
+
+
+def _table(header, rows, keys=None, cls=""):
+    """An HTML table; ``keys`` (per row, optional) become ``data-key`` attributes of the
+    rows so machines can read the numbers back."""
+    head = "".join(f"<th>{html.escape(h)}</th>" for h in header)
+    body = []
+    for i, row in enumerate(rows):
+        key = f' data-key="{html.escape(keys[i])}"' if keys is not None else ""
+        body.append(f"<tr{key}>" + "".join(f"<td>{c}</td>" for c in row) + "</tr>")
+    return (f'<table class="{cls}"><thead><tr>{head}</tr></thead><tbody>'
+            + "".join(body) + "</tbody></table>")
+
+
+def _paragraph(text):
+    return f"<p>{html.escape(text)}</p>"
+
+
+def _notes(notes):
+    if not notes:
+        return ""
+    return ('<ul class="notes">' + "".join(f"<li>{html.escape(n)}</li>" for n in notes)
+            + "</ul>")
+
+
+# -- factors and model evaluation -----------------------------------------------------------
+def factors(runs):
+    """The factors a residual can depend on, as ``(key, label, values)``, values in the
+    edge units of the label. Factors that do not vary over the runs are left out.
+
+    Parameters
+    ----------
+    runs : hse_opt.data.Runs
+
+    Returns
+    -------
+    list of (str, str, numpy.ndarray of shape (n,))
+    """
+    n = len(runs)
+    out = [("rate", "bias rate [deg/s]", runs.rate / units.DEG_PER_S),
+           ("azimuth", "stand azimuth [deg]", np.mod(runs.azimuth / units.DEG, 360.0))]
+    if runs.t_start is not None:
+        out.append(("t_start", "time since power-on [h]", runs.t_start / units.HOUR))
+    else:
+        out.append(("order", "run order (no t_start_s)", np.arange(1, n + 1, dtype=float)))
+    out.append(("duration", "alignment length [s]", np.asarray(runs.duration, float)))
+    if runs.pitch is not None:
+        out.append(("pitch", "pitch of b0 [arcsec]", runs.pitch / units.ARCSEC))
+        out.append(("roll", "roll of b0 [arcsec]", runs.roll / units.ARCSEC))
+    out.append(("latitude", "latitude [deg]", runs.latitude / units.DEG))
+    for name, values in runs.covariates.items():
+        out.append((f"covariate:{name}", name, np.asarray(values, float)))
+    return [(k, lab, v) for k, lab, v in out if v.size and np.ptp(v) > 0]
+
+
+def _arcsec(x):
+    return np.asarray(x, dtype=float) / units.ARCSEC
+
+
+def _inputs(fit, runs):
+    return fit.measurement.inputs_from_runs(runs)
+
+
+def _offset_part(fit, X):
+    """The constant-offset part of the fitted model's prediction (rad): what compensation
+    keeps, since only the stand reference knows it."""
+    mm = fit.measurement
+    if "offset" not in mm.names:
+        return np.zeros(X.shape[1])
+    p0 = np.array(fit.p, dtype=float)
+    p0[mm.parameter_index("offset")] = 0.0
+    return mm.predict(fit.p, X) - mm.predict(p0, X)
+
+
+def _groups(values, tol):
+    """Labels of values equal within ``tol`` (sorted), and the group centres."""
+    order = np.argsort(values)
+    labels = np.empty(values.size, dtype=int)
+    centres, start = [], 0
+    g = -1
+    for k, i in enumerate(order):
+        if k == 0 or values[i] - values[order[start]] > tol:
+            g += 1
+            start = k
+            centres.append([])
+        labels[i] = g
+        centres[g].append(values[i])
+    return labels, np.array([np.mean(c) for c in centres])
+
+
+def _tilt_of_azimuth(runs):
+    """pitch/roll (rad) as functions of the stand azimuth: a first harmonic fitted to the
+    runs' own leveling (a tilt fixed in n turns with azimuth, one fixed in b0 does not), or
+    the mean when fewer than three azimuths were visited."""
+    if runs.pitch is None:
+        return lambda az: (np.zeros_like(az), np.zeros_like(az))
+    az = runs.azimuth
+    _, centres = _groups(np.mod(az, 2 * np.pi), 1 * units.DEG)
+    if centres.size >= 3:
+        A = np.column_stack([np.ones_like(az), np.cos(az), np.sin(az)])
+        cp = np.linalg.lstsq(A, runs.pitch, rcond=None)[0]
+        cr = np.linalg.lstsq(A, runs.roll, rcond=None)[0]
+
+        def tilt(a):
+            B = np.column_stack([np.ones_like(a), np.cos(a), np.sin(a)])
+            return B @ cp, B @ cr
+        return tilt
+    mp, mr = float(np.mean(runs.pitch)), float(np.mean(runs.roll))
+    return lambda a: (np.full_like(a, mp), np.full_like(a, mr))
+
+
+# -- plots of a fit --------------------------------------------------------------------------
+@_plotting
+def plot_calibration_line(fit, runs):
+    """Heading error against bias rate, per stand azimuth, with the fitted model (Fig. 2).
+
+    Parameters
+    ----------
+    fit : hse_opt.fit.FitResult
+    runs : hse_opt.data.Runs
+        The runs the fit used.
+
+    Returns
+    -------
+    matplotlib.figure.Figure
+    """
+    X = _inputs(fit, runs)
+    mm = fit.measurement
+    rate_dps = runs.rate / units.DEG_PER_S
+    y, s = _arcsec(runs.heading_err), _arcsec(fit.sigma)
+    labels, centres = _groups(np.mod(runs.azimuth, 2 * np.pi), 1 * units.DEG)
+    fig = _new_figure(7.0, 3.6)
+    ax = fig.add_subplot()
+    if centres.size <= _MAX_LINES:
+        lo, hi = rate_dps.min(), rate_dps.max()
+        pad = 0.05 * max(hi - lo, 1.0)
+        grid = np.linspace(lo - pad, hi + pad, 61)
+        for g, c in enumerate(centres):
+            col = _COLORS[g % len(_COLORS)]
+            m = labels == g
+            ax.errorbar(rate_dps[m], y[m], yerr=s[m], fmt="o", ms=4, color=col, capsize=2,
+                        label=f"azimuth {c / units.DEG:.1f} deg")
+            Xg = np.repeat(np.mean(X[:, m], axis=1, keepdims=True), grid.size, axis=1)
+            Xg[RUN_FIELDS.index("rate")] = grid * units.DEG_PER_S
+            Xg[RUN_FIELDS.index("azimuth")] = c
+            ax.plot(grid, _arcsec(mm.predict(fit.p, Xg)), "-", color=col, lw=1.2)
+        ax.legend(loc="best", frameon=False)
+    else:
+        sc = ax.scatter(rate_dps, y, c=np.mod(runs.azimuth / units.DEG, 360), cmap="twilight",
+                        s=16, label="measured")
+        ax.plot(rate_dps, _arcsec(mm.predict(fit.p, X)), "k+", ms=6, label="model")
+        fig.colorbar(sc, ax=ax, label="stand azimuth [deg]")
+        ax.legend(loc="best", frameon=False)
+    ax.axvline(0, color="0.6", lw=0.8)
+    ax.set_xlabel("bias rate Omega [deg/s]")
+    ax.set_ylabel("heading error [arcsec]")
+    ax.set_title("Calibration line: heading error against bias rate")
+    return fig
+
+
+@_plotting
+def plot_azimuth(fit, runs):
+    """Heading error against stand azimuth before and after compensation with the fitted
+    model (the paper's Fig. 3).
+
+    "After" removes every fitted effect except the constant ``offset`` (which only the
+    stand reference can know), as the paper's Eq. 14 compensation removes the
+    heading-sensitive error.
+
+    Returns
+    -------
+    matplotlib.figure.Figure
+    """
+    X = _inputs(fit, runs)
+    mm = fit.measurement
+    az = np.mod(runs.azimuth / units.DEG, 360.0)
+    y, s = _arcsec(runs.heading_err), _arcsec(fit.sigma)
+    h = mm.predict(fit.p, X)
+    after = y - _arcsec(h - _offset_part(fit, X))
+    rates, rate_centres = _groups(runs.rate, 0.05 * units.DEG_PER_S)
+    grid = np.linspace(0.0, 360.0, 181) * units.DEG
+    tilt = _tilt_of_azimuth(runs)
+    pitch, roll = tilt(grid)
+    fig = _new_figure(7.5, 3.4)
+    ax1, ax2 = fig.subplots(1, 2, sharey=True)
+    many = rate_centres.size > _MAX_LINES
+    for g, r in enumerate(rate_centres):
+        col = _COLORS[g % len(_COLORS)]
+        m = rates == g
+        lab = None if many else f"{r / units.DEG_PER_S:+.0f} deg/s"
+        ax1.errorbar(az[m], y[m], yerr=s[m], fmt="o", ms=4, color=col, capsize=2, label=lab)
+        ax2.errorbar(az[m], after[m], yerr=s[m], fmt="o", ms=4, color=col, capsize=2)
+        if many:
+            continue
+        Xg = np.repeat(np.median(X[:, m], axis=1, keepdims=True), grid.size, axis=1)
+        Xg[RUN_FIELDS.index("rate")] = r
+        Xg[RUN_FIELDS.index("azimuth")] = grid
+        Xg[RUN_FIELDS.index("pitch")] = pitch if mm.tilt_known else 0.0
+        Xg[RUN_FIELDS.index("roll")] = roll if mm.tilt_known else 0.0
+        hg = mm.predict(fit.p, Xg)
+        ax1.plot(grid / units.DEG, _arcsec(hg), "-", color=col, lw=1.2)
+        ax2.plot(grid / units.DEG, _arcsec(_offset_part(fit, Xg)), "-", color=col, lw=1.2)
+    ax1.set_title(f"before compensation (peak-to-peak {np.ptp(y):.2f} arcsec)")
+    ax2.set_title(f"after compensation (peak-to-peak {np.ptp(after):.2f} arcsec)")
+    for ax in (ax1, ax2):
+        ax.set_xlabel("stand azimuth [deg]")
+        ax.set_xticks(np.arange(0, 361, 90))
+    ax1.set_ylabel("heading error [arcsec]")
+    if not many:
+        ax1.legend(loc="best", frameon=False)
+    return fig
+
+
+def _residual_grid(fig, runs, series, ncols=3):
+    """Residuals (arcsec, 1-sigma bars) against every factor: one row of panels per entry of
+    ``series`` = ``[(title, residual, sigma, colour)]``, factors wrapped ``ncols`` to a row,
+    the rows of one factor chunk next to each other so before/after read top to bottom."""
+    facs = factors(runs)
+    chunks = [facs[i:i + ncols] for i in range(0, len(facs), ncols)] or [[]]
+    axes = fig.subplots(len(chunks) * len(series), ncols, squeeze=False, sharey=True)
+    lim = max(float(np.max(np.abs(r) + s)) for _, r, s, _ in series) * 1.08
+    for c, chunk in enumerate(chunks):
+        for k, (title, r, s, col) in enumerate(series):
+            row = axes[c * len(series) + k]
+            for ax, (_, label, v) in zip(row, chunk):
+                ax.errorbar(v, r, yerr=s, fmt="o", ms=3, color=col, capsize=0, lw=0.6)
+                ax.axhline(0, color="k", lw=0.8)
+                ax.set_ylim(-lim, lim)
+                if k == len(series) - 1:
+                    ax.set_xlabel(label)
+            for ax in row[len(chunk):]:
+                ax.set_visible(False)
+            row[0].set_ylabel(f"{title}\nresidual [arcsec]" if title else "residual [arcsec]")
+    return facs
+
+
+@_plotting
+def plot_residuals(fit, runs):
+    """Residuals (measured - model, arcsec, with the 1-sigma used in the fit) against every
+    factor that varies over the runs (:func:`factors`).
+
+    Returns
+    -------
+    matplotlib.figure.Figure
+    """
+    rows = -(-len(factors(runs)) // 3)
+    fig = _new_figure(7.5, 2.1 * max(1, rows))
+    _residual_grid(fig, runs, [("", _arcsec(fit.residuals), _arcsec(fit.sigma), _COLORS[0])])
+    fig.suptitle(f"Residuals against every factor (RMS {fit.rms_arcsec:.2f} arcsec)")
+    return fig
+
+
+@_plotting
+def plot_before_after(before, after, runs):
+    """Residuals of two fits of the same runs against every factor: a row of panels for
+    ``before`` above a row for ``after``, on the same scale.
+
+    Parameters
+    ----------
+    before, after : hse_opt.fit.FitResult
+
+    Returns
+    -------
+    matplotlib.figure.Figure
+    """
+    rows = -(-len(factors(runs)) // 3)
+    fig = _new_figure(7.5, 1.9 * 2 * max(1, rows))
+    _residual_grid(fig, runs, [(f"{_effects_label(f)}", _arcsec(f.residuals), _arcsec(f.sigma), col)
+                               for f, col in ((before, "#7f7f7f"), (after, _COLORS[1]))])
+    fig.suptitle(f"Residuals before (RMS {before.rms_arcsec:.2f} arcsec) and after "
+                 f"(RMS {after.rms_arcsec:.2f} arcsec)")
+    return fig
+
+
+def _effects_label(fit):
+    return " + ".join(fit.model.effect_names)
+
+
+# -- sections --------------------------------------------------------------------------------
+def _fit_statistics(fit):
+    """(label, key, formatted value) rows of a fit's statistics."""
+    return [
+        ("runs", "n_runs", _fmt(fit.n_runs)),
+        ("RMS of residuals [arcsec]", "rms_arcsec", _fmt(fit.rms_arcsec)),
+        ("chi-square", "chi2", _fmt(fit.chi2)),
+        ("degrees of freedom", "dof", _fmt(fit.dof)),
+        ("reduced chi-square", "chi2_red", _fmt(fit.chi2_red)),
+        ("AIC", "aic", _fmt(fit.aic)),
+        ("BIC", "bic", _fmt(fit.bic)),
+        ("condition number", "condition", _fmt(fit.condition, 3)),
+        ("weights", "weighting", html.escape(fit.weighting)),
+        ("solver", "method", html.escape(f"{fit.method} ({fit.status})")),
+    ]
+
+
+def _parameter_table(fit):
+    descr = {q.name: q.description for q in fit.measurement.params}
+    rows = [[f"<code>{html.escape(n)}</code>", _fmt(v, 5), _fmt(s, 3) if f else "fixed",
+             html.escape(u), html.escape(descr.get(n, ""))]
+            for n, v, s, u, f in zip(fit.names, fit.values, fit.std, fit.units, fit.free)]
+    return _table(["parameter", "value", "1-sigma", "unit", "meaning"], rows,
+                  keys=[f"param:{n}" for n in fit.names], cls="params")
+
+
+def _correlation_table(fit):
+    free = np.flatnonzero(fit.free)
+    if free.size < 2 or free.size > 12:
+        return ""
+    names = [fit.names[i] for i in free]
+    C = fit.correlation[np.ix_(free, free)]
+    rows = [[f"<code>{html.escape(n)}</code>"]
+            + [f'<span class="{"hi" if i != j and abs(C[i, j]) > 0.9 else ""}">{C[i, j]:+.3f}</span>'
+               for j in range(len(names))] for i, n in enumerate(names)]
+    return ("<details><summary>Correlation of the estimates</summary>"
+            + _table([""] + names, rows, cls="corr") + "</details>")
+
+
+def fit_section(fit, runs, title=None):
+    """The report section of a calibration fit.
+
+    Parameters
+    ----------
+    fit : hse_opt.fit.FitResult
+    runs : hse_opt.data.Runs
+        The runs the fit used.
+    title : str, optional
+
+    Returns
+    -------
+    Section
+    """
+    title = title or f"Calibration fit: {_effects_label(fit)}"
+    stats = _fit_statistics(fit)
+    blocks = [
+        _paragraph(f"Weighted least squares of the model ({_effects_label(fit)}) to "
+                   f"{fit.n_runs} alignments."),
+        '<div class="cols">' + _parameter_table(fit)
+        + _table(["statistic", "value"], [[lab, v] for lab, _, v in stats],
+                 keys=[k for _, k, _ in stats], cls="stats") + "</div>",
+        _correlation_table(fit),
+        _notes(list(fit.notes) + [f"bound binds: {b}" for b in fit.binding]),
+        _embed(plot_calibration_line(fit, runs),
+               "Heading error against bias rate at each stand azimuth (points: measured, 1-sigma "
+               "bars; lines: the fitted model). The paper's Fig. 2: the slope is K_HSE = "
+               "lambda2 C23 / (w_ie cos L), so it changes with azimuth as the tilt term C23 does.",
+               "heading error against bias rate"),
+        _embed(plot_azimuth(fit, runs),
+               "Heading error against stand azimuth before (left) and after (right) compensation "
+               "with the fitted model (the paper's Fig. 3). Lines: the model at each rate with "
+               "the other inputs at their medians; after compensation only the constant offset "
+               "remains.",
+               "heading error against azimuth before and after compensation"),
+        _embed(plot_residuals(fit, runs),
+               "Residuals (measured minus model) against every factor that varies over the runs; "
+               "structure here is an effect the model lacks.", "residuals against every factor"),
+    ]
+    return Section(title, tuple(b for b in blocks if b), {"fit": fit.to_dict()})
+
+
+def comparison_section(before, after, runs, title=None):
+    """The before/after of adding an effect: statistics side by side and residuals overlaid.
+
+    Parameters
+    ----------
+    before, after : hse_opt.fit.FitResult
+        Fits of the same runs.
+    runs : hse_opt.data.Runs
+    title : str, optional
+
+    Returns
+    -------
+    Section
+    """
+    added = [e for e in after.model.effect_names if e not in before.model.effect_names]
+    title = title or f"Adding {', '.join(added) or 'nothing'}: before and after"
+    sb, sa = _fit_statistics(before), _fit_statistics(after)
+    rows = [[lab, vb, va] for (lab, _, vb), (_, _, va) in zip(sb, sa)]
+    blocks = [
+        _table(["", _effects_label(before), _effects_label(after)], rows,
+               keys=[k for _, k, _ in sb], cls="stats"),
+        _embed(plot_before_after(before, after, runs),
+               f"Residuals against every factor before (grey rows) and after (red rows) adding "
+               f"{', '.join(added) or 'nothing'}, on one scale.", "residuals before and after"),
+    ]
+    return Section(title, tuple(blocks), {"before": before.to_dict(), "after": after.to_dict()})
+
+
+# -- the page --------------------------------------------------------------------------------
+_CSS = """
+body{font-family:-apple-system,"Segoe UI",Roboto,"Helvetica Neue",Arial,sans-serif;margin:0;
+color:#1b1b1b;background:#fff;line-height:1.45}
+main{max-width:60rem;margin:0 auto;padding:1rem 1.5rem 3rem}
+h1{font-size:1.6rem;margin:.5rem 0}h2{font-size:1.25rem;border-bottom:1px solid #ddd;
+padding-bottom:.2rem;margin-top:2.2rem}
+table{border-collapse:collapse;margin:.6rem 0;font-size:.88rem}
+th,td{border-bottom:1px solid #e3e3e3;padding:.2rem .6rem;text-align:left;vertical-align:top}
+th{background:#f4f6f8}td{font-variant-numeric:tabular-nums}
+.cols{display:flex;flex-wrap:wrap;gap:1.5rem;align-items:flex-start}
+figure{margin:1rem 0}img.plot{max-width:100%;height:auto;display:block}
+figcaption{font-size:.85rem;color:#444;margin-top:.3rem}
+.summary{background:#f4f8f4;border-left:4px solid #2ca02c;padding:.6rem 1rem}
+.notes{font-size:.85rem;color:#555}.hi{color:#d62728;font-weight:600}
+nav ol{margin:.3rem 0;padding-left:1.3rem}code{font-size:.9em}
+footer{font-size:.8rem;color:#777;margin-top:3rem}
+"""
+
+
+def render_html(sections, title="hse_opt report", summary=None):
+    """The report page as one HTML string.
+
+    Parameters
+    ----------
+    sections : sequence of Section
+    title : str
+    summary : sequence of str, optional
+        Lines shown at the top, before the sections.
+
+    Returns
+    -------
+    str
+    """
+    anchors = [f"s{i + 1}" for i in range(len(sections))]
+    toc = "".join(f'<li><a href="#{a}">{html.escape(s.title)}</a></li>'
+                  for a, s in zip(anchors, sections))
+    top = ""
+    if summary:
+        top = '<div class="summary">' + "".join(f"<p>{html.escape(line)}</p>" for line in summary) + "</div>"
+    data = {s.title: s.data for s in sections}
+    # a JSON data block is inert (never executed); "</" cannot end it early once escaped
+    payload = json.dumps(data, allow_nan=False, default=float).replace("</", "<\\/")
+    body = "\n".join(s.html(a) for a, s in zip(anchors, sections))
+    return (f'<!DOCTYPE html>\n<html lang="en"><head><meta charset="utf-8">'
+            f'<meta name="viewport" content="width=device-width, initial-scale=1">'
+            f"<title>{html.escape(title)}</title><style>{_CSS}</style></head>\n<body><main>"
+            f"<h1>{html.escape(title)}</h1>{top}<nav><ol>{toc}</ol></nav>\n{body}\n"
+            f'<footer>hse_opt {html.escape(__version__)}. Heading errors are estimated minus '
+            f'true (the paper\'s delta-psi has the opposite sign).</footer></main>\n'
+            f'<script type="application/json" id="hse-opt-data">{payload}</script>'
+            f"</body></html>\n")
+
+
+def write_text_atomic(path, text):
+    """Write ``text`` (UTF-8) to ``path`` whole or not at all: a temporary file in the same
+    directory, flushed and fsynced, then renamed over ``path``."""
+    path = Path(path)
+    tmp = path.with_name(f".{path.name}.{secrets.token_hex(6)}.tmp")
+    try:
+        with open(tmp, "x", encoding="utf-8", newline="\n") as fh:
+            fh.write(text)
+            fh.flush()
+            os.fsync(fh.fileno())
+        os.replace(tmp, path)
+    except BaseException:
+        with contextlib.suppress(FileNotFoundError):
+            os.unlink(tmp)
+        raise
+    return path
+
+
+def write_report(directory, sections, title="hse_opt report", summary=None):
+    """Render ``sections`` into ``directory/report.html`` (the directory is created when
+    missing; the file is written whole or not at all).
+
+    Returns
+    -------
+    pathlib.Path
+        The report file.
+    """
+    directory = Path(directory)
+    if directory.exists() and not directory.is_dir():
+        raise ValueError(f"report directory {str(directory)!r} is a file; allowed: a directory "
+                         "(created when missing)")
+    directory.mkdir(parents=True, exist_ok=True)
+    return write_text_atomic(directory / REPORT_NAME, render_html(sections, title, summary))
