@@ -42,9 +42,9 @@ import numpy as np
 from . import __version__, units
 from .model.measurement import RUN_FIELDS
 
-__all__ = ["Section", "Figure", "fit_section", "comparison_section", "render_html",
-           "write_report", "plot_calibration_line", "plot_azimuth", "plot_residuals",
-           "plot_before_after", "factors", "REPORT_NAME"]
+__all__ = ["Section", "Figure", "fit_section", "comparison_section", "plan_section", "render_html",
+           "write_report", "write_text_atomic", "plot_calibration_line", "plot_azimuth",
+           "plot_residuals", "plot_before_after", "plot_plan", "factors", "REPORT_NAME"]
 
 #: file name of the report inside the report directory
 REPORT_NAME = "report.html"
@@ -243,31 +243,71 @@ def _groups(values, tol):
     return labels, np.array([np.mean(c) for c in centres])
 
 
-def _tilt_of_azimuth(runs):
-    """pitch/roll (rad) as functions of the stand azimuth: a first harmonic fitted to the
-    runs' own leveling (a tilt fixed in n turns with azimuth, one fixed in b0 does not), or
-    the mean when fewer than three azimuths were visited."""
+#: runs whose leveled tilts (pitch, roll) differ by less than this belong to one tilt setup
+#: (a fixture setting or the stand's own tilt): stand tilts that turn with azimuth stay
+#: well inside it, deliberate fixture tilts (>= 0.1 deg) well outside
+SETUP_TOL = 300 * units.ARCSEC
+
+
+def tilt_setups(runs):
+    """Runs grouped by tilt setup (fixture setting), as ``[(mask, label)]``.
+
+    Runs without pitch/roll form one setup. Otherwise runs join the first setup whose mean
+    pitch and roll are both within :data:`SETUP_TOL` of theirs.
+    """
+    n = len(runs)
+    if runs.pitch is None:
+        return [(np.ones(n, bool), "tilt not recorded")]
+    tilt = np.column_stack([runs.pitch, runs.roll])
+    labels = np.full(n, -1)
+    centres = []
+    for i in range(n):
+        for k, c in enumerate(centres):
+            if np.all(np.abs(tilt[i] - c) < SETUP_TOL):
+                labels[i] = k
+                break
+        else:
+            centres.append(tilt[i])
+            labels[i] = len(centres) - 1
+        centres[labels[i]] = tilt[labels == labels[i]].mean(axis=0)
+    out = []
+    for k in range(len(centres)):
+        m = labels == k
+        p, r = tilt[m].mean(axis=0) / units.ARCSEC
+        out.append((m, f"pitch {p:.0f}, roll {r:.0f} arcsec"))
+    return out
+
+
+def _tilt_of_azimuth(runs, mask):
+    """pitch/roll (rad) as functions of the stand azimuth within one tilt setup: a first
+    harmonic fitted to the runs' own leveling (a stand tilt fixed in n turns with azimuth,
+    one fixed in b0 does not), or the mean when fewer than three azimuths were visited."""
     if runs.pitch is None:
         return lambda az: (np.zeros_like(az), np.zeros_like(az))
-    az = runs.azimuth
+    az, pitch, roll = runs.azimuth[mask], runs.pitch[mask], runs.roll[mask]
     _, centres = _groups(np.mod(az, 2 * np.pi), 1 * units.DEG)
     if centres.size >= 3:
         A = np.column_stack([np.ones_like(az), np.cos(az), np.sin(az)])
-        cp = np.linalg.lstsq(A, runs.pitch, rcond=None)[0]
-        cr = np.linalg.lstsq(A, runs.roll, rcond=None)[0]
+        cp = np.linalg.lstsq(A, pitch, rcond=None)[0]
+        cr = np.linalg.lstsq(A, roll, rcond=None)[0]
 
         def tilt(a):
             B = np.column_stack([np.ones_like(a), np.cos(a), np.sin(a)])
             return B @ cp, B @ cr
         return tilt
-    mp, mr = float(np.mean(runs.pitch)), float(np.mean(runs.roll))
+    mp, mr = float(np.mean(pitch)), float(np.mean(roll))
     return lambda a: (np.full_like(a, mp), np.full_like(a, mr))
+
+
+#: at most this many tilt setups get panels of their own
+_MAX_SETUPS = 3
 
 
 # -- plots of a fit --------------------------------------------------------------------------
 @_plotting
 def plot_calibration_line(fit, runs):
-    """Heading error against bias rate, per stand azimuth, with the fitted model (Fig. 2).
+    """Heading error against bias rate, per stand azimuth and tilt setup, with the fitted
+    model (the paper's Fig. 2). One panel per tilt setup (:func:`tilt_setups`).
 
     Parameters
     ----------
@@ -283,40 +323,46 @@ def plot_calibration_line(fit, runs):
     mm = fit.measurement
     rate_dps = runs.rate / units.DEG_PER_S
     y, s = _arcsec(runs.heading_err), _arcsec(fit.sigma)
+    setups = tilt_setups(runs)
+    if len(setups) > _MAX_SETUPS:
+        setups = [(np.ones(len(runs), bool), f"{len(setups)} tilt setups")]
     labels, centres = _groups(np.mod(runs.azimuth, 2 * np.pi), 1 * units.DEG)
-    fig = _new_figure(7.0, 3.6)
-    ax = fig.add_subplot()
-    if centres.size <= _MAX_LINES:
-        lo, hi = rate_dps.min(), rate_dps.max()
-        pad = 0.05 * max(hi - lo, 1.0)
-        grid = np.linspace(lo - pad, hi + pad, 61)
-        for g, c in enumerate(centres):
-            col = _COLORS[g % len(_COLORS)]
-            m = labels == g
-            ax.errorbar(rate_dps[m], y[m], yerr=s[m], fmt="o", ms=4, color=col, capsize=2,
-                        label=f"azimuth {c / units.DEG:.1f} deg")
-            Xg = np.repeat(np.mean(X[:, m], axis=1, keepdims=True), grid.size, axis=1)
-            Xg[RUN_FIELDS.index("rate")] = grid * units.DEG_PER_S
-            Xg[RUN_FIELDS.index("azimuth")] = c
-            ax.plot(grid, _arcsec(mm.predict(fit.p, Xg)), "-", color=col, lw=1.2)
-        ax.legend(loc="best", frameon=False)
-    else:
-        sc = ax.scatter(rate_dps, y, c=np.mod(runs.azimuth / units.DEG, 360), cmap="twilight",
-                        s=16, label="measured")
-        ax.plot(rate_dps, _arcsec(mm.predict(fit.p, X)), "k+", ms=6, label="model")
-        fig.colorbar(sc, ax=ax, label="stand azimuth [deg]")
-        ax.legend(loc="best", frameon=False)
-    ax.axvline(0, color="0.6", lw=0.8)
-    ax.set_xlabel("bias rate Omega [deg/s]")
-    ax.set_ylabel("heading error [arcsec]")
-    ax.set_title("Calibration line: heading error against bias rate")
+    fig = _new_figure(7.5, 3.4 if len(setups) == 1 else 3.0)
+    axes = fig.subplots(1, len(setups), sharey=True, squeeze=False)[0]
+    lo, hi = rate_dps.min(), rate_dps.max()
+    pad = 0.05 * max(hi - lo, 1.0)
+    grid = np.linspace(lo - pad, hi + pad, 61)
+    for ax, (setup, title) in zip(axes, setups):
+        present = [g for g in range(centres.size) if np.any(setup & (labels == g))]
+        if len(present) <= _MAX_LINES:
+            for g in present:
+                col = _COLORS[g % len(_COLORS)]
+                m = setup & (labels == g)
+                ax.errorbar(rate_dps[m], y[m], yerr=s[m], fmt="o", ms=4, color=col, capsize=2,
+                            label=f"{centres[g] / units.DEG:.0f} deg")
+                Xg = np.repeat(np.mean(X[:, m], axis=1, keepdims=True), grid.size, axis=1)
+                Xg[RUN_FIELDS.index("rate")] = grid * units.DEG_PER_S
+                Xg[RUN_FIELDS.index("azimuth")] = centres[g]
+                ax.plot(grid, _arcsec(mm.predict(fit.p, Xg)), "-", color=col, lw=1.2)
+            ax.legend(loc="best", frameon=False, title="stand azimuth", ncols=2)
+        else:
+            sc = ax.scatter(rate_dps[setup], y[setup], s=16, cmap="twilight", vmin=0, vmax=360,
+                            c=np.mod(runs.azimuth[setup] / units.DEG, 360), label="measured")
+            ax.plot(rate_dps[setup], _arcsec(mm.predict(fit.p, X[:, setup])), "k+", ms=6,
+                    label="model")
+            fig.colorbar(sc, ax=ax, label="stand azimuth [deg]")
+            ax.legend(loc="best", frameon=False)
+        ax.set_title(title)
+        ax.set_xlabel("bias rate Omega [deg/s]")
+    axes[0].set_ylabel("heading error [arcsec]")
+    fig.suptitle("Calibration line: heading error against bias rate")
     return fig
 
 
 @_plotting
 def plot_azimuth(fit, runs):
     """Heading error against stand azimuth before and after compensation with the fitted
-    model (the paper's Fig. 3).
+    model (the paper's Fig. 3); one row per tilt setup (:func:`tilt_setups`).
 
     "After" removes every fitted effect except the constant ``offset`` (which only the
     stand reference can know), as the paper's Eq. 14 compensation removes the
@@ -330,39 +376,45 @@ def plot_azimuth(fit, runs):
     mm = fit.measurement
     az = np.mod(runs.azimuth / units.DEG, 360.0)
     y, s = _arcsec(runs.heading_err), _arcsec(fit.sigma)
-    h = mm.predict(fit.p, X)
-    after = y - _arcsec(h - _offset_part(fit, X))
+    after = y - _arcsec(mm.predict(fit.p, X) - _offset_part(fit, X))
     rates, rate_centres = _groups(runs.rate, 0.05 * units.DEG_PER_S)
-    grid = np.linspace(0.0, 360.0, 181) * units.DEG
-    tilt = _tilt_of_azimuth(runs)
-    pitch, roll = tilt(grid)
-    fig = _new_figure(7.5, 3.4)
-    ax1, ax2 = fig.subplots(1, 2, sharey=True)
     many = rate_centres.size > _MAX_LINES
-    for g, r in enumerate(rate_centres):
-        col = _COLORS[g % len(_COLORS)]
-        m = rates == g
-        lab = None if many else f"{r / units.DEG_PER_S:+.0f} deg/s"
-        ax1.errorbar(az[m], y[m], yerr=s[m], fmt="o", ms=4, color=col, capsize=2, label=lab)
-        ax2.errorbar(az[m], after[m], yerr=s[m], fmt="o", ms=4, color=col, capsize=2)
-        if many:
-            continue
-        Xg = np.repeat(np.median(X[:, m], axis=1, keepdims=True), grid.size, axis=1)
-        Xg[RUN_FIELDS.index("rate")] = r
-        Xg[RUN_FIELDS.index("azimuth")] = grid
-        Xg[RUN_FIELDS.index("pitch")] = pitch if mm.tilt_known else 0.0
-        Xg[RUN_FIELDS.index("roll")] = roll if mm.tilt_known else 0.0
-        hg = mm.predict(fit.p, Xg)
-        ax1.plot(grid / units.DEG, _arcsec(hg), "-", color=col, lw=1.2)
-        ax2.plot(grid / units.DEG, _arcsec(_offset_part(fit, Xg)), "-", color=col, lw=1.2)
-    ax1.set_title(f"before compensation (peak-to-peak {np.ptp(y):.2f} arcsec)")
-    ax2.set_title(f"after compensation (peak-to-peak {np.ptp(after):.2f} arcsec)")
-    for ax in (ax1, ax2):
-        ax.set_xlabel("stand azimuth [deg]")
+    grid = np.linspace(0.0, 360.0, 181) * units.DEG
+    setups = tilt_setups(runs)
+    if len(setups) > _MAX_SETUPS:
+        setups = [(np.ones(len(runs), bool), f"{len(setups)} tilt setups")]
+    fig = _new_figure(7.5, 1.0 + 2.6 * len(setups))
+    axes = fig.subplots(len(setups), 2, sharey="row", squeeze=False)
+    for (ax1, ax2), (setup, title) in zip(axes, setups):
+        pitch, roll = _tilt_of_azimuth(runs, setup)(grid)
+        for g, r in enumerate(rate_centres):
+            m = setup & (rates == g)
+            if not m.any():
+                continue
+            col = _COLORS[g % len(_COLORS)]
+            lab = None if many else f"{r / units.DEG_PER_S:+.0f} deg/s"
+            ax1.errorbar(az[m], y[m], yerr=s[m], fmt="o", ms=4, color=col, capsize=2, label=lab)
+            ax2.errorbar(az[m], after[m], yerr=s[m], fmt="o", ms=4, color=col, capsize=2)
+            if many:
+                continue
+            Xg = np.repeat(np.median(X[:, m], axis=1, keepdims=True), grid.size, axis=1)
+            Xg[RUN_FIELDS.index("rate")] = r
+            Xg[RUN_FIELDS.index("azimuth")] = grid
+            if mm.tilt_known:
+                Xg[RUN_FIELDS.index("pitch")], Xg[RUN_FIELDS.index("roll")] = pitch, roll
+            ax1.plot(grid / units.DEG, _arcsec(mm.predict(fit.p, Xg)), "-", color=col, lw=1.2)
+            ax2.plot(grid / units.DEG, _arcsec(_offset_part(fit, Xg)), "-", color=col, lw=1.2)
+        ax1.set_title(f"before: peak-to-peak {np.ptp(y[setup]):.1f} arcsec", fontsize=9)
+        ax2.set_title(f"after: peak-to-peak {np.ptp(after[setup]):.1f} arcsec", fontsize=9)
+        ax1.set_ylabel(f"{title}\nheading error [arcsec]" if len(setups) > 1
+                       else "heading error [arcsec]")
+        if not many:
+            ax1.legend(loc="best", frameon=False)
+    for ax in axes.ravel():
         ax.set_xticks(np.arange(0, 361, 90))
-    ax1.set_ylabel("heading error [arcsec]")
-    if not many:
-        ax1.legend(loc="best", frameon=False)
+    for ax in axes[-1]:
+        ax.set_xlabel("stand azimuth [deg]")
+    fig.suptitle("Heading error against azimuth, before and after compensation")
     return fig
 
 
@@ -429,6 +481,47 @@ def plot_before_after(before, after, runs):
 
 def _effects_label(fit):
     return " + ".join(fit.model.effect_names)
+
+
+# -- plots of a plan -------------------------------------------------------------------------
+@_plotting
+def plot_plan(plan, title="The plan's runs over time"):
+    """A plan's runs over time: bias rate, stand azimuth and (when any) deliberate tilt of
+    each alignment, as bars from its start to its end.
+
+    Parameters
+    ----------
+    plan : hse_opt.data.Plan or hse_opt.data.Runs
+        Needs ``t_start`` (time since power-on).
+
+    Returns
+    -------
+    matplotlib.figure.Figure
+    """
+    t0 = np.asarray(plan.t_start if plan.t_start is not None
+                    else np.concatenate([[0.0], np.cumsum(plan.duration[:-1])]), float)
+    t1 = t0 + np.asarray(plan.duration, float)
+    panels = [("bias rate [deg/s]", plan.rate / units.DEG_PER_S),
+              ("stand azimuth [deg]", np.mod(plan.azimuth / units.DEG, 360.0))]
+    tilt_x, tilt_y = getattr(plan, "tilt_x", None), getattr(plan, "tilt_y", None)
+    if tilt_x is not None and (np.any(tilt_x != 0) or np.any(tilt_y != 0)):
+        panels.append(("deliberate tilt [arcsec]", None))
+    fig = _new_figure(7.5, 1.5 + 1.3 * len(panels))
+    axes = fig.subplots(len(panels), 1, sharex=True, squeeze=False)[:, 0]
+    for ax, (label, v) in zip(axes, panels):
+        if v is None:
+            ax.hlines(tilt_x / units.ARCSEC, t0 / units.HOUR, t1 / units.HOUR, color=_COLORS[0],
+                      lw=4, label="x (roll)")
+            ax.hlines(tilt_y / units.ARCSEC, t0 / units.HOUR, t1 / units.HOUR, color=_COLORS[1],
+                      lw=4, alpha=0.7, label="y (pitch)")
+            ax.legend(loc="best", frameon=False)
+        else:
+            ax.hlines(v, t0 / units.HOUR, t1 / units.HOUR, color=_COLORS[0], lw=4)
+        ax.set_ylabel(label)
+    axes[1].set_yticks(np.arange(0, 361, 90))
+    axes[-1].set_xlabel("time since power-on [h]")
+    fig.suptitle(f"{title}: {len(t0)} alignments, {t1.max() / units.HOUR:.1f} h")
+    return fig
 
 
 # -- sections --------------------------------------------------------------------------------
@@ -538,6 +631,19 @@ def comparison_section(before, after, runs, title=None):
                f"{', '.join(added) or 'nothing'}, on one scale.", "residuals before and after"),
     ]
     return Section(title, tuple(blocks), {"before": before.to_dict(), "after": after.to_dict()})
+
+
+def plan_section(plan, title="The test plan", text=None):
+    """A plan's runs over time (:func:`plot_plan`) with an optional paragraph.
+
+    Returns
+    -------
+    Section
+    """
+    blocks = ([_paragraph(text)] if text else []) + [
+        _embed(plot_plan(plan), "Each bar is one alignment, from its start to its end, against the "
+               "time since power-on.", "the plan's runs over time")]
+    return Section(title, tuple(blocks), {"n_runs": len(plan)})
 
 
 # -- the page --------------------------------------------------------------------------------
