@@ -42,7 +42,7 @@ def main():
         assert status == 0
         data = json.loads(buf.getvalue())
     print(f"hse-opt demo --seed {args.seed}: {wall:.1f} s wall from process start "
-          f"({time.perf_counter() - t0:.1f} s after imports of this script), "
+          f"({time.perf_counter() - t0:.1f} s in the command), "
           f"{cpu:.1f} s CPU (target < 60 s on one core)")
     print("  steps: " + ", ".join(f"{k} {v:.2f} s" for k, v in data["seconds"].items()))
     print(f"  hidden {data['hidden_effect']}, named {data['named_effect']}, "
