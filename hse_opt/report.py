@@ -43,7 +43,7 @@ from . import __version__, units
 from .model.measurement import RUN_FIELDS
 
 __all__ = ["Section", "Figure", "fit_section", "comparison_section", "diagnosis_section",
-           "plan_section", "render_html", "plot_candidates", "plot_factor_tests",
+           "design_section", "plan_section", "plot_sigmas", "render_html", "plot_candidates", "plot_factor_tests",
            "write_report", "write_text_atomic", "plot_calibration_line", "plot_azimuth",
            "plot_residuals", "plot_before_after", "plot_plan", "factors", "REPORT_NAME"]
 
@@ -594,6 +594,44 @@ def plot_plan(plan, title="The plan's runs over time"):
     return fig
 
 
+@_plotting
+def plot_sigmas(evaluation, baseline=None, labels=("optimised plan", "paper's plan")):
+    """Predicted 1-sigma of each parameter for a plan, against a baseline plan's.
+
+    Parameters
+    ----------
+    evaluation, baseline : hse_opt.design.Evaluation
+        ``names``, ``units``, ``std`` (display units); ``baseline`` optional.
+    labels : tuple of 2 str
+
+    Returns
+    -------
+    matplotlib.figure.Figure
+    """
+    names = list(evaluation.names)
+    k = len(names)
+    fig = _new_figure(7.5, 1.3 + 0.42 * k)
+    ax = fig.add_subplot()
+    y = np.arange(k)[::-1]
+    h = 0.38 if baseline is not None else 0.6
+    ax.barh(y + (h / 2 if baseline is not None else 0), evaluation.std, height=h,
+            color=_COLORS[0], label=labels[0])
+    if baseline is not None:
+        base = np.array([baseline.std[list(baseline.names).index(n)] if n in baseline.names else np.nan
+                         for n in names])
+        ax.barh(y - h / 2, base, height=h, color="#7f7f7f", label=labels[1])
+        for yi, a, b in zip(y, evaluation.std, base):
+            if np.isfinite(b) and a > 0:
+                ax.annotate(f"x{a / b:.2f}", (max(a, b), yi), xytext=(4, -3),
+                            textcoords="offset points", fontsize=8)
+    ax.set_xscale("log")
+    ax.set_yticks(y, [f"{n} [{u}]" for n, u in zip(names, evaluation.units)])
+    ax.set_xlabel("predicted 1-sigma (display unit of each parameter)")
+    ax.legend(loc="best", frameon=False)
+    ax.set_title("Predicted uncertainty of each parameter")
+    return fig
+
+
 # -- sections --------------------------------------------------------------------------------
 def _fit_statistics(fit):
     """(label, key, formatted value) rows of a fit's statistics."""
@@ -782,6 +820,63 @@ def diagnosis_section(diagnosis, title=None):
 def _jsonable(obj):
     """``obj`` with numpy scalars and arrays made JSON-serialisable."""
     return json.loads(json.dumps(obj, default=lambda o: o.tolist() if hasattr(o, "tolist") else str(o)))
+
+
+def design_section(result, baseline=None, title=None, baseline_note=None):
+    """The report section of an optimised plan: its runs over time, its predicted sigmas
+    against a baseline plan's (the paper's), efficiency and times.
+
+    Parameters
+    ----------
+    result : hse_opt.design.DesignResult
+    baseline : hse_opt.design.Evaluation, optional
+        The baseline plan evaluated for the same model.
+    title : str, optional
+    baseline_note : str, optional
+        Said instead of the comparison when there is no baseline (e.g. the paper's plan
+        cannot identify the model).
+
+    Returns
+    -------
+    Section
+    """
+    ev = result.evaluation
+    title = title or f"Optimised plan for {' + '.join(ev.effects)} ({result.criterion})"
+    stats = [("criterion", "criterion", html.escape(result.criterion)),
+             ("alignments", "n_runs", _fmt(result.n_runs)),
+             ("total time [h]", "total_time_h", _fmt(result.total_time / units.HOUR)),
+             ("setup time [h]", "setup_time_h", _fmt(result.setup_time / units.HOUR)),
+             ("efficiency (rounded + refined vs approximate optimum)", "efficiency",
+              _fmt(result.efficiency)),
+             ("efficiency against the whole budget", "budget_efficiency",
+              _fmt(result.budget_efficiency)),
+             ("refinement", "refinement", html.escape(result.refinement))]
+    rows, keys = [], []
+    for i, (n, u, sd) in enumerate(zip(ev.names, ev.units, ev.std)):
+        b = None
+        if baseline is not None and n in baseline.names:
+            b = float(baseline.std[list(baseline.names).index(n)])
+        rows.append([f"<code>{html.escape(n)}</code>", html.escape(u), _fmt(sd, 3), _fmt(b, 3),
+                     _fmt(sd / b, 3) if b else "&ndash;", _fmt(ev.drift_bias[i], 3)])
+        keys.append(f"sigma:{n}")
+    blocks = [
+        _table(["", "value"], [[lab, v] for lab, _, v in stats], keys=[k for _, k, _ in stats],
+               cls="stats"),
+        _embed(plot_plan(result.plan, "The optimised plan"),
+               "Each bar is one alignment of the optimised plan, from its start to its end.",
+               "the optimised plan's runs over time"),
+        _embed(plot_sigmas(ev, baseline),
+               "Predicted 1-sigma of each parameter (log scale)"
+               + (" for the optimised plan and the paper's plan in the same model; x: the ratio."
+                  if baseline is not None else "."), "predicted sigmas"),
+        _table(["parameter", "unit", "predicted sigma", "paper's plan", "ratio",
+                "bias per arcsec/h of drift"], rows, keys=keys, cls="sigmas"),
+        _paragraph(baseline_note) if baseline_note else "",
+        _notes(list(result.notes)),
+    ]
+    data = {"design": _jsonable(result.to_dict()),
+            "baseline": None if baseline is None else _jsonable(baseline.to_dict())}
+    return Section(title, tuple(b for b in blocks if b), data)
 
 
 def plan_section(plan, title="The test plan", text=None):
