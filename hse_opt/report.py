@@ -793,7 +793,8 @@ def diagnosis_section(diagnosis, title=None):
         words.append("Outliers: " + ", ".join(str(r) for r in d.outliers) + ".")
     testable = any(c.testable for c in d.candidates)
     blocks = [
-        f'<p class="summary">Verdict: <b>{html.escape(d.verdict)}</b>'
+        f'<p class="summary{"" if d.verdict == "adequate" else " warn"}">Verdict: '
+        f'<b>{html.escape(d.verdict)}</b>'
         + (f"; best candidate <code>{html.escape(d.best.effect)}</code>" if d.best is not None else "")
         + "</p>",
         _table(["statistic", "value"], [[lab, v] for lab, _, v in stats],
@@ -906,6 +907,7 @@ th{background:#f4f6f8}td{font-variant-numeric:tabular-nums}
 figure{margin:1rem 0}img.plot{max-width:100%;height:auto;display:block}
 figcaption{font-size:.85rem;color:#444;margin-top:.3rem}
 .summary{background:#f4f8f4;border-left:4px solid #2ca02c;padding:.6rem 1rem}
+.summary.warn{background:#fdf5f4;border-left-color:#d62728}
 .notes{font-size:.85rem;color:#555}.hi{color:#d62728;font-weight:600}
 nav ol{margin:.3rem 0;padding-left:1.3rem}code{font-size:.9em}
 footer{font-size:.8rem;color:#777;margin-top:3rem}
