@@ -213,10 +213,6 @@ def _arcsec(x):
     return np.asarray(x, dtype=float) / units.ARCSEC
 
 
-def _inputs(fit, runs):
-    return fit.measurement.inputs_from_runs(runs)
-
-
 def _offset_part(fit, X):
     """The constant-offset part of the fitted model's prediction (rad): what compensation
     keeps, since only the stand reference knows it."""
@@ -229,19 +225,14 @@ def _offset_part(fit, X):
 
 
 def _groups(values, tol):
-    """Labels of values equal within ``tol`` (sorted), and the group centres."""
+    """Group labels of ``values`` (neighbours closer than ``tol`` share one), numbered in
+    increasing order, and the group means."""
     order = np.argsort(values)
-    labels = np.empty(values.size, dtype=int)
-    centres, start = [], 0
-    g = -1
-    for k, i in enumerate(order):
-        if k == 0 or values[i] - values[order[start]] > tol:
-            g += 1
-            start = k
-            centres.append([])
-        labels[i] = g
-        centres[g].append(values[i])
-    return labels, np.array([np.mean(c) for c in centres])
+    v = np.asarray(values)[order]
+    sorted_labels = np.cumsum(np.r_[True, np.diff(v) > tol]) - 1
+    labels = np.empty_like(sorted_labels)
+    labels[order] = sorted_labels
+    return labels, np.bincount(sorted_labels, v) / np.bincount(sorted_labels)
 
 
 #: runs whose leveled tilts (pitch, roll) differ by less than this belong to one tilt setup
@@ -320,7 +311,7 @@ def plot_calibration_line(fit, runs):
     -------
     matplotlib.figure.Figure
     """
-    X = _inputs(fit, runs)
+    X = fit.measurement.inputs_from_runs(runs)
     mm = fit.measurement
     rate_dps = runs.rate / units.DEG_PER_S
     y, s = _arcsec(runs.heading_err), _arcsec(fit.sigma)
@@ -373,7 +364,7 @@ def plot_azimuth(fit, runs):
     -------
     matplotlib.figure.Figure
     """
-    X = _inputs(fit, runs)
+    X = fit.measurement.inputs_from_runs(runs)
     mm = fit.measurement
     az = np.mod(runs.azimuth / units.DEG, 360.0)
     y, s = _arcsec(runs.heading_err), _arcsec(fit.sigma)
