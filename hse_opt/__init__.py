@@ -29,3 +29,9 @@ Units
     :mod:`hse_opt.units`; a non-SI name carries its unit (``rate_dps``).
 """
 __version__ = "0.1.0"
+
+# -- public API (calibration: issue 4) --------------------------------------------------------
+from .fit import (Constraint, FitResult, SolverError, compensate, compensation, fit,  # noqa: E402
+                  load_fit, save_fit)
+from .information import Prior, UnidentifiableError, heading_sigma  # noqa: E402
+from .paper_procedure import PaperCalibration, compensate_eq14, paper_procedure  # noqa: E402

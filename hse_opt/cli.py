@@ -9,7 +9,7 @@ import importlib
 import sys
 
 #: command modules, in the order ``--help`` lists them
-COMMANDS = ("demo",)
+COMMANDS = ("demo", "fit", "compensate")
 
 
 class _Parser(argparse.ArgumentParser):

@@ -65,7 +65,7 @@ import numpy as np
 from .units import ARCSEC, DEG, DEG_PER_S
 
 __all__ = ["DataError", "Runs", "Plan", "load_runs", "load_plan", "save_runs", "save_plan",
-           "DEFAULT_MIN_RATE_DPS"]
+           "DEFAULT_MIN_RATE_DPS", "write_text_atomic"]
 
 #: default lock-in limit of the table rate, deg/s (see the module docstring)
 DEFAULT_MIN_RATE_DPS = 5.0
@@ -585,6 +585,22 @@ def _write_atomic(table, cls, path):
         raise TypeError(f"expected a {cls.__name__}, got {type(table).__name__}")
     table = dataclasses.replace(table)  # re-run the checks: arrays could have been made writable
     columns = table._text_columns()
+
+    def write(fh):
+        writer = csv.writer(fh, lineterminator="\n")
+        writer.writerow(columns)
+        writer.writerows(zip(*columns.values()))
+    _atomic(path, write)
+
+
+def write_text_atomic(path, text):
+    """Write ``text`` (UTF-8) to ``path`` whole or not at all (temporary file, fsync, rename)."""
+    _atomic(path, lambda fh: fh.write(text))
+
+
+def _atomic(path, write):
+    """Call ``write(fh)`` on a temporary file next to ``path``, fsync it and rename it over
+    ``path``; on any error ``path`` is untouched and the temporary file is removed."""
     target = os.path.abspath(os.fspath(path))
     directory, name = os.path.split(target)
     tmp = os.path.join(directory, f".{name}.{secrets.token_hex(6)}.tmp")
@@ -594,9 +610,7 @@ def _write_atomic(table, cls, path):
             os.chmod(tmp, os.stat(target).st_mode & 0o7777)
         with os.fdopen(fd, "w", newline="", encoding="utf-8") as fh:
             fd = None
-            writer = csv.writer(fh, lineterminator="\n")
-            writer.writerow(columns)
-            writer.writerows(zip(*columns.values()))
+            write(fh)
             fh.flush()
             os.fsync(fh.fileno())
         os.replace(tmp, target)

@@ -22,6 +22,29 @@ DEFAULT_ARW = 0.0120 * units.DEG_PER_H
 MAX_CONDITION = 1e6
 
 
+#: a parameter that moves no run's heading by this much across its whole declared range
+#: (``Param.upper - Param.lower``) has no information in the runs: what it leaves in the
+#: Jacobian is rounding, which column normalisation would otherwise blow up
+SENSITIVITY_FLOOR = 1e-6 * units.ARCSEC
+
+
+def invisible(J, ranges, floor=SENSITIVITY_FLOOR):
+    """Mask (n_p,) of parameters whose heading signature is below ``floor`` (rad) in every run
+    across their whole range. ``J`` (n, n_p): dh/dp, rad per display unit; ``ranges`` (n_p,),
+    display units."""
+    J = np.asarray(J, dtype=float)
+    reach = np.abs(J).max(axis=0, initial=0.0) * np.asarray(ranges, dtype=float)
+    return reach < floor
+
+
+def blind_out(F, mask):
+    """``F`` with the rows and columns of ``mask`` set to zero (they carry only rounding)."""
+    F = np.array(F, dtype=float)
+    F[mask, :] = 0.0
+    F[:, mask] = 0.0
+    return F
+
+
 def heading_sigma(duration, latitude, arw=DEFAULT_ARW, floor=0.0):
     """1-sigma heading error of one gyrocompass alignment (rad).
 
@@ -145,28 +168,60 @@ def condition_number(F):
     return float(np.sqrt(lam[-1] / lam[0]))
 
 
-def check_identifiable(F, names, max_condition=MAX_CONDITION, advice=None):
+def null_space(C, k):
+    """Orthonormal basis (k, k - rank) of the directions ``dz`` with ``C dz = 0``; the identity
+    when ``C`` has no rows. ``C`` (m, k): active linear constraints on k parameters."""
+    C = np.asarray(C, dtype=float).reshape(-1, k)
+    if C.shape[0] == 0:
+        return np.eye(k)
+    u, s, vt = np.linalg.svd(C)
+    rank = int(np.sum(s > 1e-12 * max(s.max(), 1e-300)))
+    return vt[rank:].T.copy()
+
+
+def _reduce(F, Z):
+    """Information on the reduced coordinates ``u`` of ``z = Z u`` and its diagonal scaling."""
+    Fr = Z.T @ F @ Z
+    return Fr, np.sqrt(np.clip(np.diag(Fr), 0.0, None))
+
+
+def check_identifiable(F, names, max_condition=MAX_CONDITION, advice=None, Z=None):
     """Raise :class:`UnidentifiableError` naming the confounded parameters when the
     information ``F`` (display units) cannot separate them; return the condition number.
 
+    ``Z`` (n_p, r), optional: the directions the parameters may still move in (the null space
+    of active equality constraints, :func:`null_space`); the check is on ``Z' F Z``.
     ``advice(direction)``, optional, returns a sentence on which runs would separate them.
     """
     names = tuple(names)
-    d = np.sqrt(np.clip(np.diag(F), 0.0, None))
-    blind = [n for n, v in zip(names, d) if v == 0 or not np.isfinite(v)]
-    if blind:
-        v = np.array([1.0 if n in blind else 0.0 for n in names])
+    F = np.asarray(F, dtype=float)
+    d_full = np.sqrt(np.clip(np.diag(F), 0.0, None))
+    Z = np.eye(len(names)) if Z is None else np.asarray(Z, dtype=float)
+    if Z.shape[1] == 0:
+        return 1.0
+    Fr, d = _reduce(F, Z)
+
+    def weight(v):  # how much each parameter takes part in direction v (display units)
+        w = np.abs(v) * np.where(d_full > 0, d_full, d_full.max(initial=0.0) or 1.0)
+        return w / max(w.max(), 1e-300)
+
+    blind = np.flatnonzero((d == 0) | ~np.isfinite(d))
+    if blind.size:
+        v = Z[:, blind].sum(axis=1)
+        w = np.max([weight(Z[:, j]) for j in blind], axis=0)
+        conf = [n for n, c in zip(names, w) if c > 0.1]
         raise UnidentifiableError(
-            f"the data carry no information on {', '.join(blind)}: these runs do not move the "
-            f"heading through them" + _advice(advice, v), blind, v)
-    lam, vec = np.linalg.eigh(F / np.outer(d, d))
+            f"the data carry no information on {', '.join(conf)}: these runs do not move the "
+            f"heading through {'it' if len(conf) == 1 else 'them'}" + _advice(advice, v), conf, v)
+    lam, vec = np.linalg.eigh(Fr / np.outer(d, d))
     cond = np.inf if lam[0] <= 0 else float(np.sqrt(lam[-1] / lam[0]))
     if cond > max_condition:
-        v = vec[:, 0] / d  # back to display units
-        v_n = vec[:, 0]
-        conf = [n for n, c in zip(names, v_n) if abs(c) > 0.1 * np.abs(v_n).max()]
-        combo = " ".join(f"{'-' if c < 0 else '+'} {abs(c):.3g}*{n}"
-                         for n, c in zip(names, v / np.abs(v).max()) if n in conf).lstrip("+ ")
+        v = Z @ (vec[:, 0] / d)  # back to display units
+        w = weight(v)
+        conf = [n for n, c in zip(names, w) if c > 0.1]
+        vmax = np.abs(v[w > 0.1]).max()
+        combo = " ".join(f"{'-' if c < 0 else '+'} {abs(c) / vmax:.3g}*{n}"
+                         for n, c, wi in zip(names, v, w) if wi > 0.1).lstrip("+ ")
         raise UnidentifiableError(
             f"parameters {', '.join(conf)} cannot be told apart by these runs (condition number "
             f"{cond:.3g} > {max_condition:.3g}; the combination {combo} is not observed)"
@@ -181,26 +236,44 @@ def _advice(advice, direction):
     return f". {text[:1].upper()}{text[1:]}" if text else ""
 
 
-def analyse(F, names, units_, max_condition=MAX_CONDITION, advice=None):
-    """:class:`Information` from a Fisher matrix, after the identifiability check."""
-    cond = check_identifiable(F, names, max_condition, advice)
-    d = np.sqrt(np.diag(F))
-    # invert the normalised matrix (well scaled), then undo the scaling
-    cov = np.linalg.inv(F / np.outer(d, d)) / np.outer(d, d)
+def analyse(F, names, units_, max_condition=MAX_CONDITION, advice=None, Z=None):
+    """:class:`Information` from a Fisher matrix, after the identifiability check.
+
+    With ``Z`` (see :func:`check_identifiable`) the covariance is that of the constrained
+    estimate, ``Z (Z' F Z)^-1 Z'``: parameters the constraints pin have zero variance.
+    """
+    F = np.asarray(F, dtype=float)
+    k = len(names)
+    cond = check_identifiable(F, names, max_condition, advice, Z)
+    Z = np.eye(k) if Z is None else np.asarray(Z, dtype=float)
+    if Z.shape[1]:
+        Fr, d = _reduce(F, Z)
+        # invert the normalised matrix (well scaled), then undo the scaling
+        cov_r = np.linalg.inv(Fr / np.outer(d, d)) / np.outer(d, d)
+        cov = Z @ cov_r @ Z.T
+    else:
+        cov = np.zeros((k, k))
     cov = 0.5 * (cov + cov.T)
-    var = np.diag(cov)
-    if np.any(var <= 0):
-        bad = [n for n, v in zip(names, var) if v <= 0]
+    var = np.diag(cov).copy()
+    pinned = np.linalg.norm(Z, axis=1) < 1e-9
+    var[pinned] = 0.0
+    if np.any(var[~pinned] <= 0):
+        bad = [n for n, v, p in zip(names, var, pinned) if v <= 0 and not p]
         raise UnidentifiableError(f"covariance of {', '.join(bad)} is not positive: the information "
                                   f"matrix is numerically singular", bad)
     std = np.sqrt(var)
-    return Information(tuple(names), tuple(units_), F, cov, cov / np.outer(std, std), std, cond)
+    cov[pinned, :] = 0.0
+    cov[:, pinned] = 0.0
+    with np.errstate(invalid="ignore", divide="ignore"):
+        corr = np.where(np.outer(std, std) > 0, cov / np.outer(std, std), 0.0)
+    np.fill_diagonal(corr, np.where(std > 0, 1.0, 0.0))
+    return Information(tuple(names), tuple(units_), F, cov, corr, std, cond)
 
 
-def describe_runs(X):
+def describe_runs(X, tilt_known=False):
     """Sentences on what every run in ``X`` (measurement-model inputs) shares: the factors the
     runs do not vary, which is usually why parameters cannot be separated."""
-    rate, az, pitch, roll = X[0], X[1], X[2], X[3]
+    rate, az = X[0], X[1]
     out = []
     if np.ptp(np.abs(rate)) < 1e-9:
         out.append(f"every run is at |rate| {abs(rate[0]) / units.DEG_PER_S:.4g} deg/s")
@@ -210,28 +283,164 @@ def describe_runs(X):
         out.append(f"every run is at azimuth {np.rad2deg(az[0]) % 360:.4g} deg")
     elif np.unique(np.round(np.rad2deg(az) % 360, 3)).size < 3:
         out.append("the runs use fewer than 3 azimuths")
+    if tilt_known:
+        c23 = -X[3] * np.cos(az) + X[2] * np.sin(az)
+        if np.all(np.abs(X[2:4]) < units.ARCSEC):
+            out.append("every run is level (|pitch|, |roll| < 1 arcsec), so tilt-coupled terms do "
+                       "not reach the heading")
+        elif np.ptp(c23) < 1e-9:
+            out.append(f"the rotation axis has the same east tilt C23 = {c23[0] / units.ARCSEC:.4g} "
+                       "arcsec in every run")
+    if np.ptp(X[5]) < 1e-9:
+        out.append(f"every run starts {X[5][0]:.4g} s after power-on")
     if np.ptp(X[6]) < 1e-9:
         out.append(f"every run lasts {X[6][0]:.4g} s")
     return out
 
 
-def separating_runs(jacobian, X, direction, scale, k=3):
+def separating_runs(jacobian, X, direction, scale, k=3, tilt_known=False):
     """Candidate runs that best observe ``direction`` (display units) in parameter space.
 
     Candidates vary each factor of the existing runs ``X``: both rotation senses at the
-    smallest and largest |rate|, azimuths every 45 deg, the existing durations, start times
-    and tilts. ``jacobian(X_c)`` returns dh/dp (n_c, n_p, SI). Returns up to ``k`` dicts
-    (``rate_dps``, ``azimuth_deg``) best first, and their normalised signal on ``direction``.
+    smallest and largest |rate|, azimuths every 45 deg, start times from power-on (0 s and
+    the existing range), and, when every run is level and ``tilt_known``, a 1-mrad pitch or
+    roll. ``jacobian(X_c)`` returns dh/dp (n_c, n_p, SI). Returns up to ``k`` dicts best
+    first: ``rate_dps``, ``azimuth_deg``, ``t_start_s``, ``pitch_arcsec``, ``roll_arcsec``,
+    ``signal`` (normalised signal on ``direction``) and ``text`` (the factors that vary).
     """
     r = np.abs(X[0])
     rates = np.unique(np.concatenate([[r.min(), r.max()], [-r.min(), -r.max()]]))
     az = np.deg2rad(np.arange(0, 360, 45.0))
-    R, A = np.meshgrid(rates, az, indexing="ij")
-    n = R.size
+    starts = np.unique([0.0, X[5].min(), X[5].max()])
+    tilts = [(X[2, 0], X[3, 0])]
+    if tilt_known and np.all(np.abs(X[2:4]) < units.ARCSEC):
+        tilts += [(s * units.MRAD, 0.0) for s in (1, -1)] + [(0.0, s * units.MRAD) for s in (1, -1)]
+    grid = np.array(np.meshgrid(rates, az, starts, np.arange(len(tilts)), indexing="ij")).reshape(4, -1)
+    n = grid.shape[1]
     Xc = np.repeat(X[:, :1], n, axis=1).copy()
-    Xc[0], Xc[1] = R.ravel(), A.ravel()
+    Xc[0], Xc[1], Xc[5] = grid[0], grid[1], grid[2]
+    Xc[2:4] = np.array(tilts).T[:, grid[3].astype(int)]
     Jc = jacobian(Xc) * np.asarray(scale)[None, :]
     signal = np.abs(Jc @ direction) / np.maximum(np.linalg.norm(Jc, axis=1), 1e-300)
-    best = np.argsort(-signal)[:k]
-    return [{"rate_dps": float(Xc[0, i] / units.DEG_PER_S), "azimuth_deg": float(np.rad2deg(Xc[1, i])),
-             "signal": float(signal[i])} for i in best]
+    # a factor the signal does not depend on is left out of the advice
+    grid_signal = signal.reshape(rates.size, az.size, starts.size, len(tilts))
+    tol = 1e-9 * max(signal.max(), 1e-300)
+    by_az, by_start, by_tilt = (np.ptp(grid_signal, axis=a).max() > tol for a in (1, 2, 3))
+    order = np.argsort(-np.round(signal, 12), kind="stable")
+    out, seen = [], set()
+    for i in order:
+        c = {"rate_dps": float(Xc[0, i] / units.DEG_PER_S), "azimuth_deg": float(np.rad2deg(Xc[1, i])),
+             "t_start_s": float(Xc[5, i]), "pitch_arcsec": float(Xc[2, i] / units.ARCSEC),
+             "roll_arcsec": float(Xc[3, i] / units.ARCSEC), "signal": float(signal[i])}
+        text = f"{c['rate_dps']:+.4g} deg/s " + (f"at azimuth {c['azimuth_deg']:.4g} deg" if by_az
+                                                  else "at any azimuth")
+        if by_start:
+            text += f", starting {c['t_start_s']:.4g} s after power-on"
+        if by_tilt:
+            text += f", pitch {c['pitch_arcsec']:.4g} arcsec, roll {c['roll_arcsec']:.4g} arcsec"
+        if text in seen:
+            continue
+        seen.add(text)
+        out.append({**c, "text": text})
+        if len(out) == k:
+            break
+    return out
+
+
+def separation_advice(measurement, p, X, free, direction):
+    """A sentence for :class:`UnidentifiableError`: what the runs ``X`` share and which runs
+    would observe ``direction`` (display units, over the ``free`` parameters of
+    ``measurement`` at SI values ``p``)."""
+    free = np.asarray(free, dtype=bool)
+    shared = describe_runs(X, measurement.tilt_known)
+    cand = separating_runs(lambda Xc: measurement.jacobian(p, Xc)[:, free], X, direction,
+                           measurement.scale[free], tilt_known=measurement.tilt_known)
+    text = ("; ".join(shared) + ". ") if shared else ""
+    useful = [c["text"] for c in cand if c["signal"] > 1e-6]
+    if not useful:
+        return text + "No run that varies rate, azimuth, start time or tilt would separate them"
+    return f"{text}Runs that would separate them: {'; '.join(useful)}"
+
+
+@dataclass(frozen=True)
+class Prior:
+    """Gaussian prior information on parameters, display units.
+
+    Attributes
+    ----------
+    names : tuple of str
+    mean : numpy.ndarray, shape (m,)
+    covariance : numpy.ndarray, shape (m, m)
+        Symmetric positive definite.
+    source : str
+        Where the prior comes from (a file, ``'fit'``), for messages.
+    """
+
+    names: tuple
+    mean: np.ndarray
+    covariance: np.ndarray
+    source: str = "prior"
+
+    def __post_init__(self):
+        names = tuple(self.names)
+        mean = np.array(self.mean, dtype=float).reshape(-1)
+        cov = np.array(self.covariance, dtype=float)
+        m = len(names)
+        if len(set(names)) != m:
+            raise ValueError(f"{self.source}: prior names repeat: {names}")
+        if mean.shape != (m,) or cov.shape != (m, m):
+            raise ValueError(f"{self.source}: prior mean {mean.shape} and covariance {cov.shape} do "
+                             f"not match {m} names")
+        if not (np.all(np.isfinite(mean)) and np.all(np.isfinite(cov))):
+            raise ValueError(f"{self.source}: prior mean and covariance must be finite")
+        if m and (np.abs(cov - cov.T).max() > 1e-9 * np.abs(cov).max()
+                  or np.linalg.eigvalsh(0.5 * (cov + cov.T))[0] <= 0):
+            bad = [n for n, v in zip(names, np.diag(cov)) if v <= 0] or list(names)
+            raise ValueError(f"{self.source}: prior covariance must be symmetric positive definite "
+                             f"(check {', '.join(bad)}; a parameter known exactly is fixed, not a prior)")
+        for k, v in (("names", names), ("mean", mean), ("covariance", 0.5 * (cov + cov.T))):
+            object.__setattr__(self, k, v)
+
+    @classmethod
+    def from_fit(cls, fit, source="previous fit"):
+        """The estimate and covariance of a :class:`~hse_opt.fit.FitResult`'s free
+        parameters (fixed ones and those held at a bound carry no prior)."""
+        keep = np.asarray(fit.free, dtype=bool) & (np.asarray(fit.std) > 0)
+        return cls(tuple(np.array(fit.names)[keep]), np.asarray(fit.values)[keep],
+                   np.asarray(fit.covariance)[np.ix_(keep, keep)], source)
+
+    @classmethod
+    def independent(cls, mean, std, source="prior"):
+        """Independent priors: ``mean`` and ``std`` map name -> display value."""
+        if set(mean) != set(std):
+            raise ValueError(f"{source}: prior mean and std must name the same parameters, got "
+                             f"{sorted(mean)} and {sorted(std)}")
+        names = tuple(mean)
+        s = np.array([float(std[n]) for n in names])
+        if np.any(~np.isfinite(s)) or np.any(s <= 0):
+            bad = [n for n, v in zip(names, s) if not (v > 0 and np.isfinite(v))]
+            raise ValueError(f"{source}: prior std of {', '.join(bad)} must be finite and > 0 "
+                             "(a parameter known exactly is fixed, not a prior)")
+        return cls(names, [float(mean[n]) for n in names], np.diag(s ** 2), source)
+
+    def restrict(self, names):
+        """The prior on the parameters of ``names`` it knows (marginalised over the others);
+        returns ``(prior, dropped)`` with ``dropped`` the names it had and ``names`` lacks."""
+        keep = [i for i, n in enumerate(self.names) if n in set(names)]
+        dropped = tuple(n for n in self.names if n not in set(names))
+        return (Prior(tuple(self.names[i] for i in keep), self.mean[keep],
+                      self.covariance[np.ix_(keep, keep)], self.source), dropped)
+
+    def fisher(self, names):
+        """``(F, F @ mean)`` over ``names`` (display units; zero where the prior is silent).
+        Names the prior has and ``names`` lacks are marginalised out."""
+        names = list(names)
+        prior, _ = self.restrict(names)
+        k = len(names)
+        F, b = np.zeros((k, k)), np.zeros(k)
+        if prior.names:
+            idx = [names.index(n) for n in prior.names]
+            Fp = np.linalg.inv(prior.covariance)
+            F[np.ix_(idx, idx)] = 0.5 * (Fp + Fp.T)
+            b[idx] = Fp @ prior.mean
+        return F, b

@@ -296,13 +296,22 @@ class MeasurementModel:
             out.append(v * q.scale)
         return np.array(out)
 
-    def predict(self, p, X):
-        """Heading error (rad) of every run: ``p`` SI (n_p,), ``X`` (n_x, n) -> (n,)."""
-        return self._batch["h"](self._p(p), X)
+    def predict(self, p, X, jit=None):
+        """Heading error (rad) of every run: ``p`` SI (n_p,), ``X`` (n_x, n) -> (n,).
+        ``jit``: compile the batch Function (default: for large batches, see BatchEvaluator)."""
+        return self._batch["h"](self._p(p), X, jit)
 
-    def jacobian(self, p, X):
+    def jacobian(self, p, X, jit=None):
         """dh/dp (rad per SI unit) of every run: (n, n_p)."""
-        return self._batch["J"](self._p(p), X)
+        return self._batch["J"](self._p(p), X, jit)
+
+    def predict_graph(self, p, X, jit=None):
+        """:meth:`predict` inside a CasADi graph: MX ``p`` (n_p x 1), ``X`` (n_x x n) -> MX (1 x n)."""
+        return self._batch["h"].symbolic(p, X, jit)
+
+    def jacobian_graph(self, p, X, jit=None):
+        """:meth:`jacobian` inside a CasADi graph, transposed: MX (n_p x n), column i = dh_i/dp."""
+        return self._batch["J"].symbolic(p, X, jit)
 
     @cached_property
     def _batch(self):
@@ -355,7 +364,8 @@ class BatchEvaluator:
     chunk padded), each chunk one call of the mapped Function on numpy memory (no per-run
     Python work, no copies into CasADi matrices). Above ``jit_above`` runs the mapped
     Function is compiled once with the C compiler (CasADi jit) for speed; if compiling
-    fails, the virtual machine is used and a warning says why.
+    fails, the virtual machine is used and a warning says why. ``jit=True/False`` on a call
+    overrides the size rule (repeated small batches, e.g. on-line fits, gain from it too).
     """
 
     def __init__(self, fun, max_chunk=4096, jit_above=5000):
@@ -364,23 +374,48 @@ class BatchEvaluator:
         self.max_chunk = max_chunk
         self.jit_above = jit_above
         self._cache = {}
+        self._functions = {}
+
+    def _chunk(self, n):
+        return min(self.max_chunk, 1 << max(0, int(np.ceil(np.log2(max(n, 1))))))
+
+    def function(self, chunk, jit=False):
+        """The mapped Function over ``chunk`` runs (compiled when ``jit``), built once:
+        ``(p, X[n_x x chunk]) -> (1 x chunk * n_out)``, run-major."""
+        key = (chunk, jit)
+        if key not in self._functions:
+            f = self.fun.map(f"{self.fun.name()}_map", "serial", chunk, [0], [])
+            self._functions[key] = _compile(f) if jit else f
+        return self._functions[key]
 
     def _mapped(self, chunk, jit):
         key = (chunk, jit)
         if key not in self._cache:
-            f = self.fun.map(f"{self.fun.name()}_map", "serial", chunk, [0], [])
-            if jit:
-                f = _compile(f)
-            self._cache[key] = f.buffer()
+            self._cache[key] = self.function(chunk, jit).buffer()
         return self._cache[key]
 
-    def __call__(self, p, X):
+    def symbolic(self, p, X, jit=None):
+        """The same evaluation inside a CasADi graph: ``p`` (n_p x 1) and ``X`` (n_x x n) MX
+        -> MX (n_out x n), through the chunked mapped Functions (shared with numeric calls)."""
+        n = X.shape[1]
+        chunk = self._chunk(n)
+        f = self.function(chunk, n >= self.jit_above if jit is None else bool(jit))
+        cols = []
+        for i in range(0, n, chunk):
+            m = min(chunk, n - i)
+            Xi = X[:, i:i + m]
+            if m < chunk:
+                Xi = ca.horzcat(Xi, ca.repmat(X[:, n - 1], 1, chunk - m))
+            cols.append(ca.reshape(f(p, Xi), self.n_out, chunk)[:, :m])
+        return ca.horzcat(*cols)
+
+    def __call__(self, p, X, jit=None):
         n = X.shape[1]
         out = np.empty((n, self.n_out))
         if n == 0:
             return out if self.n_out > 1 else out[:, 0]
-        chunk = min(self.max_chunk, 1 << max(0, int(np.ceil(np.log2(n)))))
-        buf, trigger = self._mapped(chunk, n >= self.jit_above)
+        chunk = self._chunk(n)
+        buf, trigger = self._mapped(chunk, n >= self.jit_above if jit is None else bool(jit))
         XT = np.ascontiguousarray(X.T)
         p = np.ascontiguousarray(p, dtype=float)
         buf.set_arg(0, memoryview(p))

@@ -1,0 +1,144 @@
+"""``hse-opt fit``: calibrate a model on alignment results (RUNS.csv)."""
+import os
+
+import numpy as np
+
+from . import message, print_json
+
+NAME = "fit"
+HELP = "calibrate a model on alignment results (RUNS.csv) by weighted least squares"
+DESCRIPTION = """\
+Fit the measurement model (the paper's 'hse' plus the effects named) to RUNS.csv by weighted
+least squares and print the parameters with their units and standard errors, the fit
+statistics, bounds that bind and strong correlations. Weights come from heading_std_arcsec,
+else from the scatter of replicated runs (pure error), else from the residuals. Runs without
+pitch/roll get the tilt-coupled terms as free azimuth sinusoids (names like
+lambda2*tilt_cos). When the runs cannot separate two parameters the command stops (exit 2),
+names them and proposes runs that would."""
+EXAMPLE = """\
+examples:
+  hse-opt fit RUNS.csv --effects sync_delay,warmup -o FIT.json
+  hse-opt fit paper_table1.csv --fix 'lambda2*tilt_const=0' --json
+  hse-opt fit RUNS.csv --bound warmup_tau=60:7200 --robust
+  hse-opt fit NEW_RUNS.csv --prior FIT.json -o FIT2.json      (on-line update)"""
+
+
+def add_arguments(parser):
+    parser.add_argument("runs", metavar="RUNS.csv", help="alignment results (DESIGN.md format)")
+    parser.add_argument("--effects", metavar="a,b", default="",
+                        help="catalogue effects to add to 'hse' (e.g. sync_delay,warmup,covariate:temp_c)")
+    parser.add_argument("--bound", action="append", default=[], metavar="NAME=LO:HI",
+                        help="bound a parameter, display units; either side may be empty (repeatable)")
+    parser.add_argument("--fix", action="append", default=[], metavar="NAME=VALUE",
+                        help="hold a parameter at a value, display units (repeatable)")
+    parser.add_argument("--prior", metavar="FIT.json", help="a previous calibration as Gaussian prior")
+    parser.add_argument("--robust", action="store_true",
+                        help="Huber loss: down-weight outlying runs (they are named)")
+    parser.add_argument("--ignore-tilt", action="store_true",
+                        help="fit tilt-coupled terms as free azimuth sinusoids even if pitch/roll are given")
+    parser.add_argument("--json", action="store_true", help="print one JSON object on stdout")
+    parser.add_argument("-o", "--output", metavar="FIT.json", help="write the calibration (for compensate)")
+
+
+def _assignments(items, option):
+    out = {}
+    for item in items:
+        name, sep, value = item.partition("=")
+        name = name.strip()
+        if not sep or not name:
+            raise ValueError(f"{option} {item!r}: allowed form NAME=VALUE")
+        out[name] = value.strip()
+    return out
+
+
+def _number(text, option, name):
+    try:
+        x = float(text)
+    except ValueError:
+        raise ValueError(f"{option} {name}={text!r}: {text!r} is not a number") from None
+    if not np.isfinite(x):
+        raise ValueError(f"{option} {name}={text!r}: allowed: a finite number")
+    return x
+
+
+def parse_bounds(items):
+    """``["lambda2=0:10", "delay=:500"]`` -> ``{"lambda2": (0.0, 10.0), "delay": (None, 500.0)}``."""
+    out = {}
+    for name, text in _assignments(items, "--bound").items():
+        lo, sep, hi = text.partition(":")
+        if not sep:
+            raise ValueError(f"--bound {name}={text!r}: allowed form NAME=LO:HI (either side may be empty)")
+        out[name] = tuple(None if not s.strip() else _number(s, "--bound", name) for s in (lo, hi))
+    return out
+
+
+def parse_fix(items):
+    """``["lambda2*tilt_const=0"]`` -> ``{"lambda2*tilt_const": 0.0}``."""
+    return {name: _number(v, "--fix", name) for name, v in _assignments(items, "--fix").items()}
+
+
+def format_report(result, source):
+    """The readable report of a :class:`~hse_opt.fit.FitResult`, as lines."""
+    from scipy.stats import chi2 as chi2_dist
+
+    d = result.to_dict()
+    lines = [f"hse-opt fit: {source}: {result.n_runs} runs, effects {', '.join(d['effects'])}",
+             f"  weighting: {result.weighting}; solver: {result.method} ({result.status})", ""]
+    width = max(len(n) for n in result.names) + 2
+    lines.append(f"  {'parameter':<{width}}{'value':>12}  {'1-sigma':>10}  unit")
+    for name, p in d["parameters"].items():
+        if not p["free"]:
+            state = "(fixed)"
+        elif name in result.binding:
+            state = "(at its bound)"
+        else:
+            state = ""
+        sigma = f"{p['std']:>10.4g}" if p["std"] > 0 else f"{'':>10}"
+        lines.append(f"  {name:<{width}}{p['value']:>12.5g}  {sigma}  {p['unit']} {state}".rstrip())
+    lines.append("")
+    fit_line = f"  chi2 {result.chi2:.4g} / dof {result.dof} = {result.chi2_red:.4g}"
+    if result.weighting in ("heading_std", "pure-error"):
+        fit_line += f" (p = {chi2_dist.sf(result.chi2, result.dof):.3g})"
+    else:
+        fit_line += " (sigma from the residuals: no goodness-of-fit test)"
+    lines += [fit_line, f"  AIC {result.aic:.4g}, BIC {result.bic:.4g}, residual RMS "
+                        f"{result.rms_arcsec:.4g} arcsec, condition number {result.condition:.3g}"]
+    lines.append(f"  bounds that bind: {', '.join(result.binding) or 'none'}")
+    if result.constraints:
+        lines.append(f"  constraints: {'; '.join(str(c) for c in result.constraints)}"
+                     f" (active: {'; '.join(result.active) or 'none'})")
+    if result.downweighted:
+        lines.append(f"  down-weighted runs (Huber): {', '.join(str(r) for r in result.downweighted)}")
+    high = result.high_correlations()
+    lines.append("  correlations above 0.9: " + (", ".join(f"{a}/{b} {r:+.3f}" for a, b, r in high)
+                                                  or "none"))
+    if result.notes:
+        lines.append("  notes:")
+        lines += [f"    - {n}" for n in result.notes]
+    return lines
+
+
+def run(args):
+    from ..data import load_runs
+    from ..fit import as_model, fit, load_fit, save_fit
+    from ..information import UnidentifiableError
+
+    if args.output and os.path.exists(args.output) and os.path.samefile(args.output, args.runs):
+        raise ValueError(f"-o {args.output}: is the input file; allowed: another path")
+    runs = load_runs(args.runs)
+    model = as_model(args.effects or None)
+    prior = load_fit(args.prior) if args.prior else None
+    try:
+        result = fit(runs, model, fix=parse_fix(args.fix), bounds=parse_bounds(args.bound),
+                     prior=prior, robust=args.robust, tilt_known=False if args.ignore_tilt else None)
+    except UnidentifiableError as err:
+        raise UnidentifiableError(f"{args.runs}: {err} (or hold one of them with --fix NAME=VALUE)",
+                                  err.names, err.direction, err.condition) from None
+    if args.output:
+        save_fit(result, args.output)
+        message(f"hse-opt fit: wrote {args.output}")
+    if args.json:
+        print_json({**result.to_dict(), "source": args.runs})
+    else:
+        print("\n".join(format_report(result, args.runs)))
+    return 0

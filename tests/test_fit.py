@@ -1,0 +1,459 @@
+"""The calibration fit (issue 4, items 3-7), each against an independent reference: the truth
+of twin experiments, scipy's optimisers on the same objective, the paper's closed forms,
+fits with the constraint substituted by hand."""
+import importlib
+import json
+
+import numpy as np
+import pytest
+from scipy.optimize import least_squares
+
+from hse_opt import units
+from hse_opt.data import Runs
+from hse_opt.datasets import paper_table1
+from hse_opt.fit import (COMPENSATED_COLUMN, COMPENSATION_STD_COLUMN, Constraint, FitResult, Prior,
+                         SolverError, compensate, compensated_parameters, fit, load_fit, save_fit)
+from hse_opt.information import UnidentifiableError, separating_runs
+from hse_opt.model import Model, closed_form
+from hse_opt.paper_procedure import compensate_eq14, paper_procedure
+
+LINEAR = Model(["hse", "axis_bias", "sync_delay"])
+TRUTH_LINEAR = dict(offset=3.0, lambda2=4.2, bias_z=0.2, delay=40.0)
+NONLINEAR = Model(["hse", "warmup"])
+TRUTH_NONLINEAR = dict(offset=3.0, lambda2=4.2, warmup_amp=60.0, warmup_tau=1800.0)
+
+
+def design(n_sessions=1, per=48, rates_dps=(20, 40, 60), sigma_arcsec=7.6, pitch=6e-4, roll=-4e-4,
+           azimuths_deg=tuple(range(0, 360, 45))):
+    """Runs cycling over both senses of each rate, then over stand azimuths; ``n_sessions``
+    power-ons of ``per`` back-to-back 10-minute runs; a fixed stand tilt."""
+    rates = np.array([s * r for r in rates_dps for s in (1, -1)], dtype=float)
+    az = np.asarray(azimuths_deg, dtype=float)
+    i = np.arange(n_sessions * per)
+    n = i.size
+    return dict(run=i, rate=rates[i % rates.size] * units.DEG_PER_S,
+                azimuth=az[(i // rates.size) % az.size] * units.DEG, latitude=np.full(n, 0.49),
+                duration=np.full(n, 600.0), t_start=(i % per) * 700.0, pitch=np.full(n, pitch),
+                roll=np.full(n, roll), heading_std=np.full(n, sigma_arcsec * units.ARCSEC))
+
+
+def twin(model, d, truth, rng, noise=True):
+    """Runs whose heading error is the measurement model at ``truth`` plus Gaussian noise."""
+    mm = model.measurement(True)
+    X = mm.inputs(d["rate"], d["azimuth"], d["latitude"], d["duration"], d["t_start"], d["pitch"],
+                  d["roll"])
+    y = mm.predict(mm.vector(truth), X)
+    if noise:
+        y = y + d["heading_std"] * rng.standard_normal(y.size)
+    return Runs(heading_err=y, **d)
+
+
+def _jac(mm, X, runs):
+    """Jacobian of the standardised residuals for scipy (display units)."""
+    return lambda v: -mm.jacobian(v * mm.scale, X) * mm.scale / runs.heading_std[:, None]
+
+
+def subset(runs, idx):
+    return runs.subset(np.asarray(idx))
+
+
+@pytest.fixture
+def rng():
+    return np.random.default_rng(4)
+
+
+# -- twin experiments -------------------------------------------------------------------------
+def _twin_rms(model, d, truth, seeds):
+    mm = model.measurement(True)
+    t = mm.vector(truth) / mm.scale
+    z, chi2_red = [], []
+    for seed in seeds:
+        f = fit(twin(model, d, truth, np.random.default_rng(seed)), model)
+        z.append((f.values - t) / f.std)
+        chi2_red.append(f.chi2_red)
+    return np.sqrt(np.mean(np.square(z), axis=0)), np.mean(chi2_red)
+
+
+def test_twin_linear_sigmas_are_honest():
+    rms, chi2_red = _twin_rms(LINEAR, design(), TRUTH_LINEAR, range(200))
+    assert np.all((rms > 0.9) & (rms < 1.1)), rms
+    assert chi2_red == pytest.approx(1.0, abs=0.05)
+
+
+def test_twin_nonlinear_warmup_sigmas_are_honest():
+    d = design(n_sessions=4, per=12, rates_dps=(40,), sigma_arcsec=3.0)
+    rms, chi2_red = _twin_rms(NONLINEAR, d, TRUTH_NONLINEAR, range(200))
+    assert np.all((rms > 0.9) & (rms < 1.1)), rms
+    assert chi2_red == pytest.approx(1.0, abs=0.05)
+
+
+def test_nonlinear_fit_uses_ipopt_and_matches_scipy(rng):
+    runs = twin(NONLINEAR, design(n_sessions=4, per=12, rates_dps=(40,), sigma_arcsec=3.0),
+                TRUTH_NONLINEAR, rng)
+    f = fit(runs, NONLINEAR)
+    assert f.method == "ipopt" and f.binding == ()
+    # scipy's trust-region least squares on the same standardised residuals (its own
+    # finite differences stall on the model's 1e-12 rounding: give it the Jacobian)
+    mm = NONLINEAR.measurement(True)
+    X = mm.inputs_from_runs(runs)
+    ref = least_squares(lambda v: (runs.heading_err - mm.predict(v * mm.scale, X)) / runs.heading_std,
+                        mm.vector(TRUTH_NONLINEAR) / mm.scale * 1.1, method="trf",
+                        jac=lambda v: -mm.jacobian(v * mm.scale, X) * mm.scale / runs.heading_std[:, None],
+                        xtol=1e-15, ftol=1e-15, gtol=1e-15)
+    assert np.all(np.abs(f.values - ref.x) < 2e-4 * f.std)
+    assert f.chi2 == pytest.approx(2 * ref.cost, abs=1e-5)
+
+
+# -- constraints --------------------------------------------------------------------------------
+def test_bounds_that_do_not_bind_change_nothing(rng):
+    runs = twin(LINEAR, design(), TRUTH_LINEAR, rng)
+    free = fit(runs, LINEAR)
+    lo = free.values - 5 * free.std
+    hi = free.values + 5 * free.std
+    bounded = fit(runs, LINEAR, bounds={n: (a, b) for n, a, b in zip(free.names, lo, hi)},
+                  constraints=[Constraint({"lambda2": 1.0, "delay": 0.01}, upper=100.0)])
+    assert free.method == "qr" and bounded.method == "ipopt"
+    assert bounded.binding == () and bounded.active == ()
+    assert np.all(np.abs(bounded.values - free.values) < 1e-6 * free.std)
+    np.testing.assert_allclose(bounded.std, free.std, rtol=1e-8)
+    np.testing.assert_allclose(bounded.correlation, free.correlation, atol=1e-8)
+    assert bounded.chi2 == pytest.approx(free.chi2, abs=1e-6)
+
+
+def test_binding_bound_holds_exactly_and_matches_scipy(rng):
+    runs = twin(LINEAR, design(), TRUTH_LINEAR, rng)
+    free = fit(runs, LINEAR)
+    cap = float(free.value("lambda2")[0] - 2 * free.value("lambda2")[1])
+    f = fit(runs, LINEAR, bounds={"lambda2": (None, cap)})
+    assert f.binding == ("lambda2",)
+    assert f.value("lambda2") == (cap, 0.0)  # exactly on the bound, held by it
+    assert any("lambda2 is held at its bound" in n for n in f.notes)
+    # independent: scipy's bounded trust-region reflective solver on the same residuals
+    mm = LINEAR.measurement(True)
+    X = mm.inputs_from_runs(runs)
+    ub = np.full(4, np.inf)
+    ub[1] = cap
+    ref = least_squares(lambda v: (runs.heading_err - mm.predict(v * mm.scale, X)) / runs.heading_std,
+                        np.zeros(4), jac=_jac(mm, X, runs), bounds=(-np.inf, ub), xtol=1e-15, ftol=1e-15,
+                        gtol=1e-15, method="trf")
+    assert np.all(np.abs(f.values - ref.x) < 1e-5 * free.std)
+    # and the same as holding lambda2 fixed there
+    fixed = fit(runs, LINEAR, fix={"lambda2": cap})
+    assert np.all(np.abs(f.values - fixed.values) < 1e-6 * free.std)
+    np.testing.assert_allclose(f.std, fixed.std, rtol=1e-9)
+
+
+def test_linear_equality_equals_substitution(rng):
+    # lambda2 = 0.1 * delay, done by hand: delay enters as delay + lambda2/0.1 ... instead fit
+    # with the constraint and compare with a scipy fit over the substituted parameters
+    runs = twin(LINEAR, design(), TRUTH_LINEAR, rng)
+    c = Constraint.equal({"lambda2": 1.0, "delay": -0.1}, 0.0)
+    f = fit(runs, LINEAR, constraints=[c])
+    assert f.method == "qr"
+    assert f.value("lambda2")[0] == pytest.approx(0.1 * f.value("delay")[0], rel=1e-12)
+    mm = LINEAR.measurement(True)
+    X = mm.inputs_from_runs(runs)
+
+    def resid(u):  # u = (offset, bias_z, delay)
+        v = np.array([u[0], 0.1 * u[2], u[1], u[2]])
+        return (runs.heading_err - mm.predict(v * mm.scale, X)) / runs.heading_std
+    dv_du = np.array([[1, 0, 0], [0, 0, 0.1], [0, 1, 0], [0, 0, 1.0]])
+    ref = least_squares(resid, np.zeros(3), jac=lambda u: _jac(mm, X, runs)(dv_du @ u) @ dv_du,
+                        xtol=1e-15, ftol=1e-15, gtol=1e-15)
+    free = fit(runs, LINEAR)
+    assert np.all(np.abs(f.values[[0, 2, 3]] - ref.x) < 1e-4 * free.std[[0, 2, 3]])
+    # covariance: the reduced problem's, mapped back (J of the substitution)
+    J = ref.jac
+    cov_u = np.linalg.inv(J.T @ J)
+    np.testing.assert_allclose(f.covariance[np.ix_([0, 2, 3], [0, 2, 3])], cov_u, rtol=1e-5)
+    assert f.std[1] == pytest.approx(0.1 * f.std[3], rel=1e-9)
+    assert f.dof == len(runs) - 3
+
+
+def test_active_inequality_is_reported_and_holds(rng):
+    runs = twin(LINEAR, design(), TRUTH_LINEAR, rng)
+    free = fit(runs, LINEAR)
+    target = free.value("lambda2")[0] + 0.01 * free.value("delay")[0] - 3.0
+    c = Constraint({"lambda2": 1.0, "delay": 0.01}, upper=target)
+    f = fit(runs, LINEAR, constraints=[c])
+    assert f.active == (str(c),)
+    assert f.value("lambda2")[0] + 0.01 * f.value("delay")[0] == pytest.approx(target, abs=1e-9)
+    eq = fit(runs, LINEAR, constraints=[Constraint.equal({"lambda2": 1.0, "delay": 0.01}, target)])
+    assert np.all(np.abs(f.values - eq.values) < 1e-6 * free.std)
+
+
+def test_infeasible_constraints_and_bad_input_are_value_errors(rng):
+    runs = twin(LINEAR, design(), TRUTH_LINEAR, rng)
+    with pytest.raises(ValueError, match="lower <= upper"):
+        fit(runs, LINEAR, bounds={"lambda2": (5, 1)})
+    with pytest.raises(ValueError, match="unknown parameter"):
+        fit(runs, LINEAR, bounds={"lambda3": (0, 1)})
+    with pytest.raises(ValueError, match="cannot all hold"):
+        fit(runs, LINEAR, bounds={"lambda2": (0, 1)},
+            constraints=[Constraint({"lambda2": 1.0}, lower=2.0)])
+    with pytest.raises(ValueError, match="fixed at 2"):
+        fit(runs, LINEAR, fix={"lambda2": 2.0}, bounds={"lambda2": (3, 4)})
+    with pytest.raises(ValueError, match="not all zero"):
+        Constraint({"lambda2": 0.0}, 0, 1)
+
+
+# -- prior: the on-line update ---------------------------------------------------------------------
+def test_online_update_equals_batch(rng):
+    runs = twin(LINEAR, design(), TRUTH_LINEAR, rng)
+    n = len(runs)
+    first, second = subset(runs, range(0, n, 2)), subset(runs, range(1, n, 2))
+    batch = fit(runs, LINEAR)
+    old = fit(first, LINEAR)
+    new = fit(second, LINEAR, prior=old)
+    assert np.all(np.abs(new.values - batch.values) < 1e-6 * batch.std)
+    # the prior is the old fit's information at the old estimate: equal to the batch's up to
+    # the model's slight nonlinearity (the gyrocompass' atan2)
+    np.testing.assert_allclose(new.std, batch.std, rtol=1e-5)
+    np.testing.assert_allclose(new.correlation, batch.correlation, atol=1e-6)
+    assert old.chi2 + new.chi2 == pytest.approx(batch.chi2, rel=1e-8)
+    assert old.dof + new.dof == batch.dof
+
+
+def test_prior_from_fit_through_ipopt_equals_batch(rng):
+    # the same update with a (non-binding) bound: the IPOPT path carries the prior too
+    runs = twin(LINEAR, design(), TRUTH_LINEAR, rng)
+    n = len(runs)
+    batch = fit(runs, LINEAR)
+    new = fit(subset(runs, range(1, n, 2)), LINEAR, prior=fit(subset(runs, range(0, n, 2)), LINEAR),
+              bounds={"delay": (-1e4, 1e4)})
+    assert new.method == "ipopt"
+    assert np.all(np.abs(new.values - batch.values) < 1e-6 * batch.std)
+
+
+def test_prior_identifies_what_the_data_cannot(rng):
+    # Table 1 cannot separate offset from lambda2*tilt_const; a prior on the latter can
+    runs = paper_table1()
+    prior = Prior.independent({"lambda2*tilt_const": 0.0}, {"lambda2*tilt_const": 0.5})
+    f = fit(runs, prior=prior)
+    fixed = fit(runs, fix={"lambda2*tilt_const": 0.0})
+    assert f.value("lambda2*tilt_cos")[0] == pytest.approx(fixed.value("lambda2*tilt_cos")[0], abs=1e-9)
+    assert f.std[0] > fixed.std[0]  # the offset now carries the prior's uncertainty
+    assert any("Gaussian prior" in n for n in f.notes)
+
+
+# -- robust ---------------------------------------------------------------------------------------
+def test_huber_equals_scipy_huber_and_names_the_outlier(rng):
+    runs = twin(LINEAR, design(), TRUTH_LINEAR, rng)
+    y = np.array(runs.heading_err)
+    y[7] += 15 * runs.heading_std[7]
+    runs = runs.replace(heading_err=y)
+    plain = fit(runs, LINEAR)
+    f = fit(runs, LINEAR, robust=True)
+    assert f.downweighted[0] == int(runs.run[7]) and f.method == "qr+huber"
+    mm = LINEAR.measurement(True)
+    X = mm.inputs_from_runs(runs)
+    ref = least_squares(lambda v: (runs.heading_err - mm.predict(v * mm.scale, X)) / runs.heading_std,
+                        plain.values, jac=_jac(mm, X, runs), loss="huber", f_scale=1.345, xtol=1e-15,
+                        ftol=1e-15, gtol=1e-15)
+    assert np.all(np.abs(f.values - ref.x) < 1e-5 * plain.std)
+    truth = mm.vector(TRUTH_LINEAR) / mm.scale
+    assert np.max(np.abs(f.values - truth) / f.std) < np.max(np.abs(plain.values - truth) / plain.std)
+
+
+# -- identifiability ------------------------------------------------------------------------------
+def test_lambda2_and_sync_delay_at_one_azimuth_are_named_and_separated(rng):
+    d = design(azimuths_deg=(30.0,), per=18)
+    model = Model(["hse", "sync_delay"])
+    runs = twin(model, d, dict(lambda2=4.2, delay=40.0), rng)
+    with pytest.raises(UnidentifiableError) as err:
+        fit(runs, model)
+    assert {"lambda2", "delay"} <= set(err.value.names)
+    msg = str(err.value)
+    assert "every run is at azimuth 30 deg" in msg.lower() and "Runs that would separate them" in msg
+    # the proposed runs do separate them
+    mm = model.measurement(True)
+    X = mm.inputs_from_runs(runs)
+    cand = separating_runs(lambda Xc: mm.jacobian(mm.nominal, Xc), X, err.value.direction, mm.scale,
+                           tilt_known=True)
+    assert all(abs(c["azimuth_deg"] - 30) > 1 for c in cand)
+    assert cand[0]["text"] in msg
+    extra = {**{k: v[:6].copy() for k, v in d.items()}, "run": np.arange(100, 106)}
+    extra["azimuth"] = np.full(6, cand[0]["azimuth_deg"] * units.DEG)
+    both = twin(model, {k: np.concatenate([d[k], extra[k]]) for k in d}, dict(lambda2=4.2, delay=40.0),
+                rng)
+    f = fit(both, model)
+    assert f.std[f.names.index("lambda2")] < 10
+
+
+def test_table1_offset_and_tilt_const_need_the_other_sense():
+    with pytest.raises(UnidentifiableError) as err:
+        fit(paper_table1())
+    assert set(err.value.names) == {"offset", "lambda2*tilt_const"}
+    assert "-40 deg/s at any azimuth" in str(err.value)
+
+
+def test_no_information_is_named(rng):
+    model = Model(["hse", "encoder_harmonic"])
+    runs = twin(Model(["hse"]), design(), dict(lambda2=4.2), rng)
+    with pytest.raises(UnidentifiableError, match="no information on enc_c1, enc_s1, enc_c2, enc_s2"):
+        fit(runs, model)
+
+
+# -- the paper's procedure -------------------------------------------------------------------------
+def _single_position(rng, tilt_jitter=0.0, truth=None):
+    """The paper's step 1: 3 alignments at each of 20, 40, 60 deg/s at one stand position."""
+    d = design(azimuths_deg=(91.8795,), per=9, pitch=7e-4, roll=3e-4)
+    n = d["run"].size
+    d["rate"] = np.repeat([20.0, 40.0, 60.0], 3) * units.DEG_PER_S
+    d["pitch"] = d["pitch"] + tilt_jitter * rng.standard_normal(n)
+    d["roll"] = d["roll"] + tilt_jitter * rng.standard_normal(n)
+    del d["heading_std"]
+    runs = twin(Model(["hse"]), {**d, "heading_std": np.full(n, 1.0)}, truth or dict(offset=2.0,
+                lambda2=4.2), rng, noise=False)
+    y = runs.heading_err + 7.6 * units.ARCSEC * rng.standard_normal(n)
+    return Runs(heading_err=y, **d)
+
+
+def test_paper_procedure_equals_general_fit_restricted_to_the_paper_model(rng):
+    runs = _single_position(rng)
+    cal = paper_procedure(runs)
+    f = fit(runs)  # the paper's model (offset, lambda2), tilt known
+    assert cal.weighting == f.weighting == "pure-error"
+    l2, s2 = f.value("lambda2")
+    # the full gyrocompass also sees the north error Omega C13 M33 that Eq. 14 drops: a
+    # relative 1e-4 at a 1-mrad tilt, a thousandth of a sigma here
+    assert abs(cal.lambda2_arcsec - l2) < 1e-3 * s2
+    assert cal.lambda2_std / units.ARCSEC == pytest.approx(s2, rel=1e-3)
+    assert list(cal.count) == [3, 3, 3]
+
+
+def test_paper_procedure_reproduces_the_paper_numbers():
+    # Eq. 15 with the paper's K_HSE = 17.4 arcsec/(rad/s) and the C23 that gives lambda2 = 4.2
+    K = 17.4 * units.ARCSEC
+    L = 0.49
+    c23 = 3 * 7.292115e-5 * np.cos(L) * K / (4.2 * units.ARCSEC)
+    rates = np.repeat([20.0, 40.0, 60.0], 3) * units.DEG_PER_S
+    n = rates.size
+    runs = Runs(run=np.arange(n), rate=rates, azimuth=np.zeros(n), latitude=np.full(n, L),
+                duration=np.full(n, 600.0),
+                heading_err=-K * rates + np.tile([0.5, 0.0, -0.5], 3) * units.ARCSEC)  # repeat scatter
+    cal = paper_procedure(runs, c23=c23)
+    assert cal.k_hse_arcsec_per_radps == pytest.approx(17.4, rel=1e-12)
+    assert cal.lambda2_arcsec == pytest.approx(4.2, rel=1e-12)
+    assert cal.weighting == "pure-error" and cal.sigma / units.ARCSEC == pytest.approx(0.5, rel=1e-12)
+
+
+def test_paper_procedure_rejects_several_positions():
+    with pytest.raises(ValueError, match="one stand position"):
+        paper_procedure(paper_table1())
+
+
+def test_compensation_symbolic_equals_eq14_and_removes_the_hse(rng):
+    runs = _single_position(rng)
+    f = fit(runs)
+    cal = paper_procedure(runs)
+    later = twin(Model(["hse"]), design(per=16), dict(lambda2=cal.lambda2_arcsec), rng, noise=False)
+    a = compensate(later, f)
+    lam = f.value("lambda2")[0] * units.ARCSEC
+    b = compensate_eq14(later, lam, f.value("lambda2")[1] * units.ARCSEC)
+    corr_a = (later.heading_err / units.ARCSEC - a.covariates[COMPENSATED_COLUMN])
+    corr_b = (later.heading_err / units.ARCSEC - b.covariates[COMPENSATED_COLUMN])
+    # the symbolic model's full gyrocompass against the first-order closed form derived by hand
+    # (issue 2), which keeps the heading offset of Lambda's turn about the axis ...
+    first = closed_form.heading_error_first_order(later.rate, 0.49, np.full(3, lam / 3), np.zeros(3),
+                                                  np.full(3, -1 / np.sqrt(3)), later.azimuth,
+                                                  later.pitch, later.roll) / units.ARCSEC
+    np.testing.assert_allclose(corr_a, first, atol=2e-3)
+    # ... and against the paper's Eq. 14, which drops that constant offset
+    assert np.ptp(corr_a - corr_b) < 2e-3 and abs(np.mean(corr_a - corr_b)) > 0.1
+    # the 1-sigma: |d correction / d lambda2| sigma(lambda2), the closed forms being linear in it
+    s2 = f.value("lambda2")[1] * units.ARCSEC
+    np.testing.assert_allclose(a.covariates[COMPENSATION_STD_COLUMN], np.abs(first / lam) * s2, rtol=1e-3)
+    np.testing.assert_allclose(b.covariates[COMPENSATION_STD_COLUMN], np.abs(corr_b / lam) * s2, rtol=1e-9)
+    # noise-free runs with lambda2 = the fitted one: only the 1e-3-arcsec model difference is left
+    assert np.abs(a.covariates[COMPENSATED_COLUMN]).max() < 2e-3
+    assert np.ptp(later.heading_err) / units.ARCSEC > 5
+    assert compensated_parameters(f) == ("lambda2",)
+
+
+def test_compensate_refuses_to_overwrite_and_needs_tilt(rng):
+    runs = _single_position(rng)
+    f = fit(runs)
+    out = compensate(runs, f)
+    with pytest.raises(ValueError, match="already present"):
+        compensate(out, f)
+    with pytest.raises(ValueError, match="pitch_arcsec/roll_arcsec"):
+        compensate(paper_table1(), f)
+
+
+# -- FIT.json ---------------------------------------------------------------------------------------
+def test_fit_json_round_trip(tmp_path, rng):
+    runs = twin(LINEAR, design(), TRUTH_LINEAR, rng)
+    f = fit(runs, LINEAR, bounds={"delay": (None, 30.0)},
+            constraints=[Constraint({"lambda2": 1.0}, lower=-100.0)], robust=True)
+    path = tmp_path / "FIT.json"
+    save_fit(f, path)
+    assert [p.name for p in tmp_path.iterdir()] == ["FIT.json"]
+    g = load_fit(path)
+    assert isinstance(g, FitResult) and g.model == f.model
+    assert json.dumps(g.to_dict()) == json.dumps(f.to_dict())
+    assert json.loads(path.read_text())["parameters"] == f.to_dict()["parameters"]
+    np.testing.assert_array_equal(g.p, f.p)
+    np.testing.assert_allclose(compensate(runs, g).covariates[COMPENSATED_COLUMN],
+                               compensate(runs, f).covariates[COMPENSATED_COLUMN], rtol=0, atol=1e-12)
+    bad = tmp_path / "bad.json"
+    bad.write_text('{"effects": ["hse"]}')
+    with pytest.raises(ValueError, match="bad.json: not a FIT.json"):
+        load_fit(bad)
+
+
+def test_solver_failure_raises_with_status(rng, monkeypatch):
+    fitmod = importlib.import_module("hse_opt.fit")  # hse_opt.fit is also the function
+    runs = twin(NONLINEAR, design(n_sessions=2, per=12, rates_dps=(40,)), TRUTH_NONLINEAR, rng)
+    monkeypatch.setitem(fitmod._IPOPT_OPTIONS, "ipopt.max_iter", 1)
+    fitmod._nlp_solver.cache_clear()
+    try:
+        with pytest.raises(SolverError, match="Maximum_Iterations_Exceeded") as err:
+            fit(runs, NONLINEAR)
+        assert err.value.status == "Maximum_Iterations_Exceeded"
+    finally:
+        fitmod._nlp_solver.cache_clear()
+
+
+def test_paper_procedure_without_replicates_matches_numpy_polyfit(rng):
+    runs = _single_position(rng, tilt_jitter=2e-5)  # leveling differs run to run: no replicates
+    cal = paper_procedure(runs)
+    assert cal.weighting == "residual"
+    assert cal.c23 == pytest.approx(np.mean(closed_form.c23(runs.azimuth, runs.pitch, runs.roll)), rel=1e-12)
+    (slope, icpt), cov = np.polyfit(runs.rate, runs.heading_err, 1, cov=True)
+    assert cal.k_hse == pytest.approx(-slope, rel=1e-10)
+    assert cal.intercept == pytest.approx(icpt, rel=1e-10)
+    assert cal.k_hse_std == pytest.approx(np.sqrt(cov[0, 0]), rel=1e-10)
+
+
+def test_sigma_from_residuals_through_ipopt(rng):
+    # no heading_std and no replicates: one sigma from the residuals; the estimate is the
+    # weighted fit's and the covariance scales by (s / sigma)^2
+    d = design(n_sessions=4, per=12, rates_dps=(40,), sigma_arcsec=3.0)
+    d["azimuth"] = d["azimuth"] + 1e-3 * np.arange(d["run"].size)  # no two runs alike
+    runs = twin(NONLINEAR, d, TRUTH_NONLINEAR, rng)
+    known = fit(runs, NONLINEAR)
+    est = fit(runs.replace(heading_std=None), NONLINEAR)
+    assert est.weighting == "residual" and est.method == "ipopt"
+    assert np.all(np.abs(est.values - known.values) < 1e-4 * known.std)
+    s = np.sqrt(np.sum(known.residuals ** 2) / known.dof)
+    assert est.sigma[0] == pytest.approx(s, rel=1e-6)
+    np.testing.assert_allclose(est.std, known.std * s / (3.0 * units.ARCSEC), rtol=1e-4)
+    assert est.chi2_red == pytest.approx(1.0, rel=1e-9)
+
+
+def test_report_data_is_consistent(rng):
+    from hse_opt.fit import report_data
+    runs = twin(LINEAR, design(), TRUTH_LINEAR, rng)
+    f = fit(runs, LINEAR, bounds={"delay": (None, 30.0)})
+    d = report_data(f, runs)
+    r = d["runs"]
+    np.testing.assert_allclose(np.add(r["predicted_arcsec"], r["residual_arcsec"]), r["heading_err_arcsec"],
+                               atol=1e-9)
+    mm = LINEAR.measurement(True)  # the prediction is the model at the estimate
+    np.testing.assert_allclose(r["predicted_arcsec"], mm.predict(f.p, mm.inputs_from_runs(runs)) / units.ARCSEC,
+                               atol=1e-9)
+    assert [p["state"] for p in d["parameters"]] == ["free", "free", "free", "at bound"]
+    json.dumps(d, allow_nan=False)
+    with pytest.raises(ValueError, match="not the ones the fit used"):
+        report_data(f, subset(runs, range(10)))

@@ -1,0 +1,81 @@
+"""``hse-opt fit`` and ``hse-opt compensate`` (issue 4, item 8)."""
+import json
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+
+from hse_opt.cli import main
+from hse_opt.data import load_runs
+from hse_opt.datasets import paper_table1_path
+from hse_opt.fit import load_fit
+
+TABLE1 = str(paper_table1_path())
+FIX = "lambda2*tilt_const=0"
+
+
+def test_fit_json_and_compensate(tmp_path, capsys):
+    fit_path = tmp_path / "FIT.json"
+    assert main(["fit", TABLE1, "--fix", FIX, "--json", "-o", str(fit_path)]) == 0
+    out, err = capsys.readouterr()
+    d = json.loads(out)  # one object, nothing else on stdout
+    assert {"effects", "n_runs", "parameters", "chi2", "dof", "chi2_red", "aic", "bic",
+            "rms_arcsec"} <= set(d)
+    assert d["effects"] == ["hse"] and d["n_runs"] == 12 and d["dof"] == 9
+    assert d["parameters"]["lambda2*tilt_const"] == {"value": 0.0, "std": 0.0, "unit": "arcsec*mrad",
+                                                     "free": False, "lower": 0.0, "upper": 0.0}
+    # the fitted sinusoid against numpy's least squares on [1, cos, sin] of the azimuth:
+    # at 40 deg/s one arcsec*mrad of lambda2*C23 is -lambda1 / (3 w_ie cos L) of heading
+    runs = load_runs(TABLE1)
+    A = np.column_stack([np.ones(12), np.cos(runs.azimuth), np.sin(runs.azimuth)])
+    coef = np.linalg.lstsq(A, runs.heading_err, rcond=None)[0] * 206264.806
+    k = -(40 * np.pi / 180 - 7.292115e-5 * np.sin(0.49)) * 4.8481368e-9 / (3 * 7.292115e-5 * np.cos(0.49))
+    k_arcsec = k * 206264.806
+    p = d["parameters"]
+    assert p["lambda2*tilt_cos"]["value"] * k_arcsec == pytest.approx(coef[1], rel=1e-3)
+    assert p["lambda2*tilt_sin"]["value"] * k_arcsec == pytest.approx(coef[2], rel=1e-3)
+    assert "wrote" in err
+    out_csv = tmp_path / "OUT.csv"
+    assert main(["compensate", TABLE1, "--fit", str(fit_path), "-o", str(out_csv), "--json"]) == 0
+    s = json.loads(capsys.readouterr().out)
+    comp = load_runs(out_csv)
+    assert comp.covariates["heading_err_comp_arcsec"].shape == (12,)
+    np.testing.assert_array_equal(comp.heading_err, runs.heading_err)  # the input column is kept
+    # the residual of the fit is what compensation leaves, up to the offset it keeps
+    fitted = load_fit(fit_path)
+    np.testing.assert_allclose(comp.covariates["heading_err_comp_arcsec"] - fitted.value("offset")[0],
+                               fitted.residuals * 206264.806, atol=1e-6)
+    assert s["after"]["rms_arcsec"] < s["before"]["rms_arcsec"]
+
+
+def test_readable_report_and_bounds(capsys):
+    assert main(["fit", TABLE1, "--fix", FIX, "--bound", "lambda2*tilt_cos=:1.5"]) == 0
+    out = capsys.readouterr().out
+    assert "lambda2*tilt_cos" in out and "(at its bound)" in out and "arcsec*mrad" in out
+    assert "bounds that bind: lambda2*tilt_cos" in out and "chi2" in out and "AIC" in out
+
+
+@pytest.mark.parametrize("args, text", [
+    (["--bound", "lambda2=1"], "allowed form NAME=LO:HI"),
+    (["--fix", "lambda2*tilt_const=abc"], "is not a number"),
+    (["--fix", "lambda3=0"], "unknown parameter"),
+    (["--effects", "warmpu"], "unknown effect 'warmpu'"),
+])
+def test_bad_input_exit_2(args, text, capsys):
+    assert main(["fit", TABLE1, "--fix", FIX] + args) == 2
+    assert text in capsys.readouterr().err
+
+
+def test_unidentifiable_exit_2_names_parameters(capsys):
+    assert main(["fit", TABLE1, "--json"]) == 2
+    out, err = capsys.readouterr()
+    assert out == ""
+    assert "offset, lambda2*tilt_const cannot be told apart" in err and "--fix" in err
+
+
+def test_help_has_examples():
+    for cmd in ("fit", "compensate"):
+        out = subprocess.run([sys.executable, "-m", "hse_opt.cli", cmd, "--help"], capture_output=True,
+                             text=True)
+        assert out.returncode == 0 and f"hse-opt {cmd}" in out.stdout.split("example")[-1]
