@@ -40,7 +40,7 @@ from pathlib import Path
 import numpy as np
 
 from . import __version__, units
-from .model.measurement import RUN_FIELDS
+from .data import Runs
 
 __all__ = ["Section", "Figure", "fit_section", "comparison_section", "diagnosis_section",
            "design_section", "plan_section", "plot_sigmas", "render_html", "plot_candidates", "plot_factor_tests",
@@ -213,15 +213,28 @@ def _arcsec(x):
     return np.asarray(x, dtype=float) / units.ARCSEC
 
 
-def _offset_part(fit, X):
-    """The constant-offset part of the fitted model's prediction (rad): what compensation
-    keeps, since only the stand reference knows it."""
-    mm = fit.measurement
-    if "offset" not in mm.names:
-        return np.zeros(X.shape[1])
-    p0 = np.array(fit.p, dtype=float)
-    p0[mm.parameter_index("offset")] = 0.0
-    return mm.predict(fit.p, X) - mm.predict(p0, X)
+def _grid_runs(runs, mask, n, **columns):
+    """``n`` made-up runs like ``runs[mask]``: every column at its median over the mask
+    except those given (SI arrays of shape (n,)); for drawing the model as a curve."""
+    def med(x):
+        return None if x is None else np.full(n, np.median(np.asarray(x)[mask]))
+    cols = {name: med(getattr(runs, name)) for name in
+            ("rate", "azimuth", "latitude", "duration", "t_start", "pitch", "roll")}
+    cols.update(columns)
+    if runs.pitch is None:
+        cols["pitch"] = cols["roll"] = None
+    return Runs(run=np.arange(1, n + 1), heading_err=np.zeros(n), source="model curve",
+                covariates={k: med(v) for k, v in runs.covariates.items()}, **cols)
+
+
+def _curve(fit, runs, mask, **columns):
+    """The fitted model's heading error (rad) and the part compensation removes (rad) on
+    made-up runs (:func:`_grid_runs`)."""
+    from .fit import compensation
+    n = len(next(iter(columns.values())))
+    grid = _grid_runs(runs, mask, n, **columns)
+    h = fit.measurement.predict(fit.p, fit.measurement.inputs_from_runs(grid))
+    return h, compensation(grid, fit)[0]
 
 
 def _groups(values, tol):
@@ -311,8 +324,6 @@ def plot_calibration_line(fit, runs):
     -------
     matplotlib.figure.Figure
     """
-    X = fit.measurement.inputs_from_runs(runs)
-    mm = fit.measurement
     rate_dps = runs.rate / units.DEG_PER_S
     y, s = _arcsec(runs.heading_err), _arcsec(fit.sigma)
     setups = tilt_setups(runs)
@@ -332,15 +343,14 @@ def plot_calibration_line(fit, runs):
                 m = setup & (labels == g)
                 ax.errorbar(rate_dps[m], y[m], yerr=s[m], fmt="o", ms=4, color=col, capsize=2,
                             label=f"{centres[g] / units.DEG:.0f} deg")
-                Xg = np.repeat(np.mean(X[:, m], axis=1, keepdims=True), grid.size, axis=1)
-                Xg[RUN_FIELDS.index("rate")] = grid * units.DEG_PER_S
-                Xg[RUN_FIELDS.index("azimuth")] = centres[g]
-                ax.plot(grid, _arcsec(mm.predict(fit.p, Xg)), "-", color=col, lw=1.2)
+                h, _ = _curve(fit, runs, m, rate=grid * units.DEG_PER_S,
+                              azimuth=np.full(grid.size, centres[g]))
+                ax.plot(grid, _arcsec(h), "-", color=col, lw=1.2)
             ax.legend(loc="best", frameon=False, title="stand azimuth", ncols=2)
         else:
             sc = ax.scatter(rate_dps[setup], y[setup], s=16, cmap="twilight", vmin=0, vmax=360,
                             c=np.mod(runs.azimuth[setup] / units.DEG, 360), label="measured")
-            ax.plot(rate_dps[setup], _arcsec(mm.predict(fit.p, X[:, setup])), "k+", ms=6,
+            ax.plot(rate_dps[setup], y[setup] - _arcsec(fit.residuals[setup]), "k+", ms=6,
                     label="model")
             fig.colorbar(sc, ax=ax, label="stand azimuth [deg]")
             ax.legend(loc="best", frameon=False)
@@ -356,19 +366,20 @@ def plot_azimuth(fit, runs):
     """Heading error against stand azimuth before and after compensation with the fitted
     model (the paper's Fig. 3); one row per tilt setup (:func:`tilt_setups`).
 
-    "After" removes every fitted effect except the constant ``offset`` (which only the
-    stand reference can know), as the paper's Eq. 14 compensation removes the
-    heading-sensitive error.
+    "After" subtracts what compensation with the fit removes
+    (:func:`hse_opt.fit.compensation`: every error of the system, as the paper's Eq. 14
+    removes the heading-sensitive error); the stand's own errors (the offset of its zero
+    mark, errors of its azimuth reading, covariate offsets) remain.
 
     Returns
     -------
     matplotlib.figure.Figure
     """
-    X = fit.measurement.inputs_from_runs(runs)
-    mm = fit.measurement
+    from .fit import compensation
+
     az = np.mod(runs.azimuth / units.DEG, 360.0)
     y, s = _arcsec(runs.heading_err), _arcsec(fit.sigma)
-    after = y - _arcsec(mm.predict(fit.p, X) - _offset_part(fit, X))
+    after = y - _arcsec(compensation(runs, fit)[0])
     rates, rate_centres = _groups(runs.rate, 0.05 * units.DEG_PER_S)
     many = rate_centres.size > _MAX_LINES
     grid = np.linspace(0.0, 360.0, 181) * units.DEG
@@ -389,13 +400,10 @@ def plot_azimuth(fit, runs):
             ax2.errorbar(az[m], after[m], yerr=s[m], fmt="o", ms=4, color=col, capsize=2)
             if many:
                 continue
-            Xg = np.repeat(np.median(X[:, m], axis=1, keepdims=True), grid.size, axis=1)
-            Xg[RUN_FIELDS.index("rate")] = r
-            Xg[RUN_FIELDS.index("azimuth")] = grid
-            if mm.tilt_known:
-                Xg[RUN_FIELDS.index("pitch")], Xg[RUN_FIELDS.index("roll")] = pitch, roll
-            ax1.plot(grid / units.DEG, _arcsec(mm.predict(fit.p, Xg)), "-", color=col, lw=1.2)
-            ax2.plot(grid / units.DEG, _arcsec(_offset_part(fit, Xg)), "-", color=col, lw=1.2)
+            tilt = {"pitch": pitch, "roll": roll} if runs.pitch is not None else {}
+            h, comp = _curve(fit, runs, m, rate=np.full(grid.size, r), azimuth=grid, **tilt)
+            ax1.plot(grid / units.DEG, _arcsec(h), "-", color=col, lw=1.2)
+            ax2.plot(grid / units.DEG, _arcsec(h - comp), "-", color=col, lw=1.2)
         ax1.set_title(f"before: peak-to-peak {np.ptp(y[setup]):.1f} arcsec", fontsize=9)
         ax2.set_title(f"after: peak-to-peak {np.ptp(after[setup]):.1f} arcsec", fontsize=9)
         ax1.set_ylabel(f"{title}\nheading error [arcsec]" if len(setups) > 1
@@ -640,13 +648,14 @@ def _fit_statistics(fit):
     ]
 
 
-def _parameter_table(fit):
-    descr = {q.name: q.description for q in fit.measurement.params}
-    rows = [[f"<code>{html.escape(n)}</code>", _fmt(v, 5), _fmt(s, 3) if f else "fixed",
-             html.escape(u), html.escape(descr.get(n, ""))]
-            for n, v, s, u, f in zip(fit.names, fit.values, fit.std, fit.units, fit.free)]
-    return _table(["parameter", "value", "1-sigma", "unit", "meaning"], rows,
-                  keys=[f"param:{n}" for n in fit.names], cls="params")
+def _parameter_table(rows):
+    """The parameter table from :func:`hse_opt.fit.report_data` rows."""
+    cells = [[f"<code>{html.escape(r['name'])}</code>", _fmt(r["value"], 5),
+              _fmt(r["std"], 3) if r["state"] != "fixed" else "fixed", html.escape(r["unit"]),
+              "" if r["state"] == "free" else html.escape(r["state"]), html.escape(r["description"])]
+             for r in rows]
+    return _table(["parameter", "value", "1-sigma", "unit", "", "meaning"], cells,
+                  keys=[f"param:{r['name']}" for r in rows], cls="params")
 
 
 def _correlation_table(fit):
@@ -676,12 +685,15 @@ def fit_section(fit, runs, title=None):
     -------
     Section
     """
+    from .fit import report_data
+
     title = title or f"Calibration fit: {_effects_label(fit)}"
+    data = report_data(fit, runs)            # also checks that these are the fit's runs
     stats = _fit_statistics(fit)
     blocks = [
         _paragraph(f"Weighted least squares of the model ({_effects_label(fit)}) to "
                    f"{fit.n_runs} alignments."),
-        '<div class="cols">' + _parameter_table(fit)
+        '<div class="cols">' + _parameter_table(data["parameters"])
         + _table(["statistic", "value"], [[lab, v] for lab, _, v in stats],
                  keys=[k for _, k, _ in stats], cls="stats") + "</div>",
         _correlation_table(fit),
@@ -693,15 +705,16 @@ def fit_section(fit, runs, title=None):
                "heading error against bias rate"),
         _embed(plot_azimuth(fit, runs),
                "Heading error against stand azimuth before (left) and after (right) compensation "
-               "with the fitted model (the paper's Fig. 3). Lines: the model at each rate with "
-               "the other inputs at their medians; after compensation only the constant offset "
-               "remains.",
+               "with the fit (the paper's Fig. 3), one row per tilt setup. Lines: the model at "
+               "each rate with the other inputs at their medians; after compensation only the "
+               "stand's own errors remain (the offset of its zero mark, errors of its azimuth "
+               "reading).",
                "heading error against azimuth before and after compensation"),
         _embed(plot_residuals(fit, runs),
                "Residuals (measured minus model) against every factor that varies over the runs; "
                "structure here is an effect the model lacks.", "residuals against every factor"),
     ]
-    return Section(title, tuple(b for b in blocks if b), {"fit": fit.to_dict()})
+    return Section(title, tuple(b for b in blocks if b), data)
 
 
 def comparison_section(before, after, runs, title=None):

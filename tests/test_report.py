@@ -150,3 +150,19 @@ def test_report_renders_in_chromium(tmp_path):
         assert colour(crop) > 200                          # coloured markers and lines
     blank = pixels[:, -30:]                                # the right margin stays empty
     assert ink(blank) < 0.01
+
+
+def test_fit_command_writes_the_report_with_its_json_numbers(tmp_path, capsys):
+    from hse_opt.cli import main
+    from hse_opt.data import save_runs
+    save_runs(eq14_runs(noise_arcsec=1.0), tmp_path / "RUNS.csv")
+    assert main(["fit", str(tmp_path / "RUNS.csv"), "--json", "--report", str(tmp_path / "rep")]) == 0
+    captured = capsys.readouterr()
+    data = json.loads(captured.out)                        # stdout: the JSON object only
+    assert "report:" in captured.err
+    text = (tmp_path / "rep" / "report.html").read_text(encoding="utf-8")
+    for name, p in data["parameters"].items():
+        cells = re.findall(r"<td>(.*?)</td>",
+                           re.search(rf'<tr data-key="param:{re.escape(name)}">(.*?)</tr>', text).group(1))
+        assert float(cells[1]) == pytest.approx(p["value"], rel=1e-4, abs=1e-9)
+        assert float(cells[2]) == pytest.approx(p["std"], rel=1e-2)
