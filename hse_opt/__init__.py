@@ -35,3 +35,26 @@ from .fit import (Constraint, FitResult, SolverError, compensate, compensation, 
                   load_fit, save_fit)
 from .information import Prior, UnidentifiableError, heading_sigma  # noqa: E402
 from .paper_procedure import PaperCalibration, compensate_eq14, paper_procedure  # noqa: E402
+
+#: more of the public API, imported on first use: name -> (module, attribute); attribute None
+#: gives the module itself (``hse_opt.diagnose`` is a callable module: ``hse_opt.diagnose(runs)``
+#: and ``hse_opt.diagnose.refine(runs)`` both work)
+_API = {
+    "diagnose": ("diagnose", None),
+    "Diagnosis": ("diagnose", "Diagnosis"),
+}
+
+
+def __getattr__(name):
+    import importlib
+
+    try:
+        module, attr = _API[name]
+    except KeyError:
+        raise AttributeError(f"module 'hse_opt' has no attribute {name!r}") from None
+    mod = importlib.import_module(f".{module}", __name__)
+    return mod if attr is None else getattr(mod, attr)
+
+
+def __dir__():
+    return sorted(set(globals()) | set(_API))

@@ -391,11 +391,11 @@ class _Problem:
         return float(r @ r + e @ e)
 
 
-def _setup(mm, runs, fix, bounds, constraints, prior, notes):
+def _setup(mm, runs, fix, bounds, constraints, prior, notes, start=None):
     """Build the :class:`_Problem` pieces from the user's fix/bounds/constraints/prior."""
     names = list(mm.names)
     fix = dict(fix or {})
-    p_base = mm.vector(fix)
+    p_base = mm.vector({**(start or {}), **fix})
     free = np.array([nm not in fix for nm in names])
     values = p_base / mm.scale
     lower = np.full(len(names), -np.inf)
@@ -668,7 +668,7 @@ def _mad_scale(res):
 
 # -- the fit ------------------------------------------------------------------------------------
 def fit(runs, model=None, *, fix=None, tilt_known=None, bounds=None, constraints=(), prior=None,
-        robust=False, huber_c=HUBER_C, max_iter=100, jit=None):
+        robust=False, huber_c=HUBER_C, max_iter=100, jit=None, start=None):
     """Calibrate ``model`` on ``runs`` by weighted least squares.
 
     Parameters
@@ -695,6 +695,9 @@ def fit(runs, model=None, *, fix=None, tilt_known=None, bounds=None, constraints
         Compile the model's batch Functions with the C compiler (a one-off ~1 s per model and
         batch size, then several times faster): default for 5000 runs and more; worth it for
         repeated fits of the same model, such as on-line updates.
+    start : mapping name -> value (display unit), optional
+        Where the iteration starts for free parameters (default: their nominal values); needed
+        when a parameter's signature vanishes at the nominal values of the others.
 
     Returns
     -------
@@ -724,7 +727,7 @@ def fit(runs, model=None, *, fix=None, tilt_known=None, bounds=None, constraints
     if tilt_known is False and runs.pitch is not None:
         notes.append("pitch/roll given but not used: tilt-coupled terms fitted as free C23 coefficients")
     (p_base, free, lower, upper, A_eq, b_eq, A_in, l_in, u_in, L, Lmu,
-     kept) = _setup(mm, runs, fix, bounds, constraints, prior, notes)
+     kept) = _setup(mm, runs, fix, bounds, constraints, prior, notes, start)
     k = int(free.sum())
     if k == 0:
         raise ValueError("every parameter is fixed: nothing to fit")

@@ -1,0 +1,107 @@
+"""``hse-opt diagnose``: compare a model with measured runs and find the missing effect."""
+from . import message, print_json
+
+NAME = "diagnose"
+HELP = "compare a model with measured runs: where it fails, which effect is missing"
+DESCRIPTION = """\
+Fit the model to RUNS.csv and compare it with the measurements: residuals and influence per
+run, goodness of fit (chi-square with the runs' own sigmas; pure-error lack of fit when
+settings are replicated), residual structure against every factor, every catalogue effect not
+in the model ranked by a score test, Delta-BIC and the residual RMS after refitting, the
+unexplained structure in words, and the verdict (adequate or missing-effect). --refine adds the
+best significant effect and diagnoses again until the verdict is adequate."""
+EXAMPLE = """examples:
+  hse-opt diagnose RUNS.csv
+  hse-opt diagnose RUNS.csv --effects hse,warmup --json
+  hse-opt diagnose RUNS.csv --refine
+  hse-opt diagnose paper.csv --fix lambda2*tilt_const=0 --covariates none"""
+
+
+def add_arguments(parser):
+    parser.add_argument("runs", metavar="RUNS.csv", help="alignment results (DESIGN.md format)")
+    parser.add_argument("--effects", default="hse", help="effects of the model (default: hse, the paper's)")
+    parser.add_argument("--fix", action="append", default=[], metavar="NAME=VALUE",
+                        help="hold a parameter at a value in its display unit (repeatable)")
+    parser.add_argument("--covariates", metavar="A,B",
+                        help="covariate columns to test (default: every extra numeric column; 'none')")
+    parser.add_argument("--alpha", type=float, default=None,
+                        help="family-wise significance level of the verdict (default 0.05)")
+    parser.add_argument("--refine", action="store_true",
+                        help="add the best significant effect and diagnose again, until adequate")
+    parser.add_argument("--json", action="store_true", help="print one JSON object on stdout")
+    parser.add_argument("--report", metavar="DIR", help="write the HTML report into DIR")
+
+
+def parse_fix(items):
+    """``["NAME=VALUE", ...]`` -> {name: float}; ValueError naming the bad item."""
+    out = {}
+    for item in items:
+        name, sep, value = item.partition("=")
+        try:
+            if not sep or not name.strip():
+                raise ValueError
+            out[name.strip()] = float(value)
+        except ValueError:
+            raise ValueError(f"--fix {item!r}; allowed: NAME=VALUE with a number in the parameter's "
+                             "display unit, e.g. --fix lambda2=4.2") from None
+    return out
+
+
+def run(args):
+    from ..data import load_runs
+    from ..diagnose import ALPHA, compare, diagnose, refine
+    from ..fit import as_model
+
+    try:
+        runs = load_runs(args.runs)
+    except OSError as err:
+        raise ValueError(f"{args.runs}: cannot read the file ({err.strerror or err})") from None
+    covariates = None
+    if args.covariates is not None:
+        covariates = [] if args.covariates.strip().lower() == "none" else \
+            [c.strip() for c in args.covariates.split(",") if c.strip()]
+    kw = dict(fix=parse_fix(args.fix), covariates=covariates,
+              alpha=ALPHA if args.alpha is None else args.alpha)
+    model = as_model(args.effects)
+    steps = refine(runs, model, **kw) if args.refine else (diagnose(runs, model, **kw),)
+    if args.report:
+        status = write_report(steps, args.report)
+        if status:
+            return status
+    if args.json:
+        out = steps[-1].to_dict()
+        if args.refine:
+            out["added"] = [e for e in steps[-1].effects if e not in steps[0].effects]
+            out["steps"] = [{"effects": list(s.effects), "rms_arcsec": s.rms_arcsec,
+                             "chi2_red": float(s.chi2_red), "lack_of_fit_p": s.lack_of_fit_p,
+                             "verdict": s.verdict} for s in steps]
+        print_json(out)
+        return 0
+    print("\n".join(steps[0].summary()))
+    if len(steps) > 1:
+        print()
+        print("\n".join(compare(steps[0], steps[-1]).summary()))
+        print()
+        print("\n".join(steps[-1].summary()))
+    return 0
+
+
+def write_report(steps, directory):
+    """The HTML report of the diagnosis steps (``hse_opt.report``); returns an exit status when
+    it cannot be written, else 0. The report's numbers come from ``Diagnosis.plot_data()``."""
+    try:
+        from .. import report
+    except ImportError:
+        report = None
+    section = getattr(report, "diagnosis_section", None)
+    if section is None:
+        message("hse-opt diagnose: --report: the HTML report of a diagnosis is not available in this "
+                "version (hse_opt.report has no diagnosis_section); use --json for the numbers")
+        return 1
+    from ..diagnose import compare
+    sections = [section(steps[0])]
+    if len(steps) > 1:
+        sections += [report.comparison_section(compare(a, b)) for a, b in zip(steps, steps[1:])]
+    path = report.write_report(directory, sections, title="hse_opt diagnosis")
+    message(f"report: {path}")
+    return 0
