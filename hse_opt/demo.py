@@ -257,11 +257,11 @@ class DemoResult:
     fit_before, fit_after : hse_opt.fit.FitResult
         The paper's model; the model with the named effect added.
     named : str or None
-        The effect the diagnosis named.
-    diagnosis : object or None
-        The diagnosis (``hse_opt.diagnose``), when it ran.
-    design : object or None
-        The optimised next plan (``hse_opt.design``), when it ran.
+        The effect the diagnosis named (None when it found the paper's model adequate).
+    diagnosis, diagnosis_after : hse_opt.diagnose.Diagnosis
+        Of the paper's model; of the model with the named effect (None without one).
+    next_plan : NextPlan
+        The optimised next plan and the paper's plan, evaluated for the final model.
     paper : hse_opt.model.paper.PaperNumbers
         The paper's own numbers reproduced with the symbolic model.
     seconds : dict
@@ -278,7 +278,8 @@ class DemoResult:
     fit_after: object
     named: str | None
     diagnosis: object = None
-    design: object = None
+    diagnosis_after: object = None
+    next_plan: object = None
     paper: object = None
     seconds: dict = field(default_factory=dict)
 
@@ -306,6 +307,13 @@ class DemoResult:
                 "effects": list(fa.model.effect_names), "rms_arcsec": fa.rms_arcsec,
                 "chi2_red": fa.chi2_red, "bic": fa.bic,
                 "parameters": fa.to_dict()["parameters"]},
+            "diagnosis": {"verdict": self.diagnosis.verdict,
+                          "candidates": [{k: c[k] for k in ("effect", "p_value", "delta_bic",
+                                                             "rms_after_arcsec")}
+                                         for c in self.diagnosis.to_dict()["candidates"][:3]],
+                          "ambiguous": list(self.diagnosis.ambiguous)},
+            "verdict_after": None if self.diagnosis_after is None else self.diagnosis_after.verdict,
+            "next_plan": None if self.next_plan is None else self.next_plan.to_dict(),
             "paper": None if self.paper is None else dataclasses.asdict(self.paper),
             "seconds": self.seconds,
         }
@@ -333,6 +341,7 @@ def run_demo(seed=0, progress=None):
     """
     if isinstance(seed, bool) or not isinstance(seed, (int, np.integer)) or seed < 0:
         raise ValueError(f"seed = {seed!r} is not allowed: an integer >= 0 is required")
+    from .diagnose import diagnose
     from .sim import run_campaign
     seconds = {}
     t0 = time.perf_counter()
@@ -351,19 +360,23 @@ def run_demo(seed=0, progress=None):
     before = fit_runs(runs, "hse")
     seconds["fit"] = time.perf_counter() - t0
 
-    # SEAM (issue 6, hse_opt.diagnose): diagnose `before` on `runs`, name the best candidate,
-    # refit with it. Until it lands the demo stops after the paper's fit.
-    named, diagnosis, after = None, None, None
+    t0 = time.perf_counter()
+    diagnosis = diagnose(runs, before)
+    named = None if diagnosis.best is None else diagnosis.best.effect
+    after_diagnosis = None if named is None else diagnosis.add(named)
+    after = None if after_diagnosis is None else after_diagnosis.fit
+    seconds["diagnose"] = time.perf_counter() - t0
 
-    # SEAM (issue 5, hse_opt.design): design the next plan for hse + named within the paper
-    # plan's test time and compare predicted sigmas with the paper's plan.
-    design = None
+    # SEAM (issue 5, hse_opt.design): design the next plan for the final model within the
+    # paper plan's test time and compare predicted sigmas with the paper's plan.
+    next_plan = None
 
     from .model.paper import reproduce
     noise = float(np.median(runs.heading_std) / units.ARCSEC)
     return DemoResult(seed=int(seed), hidden=hidden, truth=truth, plan=plan, runs=runs,
                       noise_arcsec=noise, fit_before=before, fit_after=after, named=named,
-                      diagnosis=diagnosis, design=design, paper=reproduce(), seconds=seconds)
+                      diagnosis=diagnosis, diagnosis_after=after_diagnosis, next_plan=next_plan,
+                      paper=reproduce(), seconds=seconds)
 
 
 # -- outputs ---------------------------------------------------------------------------------
@@ -383,9 +396,11 @@ def report_sections(result):
                             f"cannot absorb has an RMS of {HIDDEN_SIGMAS:g} noise sigmas."),
         report.fit_section(r.fit_before, r.runs, "The paper's model"),
     ]
-    # SEAM (issue 6): report.diagnosis_section(r.diagnosis, r.runs)
+    from .diagnose import compare
+    sections.append(report.diagnosis_section(r.diagnosis, "Diagnosis of the paper's model"))
     if r.fit_after is not None:
-        sections += [report.comparison_section(r.fit_before, r.fit_after, r.runs),
+        sections += [report.comparison_section(compare(r.diagnosis, r.diagnosis_after),
+                                               title=f"Adding {r.named}: before and after"),
                      report.fit_section(r.fit_after, r.runs, f"The model with {r.named}")]
     # SEAM (issue 5): report.design_section(r.design, baseline=paper plan)
     return sections
@@ -403,7 +418,7 @@ def summary_text(result):
                      + (" - the hidden effect." if r.found else f", not the hidden {r.hidden.name}."))
     if fa is not None:
         lines.append(f"With it the RMS falls to {fa.rms_arcsec:.1f} arcsec (reduced chi-square "
-                     f"{fa.chi2_red:.2f}).")
+                     f"{fa.chi2_red:.2f}); verdict {r.diagnosis_after.verdict}.")
     return lines
 
 

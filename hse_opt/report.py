@@ -717,32 +717,71 @@ def fit_section(fit, runs, title=None):
     return Section(title, tuple(b for b in blocks if b), data)
 
 
-def comparison_section(before, after, runs, title=None):
-    """The before/after of adding an effect: statistics side by side and residuals overlaid.
+def _cell(x):
+    if isinstance(x, str):
+        return html.escape(x)
+    if isinstance(x, float) and 0 < abs(x) < 1e-3:
+        return _p_text(x)
+    return _fmt(x)
+
+
+def comparison_section(before, after=None, runs=None, title=None):
+    """The before/after of adding an effect: statistics and parameters side by side, and
+    the residuals against every factor before and after.
 
     Parameters
     ----------
-    before, after : hse_opt.fit.FitResult
-        Fits of the same runs.
-    runs : hse_opt.data.Runs
+    before : hse_opt.fit.FitResult or hse_opt.diagnose.Comparison
+        The fit without the effect, or a whole comparison of two diagnoses
+        (:func:`hse_opt.diagnose.compare`: its lack-of-fit tests and verdicts are shown too).
+    after : hse_opt.fit.FitResult, optional
+        The fit with it (same runs); not with a Comparison.
+    runs : hse_opt.data.Runs, optional
+        The runs both fits used; not with a Comparison.
     title : str, optional
 
     Returns
     -------
     Section
     """
+    comparison = before if hasattr(before, "statistics") else None
+    if comparison is not None:
+        before, after, runs = comparison.before.fit, comparison.after.fit, comparison.after.runs
+    elif after is None or runs is None:
+        raise ValueError("comparison_section needs before, after and runs (FitResults), or a "
+                         "hse_opt.diagnose.Comparison")
     added = [e for e in after.model.effect_names if e not in before.model.effect_names]
     title = title or f"Adding {', '.join(added) or 'nothing'}: before and after"
-    sb, sa = _fit_statistics(before), _fit_statistics(after)
-    rows = [[lab, vb, va] for (lab, _, vb), (_, _, va) in zip(sb, sa)]
+    header = ["", _effects_label(before), _effects_label(after)]
+    if comparison is not None:
+        stats = [[html.escape(k), _cell(b), _cell(a)] for k, b, a in comparison.statistics]
+        keys = [k for k, _, _ in comparison.statistics]
+        params = [[f"<code>{html.escape(n)}</code> [{html.escape(u)}]",
+                   "&ndash;" if vb is None else f"{_fmt(vb, 5)} &plusmn; {_fmt(sb, 3)}",
+                   "&ndash;" if va is None else f"{_fmt(va, 5)} &plusmn; {_fmt(sa, 3)}"]
+                  for n, u, vb, sb, va, sa in comparison.parameters]
+        data = _jsonable(comparison.to_dict())
+    else:
+        sb, sa = _fit_statistics(before), _fit_statistics(after)
+        stats = [[lab, vb, va] for (lab, _, vb), (_, _, va) in zip(sb, sa)]
+        keys = [k for _, k, _ in sb]
+        params = []
+        for n in dict.fromkeys(before.names + after.names):
+            cells = [f"<code>{html.escape(n)}</code>"]
+            for f in (before, after):
+                cells.append(f"{_fmt(f.values[f.names.index(n)], 5)} &plusmn; "
+                             f"{_fmt(f.std[f.names.index(n)], 3)} {html.escape(f.units[f.names.index(n)])}"
+                             if n in f.names else "&ndash;")
+            params.append(cells)
+        data = {"before": before.to_dict(), "after": after.to_dict()}
     blocks = [
-        _table(["", _effects_label(before), _effects_label(after)], rows,
-               keys=[k for _, k, _ in sb], cls="stats"),
+        '<div class="cols">' + _table(header, stats, keys=keys, cls="stats")
+        + _table(["parameter"] + header[1:], params, cls="params") + "</div>",
         _embed(plot_before_after(before, after, runs),
                f"Residuals against every factor before (grey rows) and after (red rows) adding "
                f"{', '.join(added) or 'nothing'}, on one scale.", "residuals before and after"),
     ]
-    return Section(title, tuple(blocks), {"before": before.to_dict(), "after": after.to_dict()})
+    return Section(title, tuple(blocks), data)
 
 
 def _p_text(p):

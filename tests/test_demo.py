@@ -56,6 +56,21 @@ def test_the_campaign_shows_the_hidden_effect(demo_run):
     assert data["before"]["chi2_red"] > 2.5
 
 
+def test_the_diagnosis_names_the_hidden_effect_and_the_error_falls(demo_run):
+    data, _ = demo_run
+    assert data["diagnosis"]["verdict"] == "missing-effect"
+    assert data["named_effect"] == data["hidden_effect"] and data["found"]
+    after = data["after"]
+    assert after["effects"] == ["hse", data["hidden_effect"]]
+    # down to the noise: within 20 % of the simulator's scatter, and an adequate verdict
+    assert after["rms_arcsec"] < 1.2 * data["noise_arcsec"]
+    assert data["verdict_after"] == "adequate"
+    # the hidden parameters are recovered within 3 of their standard errors
+    for name, value in data["hidden_values"].items():
+        p = after["parameters"][name]
+        assert abs(p["value"] - value) < 3 * p["std"], name
+
+
 def test_demo_reproduces_the_papers_numbers(demo_run):
     paper = demo_run[0]["paper"]
     assert abs(paper["k_hse_model_arcsec_per_radps"] - 17.4) < 0.01
@@ -65,7 +80,7 @@ def test_demo_reproduces_the_papers_numbers(demo_run):
 def test_demo_report_renders_in_chromium(demo_run, tmp_path):
     _, out = demo_run
     probe, pixels = render(out / "report.html", tmp_path)
-    assert probe["images"] == (out / "report.html").read_text().count('<img class="plot"') >= 4
+    assert probe["images"] == (out / "report.html").read_text().count('<img class="plot"') >= 9
     assert probe["decoded"] == probe["images"]
     assert pixels.std() > 10
 

@@ -61,21 +61,27 @@ def summary_lines(result, out_dir):
         f"  paper fit {'+'.join(fb.model.effect_names)}: RMS {fb.rms_arcsec:.1f} arcsec, "
         f"reduced chi-square {fb.chi2_red:.2f}",
     ]
+    d = r.diagnosis
     if r.named is None:
-        lines.append("  diagnose  (not available yet: hse_opt.diagnose has not landed)")
+        lines.append(f"  diagnose  verdict {d.verdict}: no significant candidate "
+                     f"(the hidden effect {r.hidden.name} was not found)")
     else:
-        lines.append(f"  diagnose  names {r.named} "
-                     f"({'the hidden effect' if r.found else 'NOT the hidden effect ' + r.hidden.name})")
+        c = d.best
+        lines.append(f"  diagnose  verdict {d.verdict}; names {r.named} (score p {c.p_value:.2g}, "
+                     f"Delta-BIC {c.delta_bic:.1f}): "
+                     + ("the hidden effect" if r.found else f"NOT the hidden {r.hidden.name}"))
+        if d.ambiguous:
+            lines.append(f"            ambiguous here: {', '.join(d.ambiguous)}")
     if fa is not None:
-        lines.append(f"  refit     {'+'.join(fa.model.effect_names)}: RMS {fa.rms_arcsec:.1f} arcsec, "
-                     f"reduced chi-square {fa.chi2_red:.2f} (RMS {fb.rms_arcsec:.1f} -> "
-                     f"{fa.rms_arcsec:.1f} arcsec)")
+        lines.append(f"  refit     {'+'.join(fa.model.effect_names)}: RMS {fb.rms_arcsec:.1f} -> "
+                     f"{fa.rms_arcsec:.1f} arcsec, reduced chi-square {fa.chi2_red:.2f}, "
+                     f"verdict {r.diagnosis_after.verdict}")
         for name in r.hidden.values:
             if name in fa.names:
                 v, s = fa.value(name)
                 lines.append(f"            {name} = {v:.4g} +- {s:.2g} {r.hidden.units[name]} "
                              f"(hidden: {r.hidden.values[name]:.4g})")
-    if r.design is None:
+    if r.next_plan is None:
         lines.append("  design    (not available yet: hse_opt.design has not landed)")
     lines.append(f"  report    {Path(out_dir) / 'report.html'}")
     return lines
