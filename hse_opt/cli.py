@@ -43,7 +43,7 @@ def main(argv=None):
     except (ValueError, FileNotFoundError, IsADirectoryError, NotADirectoryError,
             PermissionError) as err:
         # bad input: one line naming the file, row, column or parameter and what is allowed
-        text = str(err) if isinstance(err, ValueError) else f"{err.strerror}: {err.filename}"
+        text = str(err) if isinstance(err, ValueError) else f"{err.filename}: {err.strerror}"
         print(f"hse-opt {args.command}: error: {' '.join(text.split())}", file=sys.stderr)
         return 2
     except Exception as err:  # noqa: BLE001 - the command line reports, never tracebacks
