@@ -42,6 +42,14 @@ from .paper_procedure import PaperCalibration, compensate_eq14, paper_procedure 
 _API = {
     "diagnose": ("diagnose", None),
     "Diagnosis": ("diagnose", "Diagnosis"),
+    # experiment design (issue 5): hse_opt.design(model, criterion, budget=...) designs a plan
+    "design": ("design", None),
+    "DesignSpace": ("design", "DesignSpace"),
+    "Costs": ("design", "Costs"),
+    "Stand": ("design", "Stand"),
+    "DesignResult": ("design", "DesignResult"),
+    "Discrimination": ("design", "Discrimination"),
+    "monte_carlo": ("design", "monte_carlo"),
 }
 
 

@@ -9,7 +9,7 @@ import importlib
 import sys
 
 #: command modules, in the order ``--help`` lists them
-COMMANDS = ("demo", "fit", "compensate", "diagnose")
+COMMANDS = ("demo", "fit", "compensate", "diagnose", "design")
 
 
 class _Parser(argparse.ArgumentParser):

@@ -1,0 +1,173 @@
+"""``hse-opt design``: the calibration test plan that calibrates best in the stand time."""
+import os
+
+import numpy as np
+
+from . import message, print_json
+
+NAME = "design"
+HELP = "optimise a calibration test plan (PLAN.csv), or evaluate one (--evaluate)"
+DESCRIPTION = """\
+Choose bias rates, rotation senses, stand azimuths, tilt-fixture settings and repeats that
+minimise a criterion of the model's parameter covariance within a test-time budget, and write
+them as PLAN.csv in execution order with start times (time since power-on). The criterion is
+D (volume of the confidence ellipsoid), A (sum of variances), E (worst direction) or c:NAME
+(the variance of one parameter; default c:lambda2, the paper's goal). Setups cost time: warm-up
+before the first run, changing the azimuth, the rate or sense, the tilt fixture. The report
+gives each parameter's predicted sigma, the efficiency against the approximate optimum, and the
+bias a slow heading drift would cause. With --evaluate an existing PLAN.csv is scored instead;
+a plan that cannot identify the model stops (exit 2) naming the parameters."""
+EXAMPLE = """\
+examples:
+  hse-opt design --budget-h 4.5 --reverse -o PLAN.csv
+  hse-opt design --budget-h 4.5 --effects axis_bias,sync_delay --criterion D --json -o PLAN.csv
+  hse-opt design --budget-h 4.5 --reverse --max-tilt-arcsec 1800 --identify axis_bias,sync_delay -o PLAN.csv
+  hse-opt design --evaluate PLAN.csv --effects axis_bias,sync_delay --json"""
+
+
+def add_arguments(parser):
+    parser.add_argument("--evaluate", metavar="PLAN.csv", help="score this plan instead of designing one")
+    parser.add_argument("-o", "--output", metavar="PLAN.csv", help="write the optimised plan here")
+    parser.add_argument("--budget-h", type=float, default=5.0, metavar="H",
+                        help="test time from power-on to the end of the last run, hours (default 5)")
+    parser.add_argument("--max-runs", type=int, metavar="N", help="at most N alignments")
+    parser.add_argument("--effects", metavar="a,b", default="", help="catalogue effects to add to 'hse'")
+    parser.add_argument("--criterion", default="c:lambda2", metavar="D|A|E|c:NAME",
+                        help="optimality criterion (default c:lambda2)")
+    parser.add_argument("--rates", default="20:60", metavar="LO:HI",
+                        help="|bias rate| limits, deg/s (default 20:60)")
+    parser.add_argument("--n-rates", type=int, default=5, metavar="N",
+                        help="rate levels between the limits (default 5)")
+    parser.add_argument("--reverse", action="store_true", help="allow both rotation senses")
+    parser.add_argument("--negative", action="store_true", help="turn the negative sense when not --reverse")
+    parser.add_argument("--azimuth-step-deg", type=float, default=15.0, metavar="DEG",
+                        help="candidate stand azimuths every DEG degrees (default 15)")
+    parser.add_argument("--max-tilt-arcsec", type=float, default=0.0, metavar="X",
+                        help="tilt-fixture limit, arcsec (default 0: no fixture)")
+    parser.add_argument("--durations-s", default="600", metavar="T1,T2",
+                        help="allowed alignment durations, s (default 600)")
+    parser.add_argument("--time-slots", type=int, default=1, metavar="N",
+                        help="make time since power-on a factor with N slots (for warmup)")
+    parser.add_argument("--latitude-deg", type=float, default=28.07, help="latitude, deg (default 28.07)")
+    parser.add_argument("--stand-tilt-arcsec", default="-55,-120", metavar="X,Y",
+                        help="tilt of the turntable base on the stand, roll x and pitch y, arcsec "
+                             "(default -55,-120: the default simulated system)")
+    parser.add_argument("--arw-dph-rthz", type=float, default=None, metavar="ARW",
+                        help="gyro angle random walk for the heading noise model (default 0.012)")
+    parser.add_argument("--floor-arcsec", type=float, default=0.0, metavar="S",
+                        help="run-to-run heading scatter beyond the gyro noise, arcsec")
+    parser.add_argument("--warmup-s", type=float, default=3600.0, help="warm-up before the first run, s")
+    parser.add_argument("--azimuth-change-s", type=float, default=600.0, help="time to change the azimuth, s")
+    parser.add_argument("--rate-change-s", type=float, default=60.0, help="time to change rate or sense, s")
+    parser.add_argument("--tilt-change-s", type=float, default=1200.0, help="time to reset the tilt fixture, s")
+    parser.add_argument("--run-overhead-s", type=float, default=0.0,
+                        help="per alignment beyond its duration, s")
+    parser.add_argument("--tilt-unknown", action="store_true",
+                        help="the runs will not carry pitch/roll: tilt-coupled terms as free C23 coefficients")
+    parser.add_argument("--identify", metavar="a,b", default=None,
+                        help="effects (added to 'hse') the plan must also identify")
+    parser.add_argument("--identify-efficiency", type=float, default=0.25, metavar="E",
+                        help="their minimum D-efficiency (default 0.25)")
+    parser.add_argument("--nominal", action="append", default=[], metavar="NAME=VALUE",
+                        help="linearise at this parameter value, display units (repeatable)")
+    parser.add_argument("--prior", metavar="FIT.json", help="an earlier calibration as prior information")
+    parser.add_argument("--order", choices=("trend-robust", "min-setup"), default="trend-robust",
+                        help="run order (default trend-robust)")
+    parser.add_argument("--no-refine", dest="refine", action="store_false",
+                        help="keep rates and azimuths on the candidate grid")
+    parser.add_argument("--seed", type=int, default=0, help="seed of the run-order search (default 0)")
+    parser.add_argument("--json", action="store_true", help="print one JSON object on stdout")
+
+
+def _pair(text, option, n=2, sep=","):
+    parts = text.split(sep)
+    try:
+        values = [float(p) for p in parts]
+    except ValueError:
+        raise ValueError(f"{option} {text!r}: allowed {n} numbers separated by '{sep}'") from None
+    if len(values) != n or not all(np.isfinite(values)):
+        raise ValueError(f"{option} {text!r}: allowed {n} finite numbers separated by '{sep}'")
+    return values
+
+
+def _stand(args):
+    from .. import units
+    from ..design import Stand
+    from ..information import DEFAULT_ARW
+
+    tilt = _pair(args.stand_tilt_arcsec, "--stand-tilt-arcsec")
+    arw = DEFAULT_ARW if args.arw_dph_rthz is None else args.arw_dph_rthz * units.DEG_PER_H
+    return Stand(latitude=args.latitude_deg * units.DEG, tilt=tuple(v * units.ARCSEC for v in tilt), arw=arw,
+                 floor=args.floor_arcsec * units.ARCSEC)
+
+
+def _nominal(items):
+    out = {}
+    for item in items:
+        name, sep, value = item.partition("=")
+        try:
+            out[name.strip()] = float(value)
+        except ValueError:
+            raise ValueError(f"--nominal {item!r}: allowed form NAME=VALUE (display units)") from None
+        if not sep or not name.strip():
+            raise ValueError(f"--nominal {item!r}: allowed form NAME=VALUE (display units)")
+    return out
+
+
+def run(args):
+    from .. import units
+    from ..data import load_plan, save_plan
+    from ..design import Costs, DesignSpace, design, evaluate, plan_lines
+    from ..fit import as_model, load_fit
+    from ..information import UnidentifiableError
+
+    model = as_model(args.effects or None)
+    stand = _stand(args)
+    prior = load_fit(args.prior) if args.prior else None
+    tilt_known = not args.tilt_unknown
+    if args.evaluate:
+        if args.output:
+            raise ValueError("-o with --evaluate: an evaluation writes nothing; allowed: one of them")
+        plan = load_plan(args.evaluate)
+        try:
+            ev = evaluate(plan, model, stand=stand, tilt_known=tilt_known, criterion=args.criterion,
+                          nominal=_nominal(args.nominal), prior=prior)
+        except UnidentifiableError as err:
+            raise UnidentifiableError(f"{args.evaluate}: {err}", err.names, err.direction,
+                                      err.condition) from None
+        if args.json:
+            print_json({**ev.to_dict(), "source": args.evaluate})
+        else:
+            print(f"hse-opt design --evaluate {args.evaluate}: criterion {ev.criterion} = "
+                  f"{ev.criterion_value:.6g}")
+            print("\n".join(ev.summary()))
+            print("\n".join(plan_lines(plan)))
+        return 0
+
+    if not args.output:
+        raise ValueError("-o PLAN.csv is required to design a plan (or use --evaluate PLAN.csv)")
+    lo, hi = _pair(args.rates, "--rates", sep=":")
+    space = DesignSpace(rates=(lo * units.DEG_PER_S, hi * units.DEG_PER_S), n_rates=args.n_rates,
+                        reverse=args.reverse, sense=-1 if args.negative else 1,
+                        azimuth_step=args.azimuth_step_deg * units.DEG,
+                        max_tilt=args.max_tilt_arcsec * units.ARCSEC,
+                        durations=tuple(float(d) for d in args.durations_s.split(",")),
+                        time_slots=args.time_slots)
+    costs = Costs(warmup=args.warmup_s, azimuth_change=args.azimuth_change_s, rate_change=args.rate_change_s,
+                  tilt_change=args.tilt_change_s, run_overhead=args.run_overhead_s)
+    identify = None if args.identify is None else as_model(args.identify)
+    result = design(model, args.criterion, budget=args.budget_h * units.HOUR, space=space, stand=stand,
+                    costs=costs, max_runs=args.max_runs, tilt_known=tilt_known, nominal=_nominal(args.nominal),
+                    prior=prior, identify=identify, identify_efficiency=args.identify_efficiency,
+                    refine=args.refine, order=args.order, rng=np.random.default_rng(args.seed))
+    if os.path.exists(args.output) and args.prior and os.path.samefile(args.output, args.prior):
+        raise ValueError(f"-o {args.output}: is the input file; allowed: another path")
+    save_plan(result.plan, args.output)
+    message(f"hse-opt design: wrote {args.output} ({result.n_runs} runs)")
+    if args.json:
+        print_json({**result.to_dict(), "output": args.output})
+    else:
+        print(f"hse-opt design: {'+'.join(model.effect_names)}, budget {args.budget_h:g} h")
+        print("\n".join(result.summary()))
+        print("\n".join(plan_lines(result.plan)))
+    return 0
