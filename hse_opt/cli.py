@@ -12,8 +12,15 @@ import sys
 COMMANDS = ("demo", "design", "simulate", "fit", "compensate", "diagnose")
 
 
+class _Parser(argparse.ArgumentParser):
+    """Usage errors in one line (naming what is wrong) and exit status 2."""
+
+    def error(self, message):
+        self.exit(2, f"{self.prog}: error: {message} (see '{self.prog} --help')\n")
+
+
 def build_parser():
-    parser = argparse.ArgumentParser(
+    parser = _Parser(
         prog="hse-opt",
         description="Calibration and compensation of the heading-sensitive error of a "
                     "constant-rate biased RLG system.")
@@ -23,16 +30,21 @@ def build_parser():
         p = sub.add_parser(mod.NAME, help=mod.HELP, description=getattr(mod, "DESCRIPTION", mod.HELP),
                            epilog=mod.EXAMPLE, formatter_class=argparse.RawDescriptionHelpFormatter)
         mod.add_arguments(p)
-        p.set_defaults(run=mod.run)
+        p.set_defaults(run=mod.run, subparser=p)
     return parser
 
 
 def main(argv=None):
-    args = build_parser().parse_args(argv)
+    args, extra = build_parser().parse_known_args(argv)
+    if extra:  # reported by the command's own parser, so the message names the command
+        args.subparser.error(f"unrecognized arguments: {' '.join(extra)}")
     try:
         return args.run(args)
-    except ValueError as err:
-        print(f"hse-opt {args.command}: error: {err}", file=sys.stderr)
+    except (ValueError, FileNotFoundError, IsADirectoryError, NotADirectoryError,
+            PermissionError) as err:
+        # bad input: one line naming the file, row, column or parameter and what is allowed
+        text = str(err) if isinstance(err, ValueError) else f"{err.filename}: {err.strerror}"
+        print(f"hse-opt {args.command}: error: {' '.join(text.split())}", file=sys.stderr)
         return 2
     except Exception as err:  # noqa: BLE001 - the command line reports, never tracebacks
         print(f"hse-opt {args.command}: internal error: {type(err).__name__}: {err}", file=sys.stderr)

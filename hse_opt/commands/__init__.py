@@ -17,3 +17,17 @@ def print_json(obj):
 def message(text):
     """A message for the user, on stderr."""
     print(text, file=sys.stderr)
+
+
+def add_report_argument(parser):
+    """The ``--report DIR`` option: an HTML report (``DIR/report.html``) of what the command did."""
+    parser.add_argument("--report", metavar="DIR",
+                        help="also write a self-contained HTML report to DIR/report.html")
+
+
+def write_report(args, sections, title):
+    """Write the report when ``--report DIR`` was given; says where on stderr."""
+    if getattr(args, "report", None):
+        from ..report import write_report as write
+        path = write(args.report, sections, title)
+        message(f"report: {path}")

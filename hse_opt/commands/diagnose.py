@@ -87,21 +87,14 @@ def run(args):
 
 
 def write_report(steps, directory):
-    """The HTML report of the diagnosis steps (``hse_opt.report``); returns an exit status when
-    it cannot be written, else 0. The report's numbers come from ``Diagnosis.plot_data()``."""
-    try:
-        from .. import report
-    except ImportError:
-        report = None
-    section = getattr(report, "diagnosis_section", None)
-    if section is None:
-        message("hse-opt diagnose: --report: the HTML report of a diagnosis is not available in this "
-                "version (hse_opt.report has no diagnosis_section); use --json for the numbers")
-        return 1
+    """The HTML report of the diagnosis steps (:mod:`hse_opt.report`): the first diagnosis,
+    each added effect's before/after, and the last diagnosis; returns the exit status."""
+    from .. import report
     from ..diagnose import compare
-    sections = [section(steps[0])]
+    sections = [report.diagnosis_section(steps[0])]
     if len(steps) > 1:
         sections += [report.comparison_section(compare(a, b)) for a, b in zip(steps, steps[1:])]
+        sections.append(report.diagnosis_section(steps[-1]))
     path = report.write_report(directory, sections, title="hse_opt diagnosis")
     message(f"report: {path}")
     return 0

@@ -3,7 +3,7 @@ import os
 
 import numpy as np
 
-from . import message, print_json
+from . import add_report_argument, message, print_json, write_report
 
 NAME = "fit"
 HELP = "calibrate a model on alignment results (RUNS.csv) by weighted least squares"
@@ -20,7 +20,8 @@ examples:
   hse-opt fit RUNS.csv --effects sync_delay,warmup -o FIT.json
   hse-opt fit paper_table1.csv --fix 'lambda2*tilt_const=0' --json
   hse-opt fit RUNS.csv --bound warmup_tau=60:7200 --robust
-  hse-opt fit NEW_RUNS.csv --prior FIT.json -o FIT2.json      (on-line update)"""
+  hse-opt fit NEW_RUNS.csv --prior FIT.json -o FIT2.json      (on-line update)
+  hse-opt fit RUNS.csv --report fit_report                     (HTML: fit_report/report.html)"""
 
 
 def add_arguments(parser):
@@ -38,6 +39,7 @@ def add_arguments(parser):
                         help="fit tilt-coupled terms as free azimuth sinusoids even if pitch/roll are given")
     parser.add_argument("--json", action="store_true", help="print one JSON object on stdout")
     parser.add_argument("-o", "--output", metavar="FIT.json", help="write the calibration (for compensate)")
+    add_report_argument(parser)
 
 
 def _assignments(items, option):
@@ -137,6 +139,9 @@ def run(args):
     if args.output:
         save_fit(result, args.output)
         message(f"hse-opt fit: wrote {args.output}")
+    if args.report:
+        from ..report import fit_section
+        write_report(args, [fit_section(result, runs)], f"hse-opt fit {args.runs}")
     if args.json:
         print_json({**result.to_dict(), "source": args.runs})
     else:

@@ -1,0 +1,446 @@
+"""The whole method on an embedded default: ``hse-opt demo`` and :func:`run_demo`.
+
+A simulated calibration campaign whose true system holds one physical effect that the
+paper's model lacks; the tools must find it.
+
+The embedded default
+--------------------
+System
+    The simulator's paper-like system (:meth:`hse_opt.sim.TruthConfig.default`: lambda2 =
+    4.2 arcsec, the turntable base tilted by (-55, -120) arcsec, 7.9 arcsec heading noise in
+    10 minutes) with its cold-start warm-up switched off, so that nothing but the hidden
+    effect is missing from the paper's model, and a lab temperature cycle of 1.5 degC over
+    4 h (air conditioning) on top of the IMU's self-heating.
+Plan (:func:`demo_plan`)
+    The paper's alignments (10 minutes at 20, 40 and 60 deg/s, one sense), extended so that
+    the catalogue effects can be told apart: six stand azimuths 60 deg apart, every rate at
+    each, from power-on; the second pass (reverse azimuth order) with the turntable base on
+    a 0.5-deg tilt fixture, which makes the tilt-coupled effects (lambda2, axis bias,
+    scale-factor nonlinearity) visible. 36 runs, one every 700 s.
+Hidden effect (:func:`hidden_effect`)
+    Drawn by the seed from the catalogue effects the simulator can switch on
+    (:data:`hse_opt.sim.truth.EFFECT_KEYS`), with a random sign / phase (and, for the
+    warm-up, a time constant of 10-30 minutes). Its size follows one rule for every effect:
+    over the plan, the part of its heading signature that the paper's model cannot absorb
+    has an RMS of :data:`HIDDEN_SIGMAS` noise sigmas (computed with the symbolic measurement
+    model). Effects that need more than their parameter's physical bounds (``Param.lower``
+    / ``upper``) to reach that size cannot be shown by this plan and are not drawn: the
+    encoder's periodic error, which a triad system averages out (no heading signature).
+
+Steps (:func:`run_demo`): simulate the campaign with the numeric simulator, fit the paper's
+model, diagnose, add the effect the diagnosis names and refit, design an optimised next
+plan and compare its predicted sigmas with the paper's plan.
+"""
+from __future__ import annotations
+
+import dataclasses
+import time
+from dataclasses import dataclass, field
+from functools import lru_cache
+from pathlib import Path
+
+import numpy as np
+
+from . import units
+from .data import Plan, Runs
+from .fit import fit as fit_runs
+from .information import heading_sigma
+from .model.effects import CATALOGUE
+from .model.measurement import Model
+
+__all__ = ["DemoResult", "HiddenEffect", "run_demo", "demo_truth", "demo_plan", "hidden_effect",
+           "showable", "HIDDEN_SIGMAS"]
+
+#: RMS, in noise sigmas, of the hidden effect's heading signature that the paper's model
+#: cannot absorb (over the demo plan)
+HIDDEN_SIGMAS = 2.0
+_FIXTURE_TILT_ARCSEC = 1800.0          # 0.5 deg
+_CADENCE_S = 700.0                      # 10-minute alignment + 100 s to change the setting
+
+
+def demo_plan():
+    """The embedded demo plan (module docstring): 36 ten-minute runs from power-on.
+
+    Returns
+    -------
+    hse_opt.data.Plan
+    """
+    azimuths = np.arange(0.0, 360.0, 60.0)
+    rates = np.array([20.0, 40.0, 60.0])
+    level = [(a, r, 0.0) for a in azimuths for r in rates]
+    tilted = [(a, r, _FIXTURE_TILT_ARCSEC) for a in azimuths[::-1] for r in rates]
+    rows = level + tilted
+    n = len(rows)
+    a, r, ty = (np.array(c) for c in zip(*rows))
+    return Plan.from_columns({
+        "run": np.arange(1, n + 1), "rate_dps": r, "azimuth_deg": a,
+        "t_start_s": _CADENCE_S * np.arange(n), "duration_s": np.full(n, 600.0),
+        "tilt_x_arcsec": np.zeros(n), "tilt_y_arcsec": ty}, source="demo plan")
+
+
+def demo_truth():
+    """The demo's system without a hidden effect (module docstring).
+
+    Returns
+    -------
+    hse_opt.sim.TruthConfig
+    """
+    from .sim import TruthConfig
+    return TruthConfig.default().updated({
+        "mount": {"warmup_xi_z_arcsec": 0.0},
+        "gyro": {"bias_warmup_dph": [0.0, 0.0, 0.0]},
+        "thermal": {"swing_c": 1.5, "swing_period_s": 4 * 3600.0},
+    })
+
+
+# -- the hidden effect -----------------------------------------------------------------------
+def _harmonic(order, c, s):
+    """``c cos(k x) + s sin(k x)`` as the simulator's ``a sin(k x + phi)``."""
+    return {"order": order, "amplitude_arcsec": float(np.hypot(c, s)),
+            "phase_deg": float(np.degrees(np.arctan2(c, s)))}
+
+
+#: catalogue effect -> (model parameter values, display units) -> truth changes (TOML-shaped)
+_TO_TRUTH = {
+    "axis_bias": lambda v: {"gyro": {"axis_bias_dph": v["bias_z"]}},
+    "sync_delay": lambda v: {"encoder": {"sync_delay_us": v["delay"]}},
+    "scale_nonlinearity": lambda v: {"gyro": {"sf_nonlinearity_ppm_per_dps": [v["sf_nonlin"]] * 3}},
+    "warmup": lambda v: {"mount": {"warmup_xi_z_arcsec": v["warmup_amp"],
+                                   "warmup_tau_s": v["warmup_tau"]}},
+    # the model's coefficients are the reading's error (reading - true), the simulator's
+    # harmonic is true - reading
+    "azimuth_harmonic2": lambda v: {"stand": {"azimuth_harmonics": [
+        _harmonic(2, -v["az_c2"], -v["az_s2"])]}},
+    "encoder_harmonic": lambda v: {"encoder": {"harmonics": [
+        _harmonic(k, v[f"enc_c{k}"], v[f"enc_s{k}"]) for k in (1, 2)]}},
+    "covariate:temp_c": lambda v: {"mount": {"xi_z_tempco_arcsec_per_c": v["k_temp_c"]}},
+}
+
+
+@dataclass(frozen=True)
+class HiddenEffect:
+    """The effect put into the truth.
+
+    Attributes
+    ----------
+    name : str
+        Catalogue name.
+    values : dict
+        Model parameter -> value (display unit), the size the rule gives.
+    units : dict
+        Model parameter -> display unit.
+    truth_changes : dict
+        The TOML-shaped changes that put it into the simulator's system.
+    """
+
+    name: str
+    values: dict
+    units: dict
+    truth_changes: dict
+
+    def describe(self):
+        vals = ", ".join(f"{k} = {v:.4g} {self.units[k]}" for k, v in self.values.items())
+        return f"{self.name} ({vals})"
+
+
+def _plan_inputs(mm, plan, truth):
+    """The measurement model's run inputs for the plan on ``truth``'s stand (SI)."""
+    from .sim.truth import temperature
+    pitch = truth.stand.mount_tilt[1] + plan.tilt_y
+    roll = truth.stand.mount_tilt[0] + plan.tilt_x
+    temp = temperature(truth.thermal, plan.t_start + plan.duration / 2)
+    return mm.inputs(plan.rate, plan.azimuth, truth.site.latitude, plan.duration, plan.t_start,
+                     pitch, roll, {"temp_c": temp} if mm.covariates else None)
+
+
+def _sizes(name, plan, truth, direction, fixed):
+    """Scale of ``direction`` (display units, over the effect's linear parameters) that gives
+    the rule's size, and that size in each parameter."""
+    mm = Model(["hse", name]).measurement(tilt_known=True)
+    X = _plan_inputs(mm, plan, truth)
+    J = mm.jacobian(mm.vector(fixed), X) * mm.scale
+    J = J / heading_sigma(plan.duration, truth.site.latitude)[:, None]
+    base = [i for i, q in enumerate(mm.names) if q in ("offset", "lambda2")]
+    lin = [mm.names.index(q) for q in direction]
+    Q, _ = np.linalg.qr(J[:, base])
+    R = J[:, lin] - Q @ (Q.T @ J[:, lin])               # what the paper's model cannot absorb
+    rms = float(np.sqrt(np.mean((R @ np.array(list(direction.values()))) ** 2)))
+    scale = HIDDEN_SIGMAS / rms if rms > 0 else np.inf
+    values = {q: scale * d for q, d in direction.items()}
+    fits = all(mm.params[mm.names.index(q)].lower <= v <= mm.params[mm.names.index(q)].upper
+               for q, v in values.items())
+    return values, fits, {q.name: q.unit for q in mm.params}
+
+
+def _direction(name, rng):
+    """A random direction in the effect's linear parameters, and its nonlinear ones."""
+    eff = CATALOGUE[name]() if name in CATALOGUE else None
+    params = eff.params if eff is not None else Model(["hse", name]).params[2:]
+    nonlinear = set(getattr(eff, "nonlinear", ()))
+    fixed = {q.name: float(rng.uniform(600.0, 1800.0)) for q in params if q.name in nonlinear}
+    linear = [q.name for q in params if q.name not in nonlinear]
+    if len(linear) == 1:
+        return {linear[0]: float(rng.choice([-1.0, 1.0]))}, fixed
+    d = rng.normal(size=len(linear))
+    return dict(zip(linear, d / np.linalg.norm(d))), fixed
+
+
+def showable(plan=None, truth=None):
+    """Catalogue effects the plan can show on ``truth`` at a physical size (module
+    docstring); defaults :func:`demo_plan` and :func:`demo_truth`.
+
+    Returns
+    -------
+    tuple of str
+    """
+    if plan is None and truth is None:
+        return _default_showable()
+    plan = demo_plan() if plan is None else plan
+    truth = demo_truth() if truth is None else truth
+    rng = np.random.default_rng(0)
+    out = []
+    for name in _TO_TRUTH:
+        direction, fixed = _direction(name, rng)
+        if _sizes(name, plan, truth, direction, fixed)[1]:
+            out.append(name)
+    return tuple(out)
+
+
+@lru_cache(maxsize=1)
+def _default_showable():
+    return showable(demo_plan(), demo_truth())
+
+
+def hidden_effect(seed, plan=None, truth=None):
+    """The effect the demo hides for ``seed`` (module docstring): drawn from
+    :func:`showable`, sized by the rule.
+
+    Parameters
+    ----------
+    seed : int
+    plan : hse_opt.data.Plan, optional
+        Default :func:`demo_plan`.
+    truth : hse_opt.sim.TruthConfig, optional
+        Default :func:`demo_truth`.
+
+    Returns
+    -------
+    HiddenEffect
+    """
+    pool = showable(plan, truth)
+    plan = demo_plan() if plan is None else plan
+    truth = demo_truth() if truth is None else truth
+    rng = np.random.default_rng(np.random.SeedSequence([int(seed), 7]))
+    name = pool[int(rng.integers(len(pool)))]
+    direction, fixed = _direction(name, rng)
+    values, _, units_ = _sizes(name, plan, truth, direction, fixed)
+    values = {**values, **fixed}
+    return HiddenEffect(name, values, {k: units_[k] for k in values}, _TO_TRUTH[name](values))
+
+
+# -- the chain -------------------------------------------------------------------------------
+@dataclass(frozen=True)
+class DemoResult:
+    """Everything the demo did, for printing, JSON and the report.
+
+    Attributes
+    ----------
+    seed : int
+    hidden : HiddenEffect
+    truth : hse_opt.sim.TruthConfig
+        The simulated system, hidden effect included.
+    plan : hse_opt.data.Plan
+    runs : hse_opt.data.Runs
+        The simulated campaign.
+    noise_arcsec : float
+        The runs' median own heading sigma (the noise level), arcsec.
+    fit_before, fit_after : hse_opt.fit.FitResult
+        The paper's model; the model with the named effect added.
+    named : str or None
+        The effect the diagnosis named (None when it found the paper's model adequate).
+    diagnosis, diagnosis_after : hse_opt.diagnose.Diagnosis
+        Of the paper's model; of the model with the named effect (None without one).
+    next_plan : NextPlan
+        The optimised next plan and the paper's plan, evaluated for the final model.
+    paper : hse_opt.model.paper.PaperNumbers
+        The paper's own numbers reproduced with the symbolic model.
+    seconds : dict
+        Wall time of each step.
+    """
+
+    seed: int
+    hidden: HiddenEffect
+    truth: object
+    plan: Plan
+    runs: Runs
+    noise_arcsec: float
+    fit_before: object
+    fit_after: object
+    named: str | None
+    diagnosis: object = None
+    diagnosis_after: object = None
+    next_plan: object = None
+    paper: object = None
+    seconds: dict = field(default_factory=dict)
+
+    @property
+    def found(self):
+        """Whether the diagnosis named the hidden effect."""
+        return self.named == self.hidden.name
+
+    def to_dict(self):
+        """The JSON form (``hse-opt demo --json``)."""
+        fb, fa = self.fit_before, self.fit_after
+        out = {
+            "seed": self.seed,
+            "hidden_effect": self.hidden.name,
+            "hidden_values": self.hidden.values,
+            "hidden_units": self.hidden.units,
+            "hidden_sigmas": HIDDEN_SIGMAS,
+            "n_runs": len(self.runs),
+            "noise_arcsec": self.noise_arcsec,
+            "named_effect": self.named,
+            "found": self.found,
+            "before": {"effects": list(fb.model.effect_names), "rms_arcsec": fb.rms_arcsec,
+                       "chi2_red": fb.chi2_red, "bic": fb.bic},
+            "after": None if fa is None else {
+                "effects": list(fa.model.effect_names), "rms_arcsec": fa.rms_arcsec,
+                "chi2_red": fa.chi2_red, "bic": fa.bic,
+                "parameters": fa.to_dict()["parameters"]},
+            "diagnosis": {"verdict": self.diagnosis.verdict,
+                          "candidates": [{k: c[k] for k in ("effect", "p_value", "delta_bic",
+                                                             "rms_after_arcsec")}
+                                         for c in self.diagnosis.to_dict()["candidates"][:3]],
+                          "ambiguous": list(self.diagnosis.ambiguous)},
+            "verdict_after": None if self.diagnosis_after is None else self.diagnosis_after.verdict,
+            "next_plan": None if self.next_plan is None else self.next_plan.to_dict(),
+            "paper": None if self.paper is None else dataclasses.asdict(self.paper),
+            "seconds": self.seconds,
+        }
+        return out
+
+
+def _runs_from_rows(rows, source):
+    cols = {k: [r[k] for r in rows] for k in rows[0]}
+    return Runs.from_columns(cols, source)
+
+
+def run_demo(seed=0, progress=None):
+    """Run the demo chain (module docstring).
+
+    Parameters
+    ----------
+    seed : int
+        Picks the hidden effect and seeds the simulated noise.
+    progress : callable, optional
+        ``progress(step, done, total)`` as the simulation advances (``step`` a short name).
+
+    Returns
+    -------
+    DemoResult
+    """
+    if isinstance(seed, bool) or not isinstance(seed, (int, np.integer)) or seed < 0:
+        raise ValueError(f"seed = {seed!r} is not allowed: an integer >= 0 is required")
+    from .diagnose import diagnose
+    from .sim import run_campaign
+    seconds = {}
+    t0 = time.perf_counter()
+    plan = demo_plan()
+    hidden = hidden_effect(seed)
+    truth = demo_truth().updated(hidden.truth_changes)
+    seconds["setup"] = time.perf_counter() - t0
+
+    t0 = time.perf_counter()
+    cb = None if progress is None else (lambda done, total: progress("simulate", done, total))
+    rows = run_campaign(plan, truth, int(seed), progress=cb)
+    runs = _runs_from_rows(rows, f"demo campaign (seed {seed})")
+    seconds["simulate"] = time.perf_counter() - t0
+
+    t0 = time.perf_counter()
+    before = fit_runs(runs, "hse")
+    seconds["fit"] = time.perf_counter() - t0
+
+    t0 = time.perf_counter()
+    diagnosis = diagnose(runs, before)
+    named = None if diagnosis.best is None else diagnosis.best.effect
+    after_diagnosis = None if named is None else diagnosis.add(named)
+    after = None if after_diagnosis is None else after_diagnosis.fit
+    seconds["diagnose"] = time.perf_counter() - t0
+
+    # SEAM (issue 5, hse_opt.design): design the next plan for the final model within the
+    # paper plan's test time and compare predicted sigmas with the paper's plan.
+    next_plan = None
+
+    from .model.paper import reproduce
+    noise = float(np.median(runs.heading_std) / units.ARCSEC)
+    return DemoResult(seed=int(seed), hidden=hidden, truth=truth, plan=plan, runs=runs,
+                      noise_arcsec=noise, fit_before=before, fit_after=after, named=named,
+                      diagnosis=diagnosis, diagnosis_after=after_diagnosis, next_plan=next_plan,
+                      paper=reproduce(), seconds=seconds)
+
+
+# -- outputs ---------------------------------------------------------------------------------
+#: files :func:`write_outputs` writes into the output directory
+OUTPUT_FILES = ("report.html", "summary.json", "RUNS.csv", "PLAN.csv", "TRUTH.toml")
+
+
+def report_sections(result):
+    """The report of a demo run, as :class:`hse_opt.report.Section` objects."""
+    from . import report
+    r = result
+    sections = [
+        report.plan_section(r.plan, "The simulated campaign",
+                            f"{len(r.plan)} ten-minute alignments of the paper-like system from "
+                            "power-on (module hse_opt.demo). The truth hides "
+                            f"{r.hidden.describe()}, sized so that what the paper's model "
+                            f"cannot absorb has an RMS of {HIDDEN_SIGMAS:g} noise sigmas."),
+        report.fit_section(r.fit_before, r.runs, "The paper's model"),
+    ]
+    from .diagnose import compare
+    sections.append(report.diagnosis_section(r.diagnosis, "Diagnosis of the paper's model"))
+    if r.fit_after is not None:
+        sections += [report.comparison_section(compare(r.diagnosis, r.diagnosis_after),
+                                               title=f"Adding {r.named}: before and after"),
+                     report.fit_section(r.fit_after, r.runs, f"The model with {r.named}")]
+    # SEAM (issue 5): report.design_section(r.design, baseline=paper plan)
+    return sections
+
+
+def summary_text(result):
+    """Short lines for the top of the report."""
+    r = result
+    fb, fa = r.fit_before, r.fit_after
+    lines = [f"Hidden in the truth: {r.hidden.describe()}.",
+             f"The paper's model leaves an RMS of {fb.rms_arcsec:.1f} arcsec against a noise of "
+             f"{r.noise_arcsec:.1f} arcsec (reduced chi-square {fb.chi2_red:.2f})."]
+    if r.named is not None:
+        lines.append(f"The diagnosis names {r.named}"
+                     + (" - the hidden effect." if r.found else f", not the hidden {r.hidden.name}."))
+    if fa is not None:
+        lines.append(f"With it the RMS falls to {fa.rms_arcsec:.1f} arcsec (reduced chi-square "
+                     f"{fa.chi2_red:.2f}); verdict {r.diagnosis_after.verdict}.")
+    return lines
+
+
+def write_outputs(result, directory):
+    """Write the report and the data of a demo run into ``directory`` (created when missing;
+    each file whole or not at all): :data:`OUTPUT_FILES`.
+
+    Returns
+    -------
+    dict
+        The JSON summary (also ``summary.json``), with ``report`` the report's path.
+    """
+    import json
+    from . import report
+    from .data import save_plan, save_runs
+
+    directory = Path(directory)
+    path = report.write_report(directory, report_sections(result),
+                               f"hse-opt demo, seed {result.seed}", summary_text(result))
+    save_runs(result.runs, directory / "RUNS.csv")
+    save_plan(result.plan, directory / "PLAN.csv")
+    report.write_text_atomic(directory / "TRUTH.toml", result.truth.to_toml())
+    data = {**result.to_dict(), "report": str(path)}
+    report.write_text_atomic(directory / "summary.json", json.dumps(data, indent=2, allow_nan=False) + "\n")
+    return data

@@ -1,0 +1,135 @@
+"""``hse-opt demo``: the hidden effect against the simulator, the printed/JSON/report numbers
+against each other, and the report in a real browser."""
+import json
+import re
+
+import numpy as np
+import pytest
+
+from browser import render
+from hse_opt import demo, units
+from hse_opt.cli import main
+from hse_opt.information import heading_sigma
+from hse_opt.model.measurement import Model
+from hse_opt.sim import TruthConfig, simulate_heading_error
+
+SEED = 0
+
+
+@pytest.fixture(scope="module")
+def demo_run(tmp_path_factory):
+    """One demo run through the command line: (JSON printed, output directory)."""
+    import contextlib
+    import io
+    out = tmp_path_factory.mktemp("demo") / "out"
+    buf = io.StringIO()
+    with contextlib.redirect_stdout(buf):
+        status = main(["demo", "--seed", str(SEED), "--out", str(out), "--json", "--no-progress"])
+    assert status == 0
+    return json.loads(buf.getvalue()), out
+
+
+def test_json_is_the_summary_file_and_the_reports_numbers(demo_run):
+    data, out = demo_run
+    assert sorted(p.name for p in out.iterdir()) == sorted(demo.OUTPUT_FILES)
+    assert json.loads((out / "summary.json").read_text()) == data
+    html = (out / "report.html").read_text(encoding="utf-8")
+    # the statistics tables show the JSON's numbers (4 significant digits)
+    rms = [float(v) for v in re.findall(r'<tr data-key="rms_arcsec"><td>[^<]*</td><td>([^<]*)</td>', html)]
+    assert rms[0] == pytest.approx(data["before"]["rms_arcsec"], rel=5e-4)
+    embedded = json.loads(re.search(r'id="hse-opt-data">(.*?)</script>', html, re.S).group(1))
+    fit = embedded["The paper's model"]["fit"]
+    assert fit["rms_arcsec"] == pytest.approx(data["before"]["rms_arcsec"], rel=1e-12)
+    assert fit["n_runs"] == data["n_runs"] == len(demo.demo_plan())
+
+
+def test_the_campaign_shows_the_hidden_effect(demo_run):
+    data, _ = demo_run
+    hidden = demo.hidden_effect(SEED)
+    assert data["hidden_effect"] == hidden.name
+    # the noise is the simulator's 10-minute heading scatter, and the paper's model misfits
+    assert data["noise_arcsec"] == pytest.approx(heading_sigma(600.0, 28.07 * units.DEG) / units.ARCSEC,
+                                                 rel=0.05)
+    # 2 sigma RMS hidden on top of the noise: sqrt(1 + 2^2) noise sigmas, within the scatter
+    expect = np.sqrt(1 + demo.HIDDEN_SIGMAS ** 2) * data["noise_arcsec"]
+    assert 0.75 * expect < data["before"]["rms_arcsec"] < 1.25 * expect
+    assert data["before"]["chi2_red"] > 2.5
+
+
+def test_the_diagnosis_names_the_hidden_effect_and_the_error_falls(demo_run):
+    data, _ = demo_run
+    assert data["diagnosis"]["verdict"] == "missing-effect"
+    assert data["named_effect"] == data["hidden_effect"] and data["found"]
+    after = data["after"]
+    assert after["effects"] == ["hse", data["hidden_effect"]]
+    # down to the noise: within 20 % of the simulator's scatter, and an adequate verdict
+    assert after["rms_arcsec"] < 1.2 * data["noise_arcsec"]
+    assert data["verdict_after"] == "adequate"
+    # the hidden parameters are recovered within 3 of their standard errors
+    for name, value in data["hidden_values"].items():
+        p = after["parameters"][name]
+        assert abs(p["value"] - value) < 3 * p["std"], name
+
+
+def test_demo_reproduces_the_papers_numbers(demo_run):
+    paper = demo_run[0]["paper"]
+    assert abs(paper["k_hse_model_arcsec_per_radps"] - 17.4) < 0.01
+    assert 25 < paper["example_amplitude_model"] < 35
+
+
+def test_demo_report_renders_in_chromium(demo_run, tmp_path):
+    _, out = demo_run
+    probe, pixels = render(out / "report.html", tmp_path)
+    assert probe["images"] == (out / "report.html").read_text().count('<img class="plot"') >= 9
+    assert probe["decoded"] == probe["images"]
+    assert pixels.std() > 10
+
+
+def test_hidden_effects_put_into_the_simulator_match_the_model():
+    """The truth changes of every drawable effect make the simulator's heading errors what
+    the symbolic model predicts with the hidden parameter values (noise-free, 7 plan runs,
+    differences between runs since the offsets differ)."""
+    plan = demo.demo_plan()
+    idx = np.array([0, 1, 4, 8, 19, 25, 33])
+    sub = plan.subset(idx)
+    base = TruthConfig.ideal().updated({"thermal": {"swing_c": 1.5, "swing_period_s": 14400.0}})
+    seen = {}
+    for seed in range(200):
+        h = demo.hidden_effect(seed)
+        seen.setdefault(h.name, h)
+        if len(seen) == len(demo.showable()):
+            break
+    assert set(seen) == set(demo.showable())
+    for name, h in seen.items():
+        truth = base.updated(h.truth_changes)
+        sim = np.array([simulate_heading_error(truth, sub.rate[i], sub.azimuth[i], duration=600.0,
+                                               t_start=sub.t_start[i], tilt=(sub.tilt_x[i], sub.tilt_y[i]))
+                        for i in range(len(sub))])
+        mm = Model(["hse", name]).measurement(tilt_known=True)
+        pred = mm.predict(mm.vector(h.values), demo._plan_inputs(mm, sub, truth))
+        d_sim, d_mod = (sim - sim.mean()) / units.ARCSEC, (pred - pred.mean()) / units.ARCSEC
+        assert np.ptp(d_sim) > 10, name                     # the effect is there, a few sigmas
+        assert np.max(np.abs(d_sim - d_mod)) < 0.03 * np.ptp(d_sim) + 0.1, name
+
+
+def test_every_drawable_effect_is_drawn_and_the_rest_have_no_signature():
+    names = [demo.hidden_effect(s).name for s in range(60)]
+    assert set(names) == set(demo.showable())
+    not_drawn = set(demo._TO_TRUTH) - set(demo.showable())
+    assert not_drawn == {"encoder_harmonic"}
+    # a triad system averages the encoder's periodic error out: no heading signature at all
+    mm = Model(["hse", "encoder_harmonic"]).measurement(tilt_known=True)
+    plan = demo.demo_plan()
+    J = mm.jacobian(mm.nominal, demo._plan_inputs(mm, plan, demo.demo_truth()))
+    enc = J[:, 2:] * mm.scale[2:]
+    assert np.max(np.abs(enc)) < 1e-6 * units.ARCSEC      # per arcsec of encoder error
+
+
+@pytest.mark.parametrize("args, match", [
+    (["--seed", "-1"], "--seed -1 is not allowed"),
+    (["--out", __file__], "is a file"),
+])
+def test_bad_arguments_exit_2_with_one_line(args, match, capsys):
+    assert main(["demo", *args, "--no-progress"]) == 2
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1 and re.search(match, err)
