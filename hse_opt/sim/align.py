@@ -83,7 +83,8 @@ class AlignConfig:
     vrw : float
         Accelerometer white noise assumed by the filter, m/s/sqrt(s).
     gyro_pulse, accel_pulse : float
-        Quanta, rad and m/s (the velocity quantum sets the measurement noise).
+        Quanta, rad and m/s: the RLG pulse adds its quantization random walk to the process
+        noise (:func:`quantization_arw`), the velocity pulse sets the measurement noise.
     filter_rate : float
         Approximate filter rate, Hz (1 Hz default).
     smoothing_revolutions : int
