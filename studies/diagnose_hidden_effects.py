@@ -47,11 +47,12 @@ HIDDEN = {
 def simulate(truth, seed=SEED, sessions=4, per_session=16):
     """The diagnostic plan on the simulator, each day at its own lab temperature."""
     plan = diagnostic_plan(sessions=sessions, runs_per_session=per_session)
-    rows = []
+    days = []
     for s in range(sessions):
         day = plan.subset(np.arange(s * per_session, (s + 1) * per_session))
-        rows += run_campaign(day, truth.updated({"thermal": {"ambient_c": AMBIENT_C[s % 4]}}), seed)
-    return Runs.from_columns({k: [r[k] for r in rows] for k in rows[0]}, source="simulator")
+        days.append(run_campaign(day, truth.updated({"thermal": {"ambient_c": AMBIENT_C[s % 4]}}),
+                                 seed).to_columns())
+    return Runs.from_columns({k: np.concatenate([d[k] for d in days]) for k in days[0]}, source="simulator")
 
 
 def main():

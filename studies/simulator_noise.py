@@ -8,7 +8,10 @@ The default (paper-like) system, noise and quantization on, 200 ten-minute align
 * the Monte-Carlo scatter of the simulated alignments (raw 500 Hz data through the
   processor), with its standard error ``s / sqrt(2 (n - 1))`` (5 % for 200 runs);
 * the filter's own 1-sigma (its covariance, from the noise it is tuned with);
-* the gyrocompass limit ``N / (w_ie cos L sqrt(T))`` of the angle random walk N;
+* the gyrocompass limit ``N / (w_ie cos L sqrt(T))`` of the angle random walk N, the
+  gyros' own and the pulse quantization's, ``q |Omega| sqrt(dt / 12)`` (the counters' bounded
+  remainder, dithered by the table jitter, turned into b0 sample by sample), added in
+  quadrature;
 * the paper's repeat scatter: Table 1, pooled within positions 2-4 (position 1 is the
   cold start, with the warm-up drift in it).
 
@@ -42,7 +45,10 @@ err = runs.heading_err / units.ARCSEC
 filt = runs.heading_std / units.ARCSEC
 scatter = err.std(ddof=1)
 se = scatter / math.sqrt(2 * (len(err) - 1))
-arw = truth.gyro.arw / (EARTH_RATE * math.cos(truth.site.latitude) * math.sqrt(T)) / units.ARCSEC
+rate = 40.0 * units.DEG_PER_S
+n_quant = truth.gyro.pulse * rate * math.sqrt(truth.timing.sample_period / 12.0)
+n_total = math.hypot(truth.gyro.arw, n_quant)
+arw = n_total / (EARTH_RATE * math.cos(truth.site.latitude) * math.sqrt(T)) / units.ARCSEC
 
 table = paper_table1()
 pos = table.covariates["position"]
@@ -54,7 +60,8 @@ print(f"{len(err)} simulated 10-minute alignments at 40 deg/s (default system), 
       f"{elapsed:.1f} s with --jobs {args.jobs}")
 print(f"  Monte-Carlo heading scatter   {scatter:6.2f} arcsec (+- {se:.2f}, 1 s.e.)")
 print(f"  filter's own 1-sigma (mean)   {filt.mean():6.2f} arcsec")
-print(f"  ARW prediction N/(w cosL vT)  {arw:6.2f} arcsec   (N = {truth.gyro.arw / units.DEG_PER_H:.4f} deg/h/rtHz)")
+print(f"  ARW prediction N/(w cosL vT)  {arw:6.2f} arcsec   (N = {truth.gyro.arw / units.DEG_PER_H:.4f} gyro (+) "
+      f"{n_quant / units.DEG_PER_H:.4f} pulses = {n_total / units.DEG_PER_H:.4f} deg/h/rtHz)")
 print(f"  paper Table 1 repeat scatter  {paper:6.2f} arcsec   (positions 2-4 pooled, 6 dof)")
 print(f"  mean heading error            {err.mean():6.2f} arcsec (the default system's HSE + offsets)")
 print(f"  ratios: scatter/filter {scatter / filt.mean():.3f}, scatter/ARW {scatter / arw:.3f}, "

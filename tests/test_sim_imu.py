@@ -207,3 +207,47 @@ def test_fast_normal_is_standard_normal():
     assert abs(stats.kurtosis(z)) < 5 * math.sqrt(24 / z.size)
     for lag in (1, 2, (z.size + 1) // 2):       # including the Box-Muller pair offset
         assert abs(np.corrcoef(z[lag:], z[:-lag])[0, 1]) < 5 / math.sqrt(z.size)
+
+
+def test_table_jitter_is_seen_by_gyros_and_encoder_alike():
+    """A system whose only imperfection is the table's servo jitter (here 5 arcsec) aligns
+    exactly: the gyros and the encoder see the same jittered angle."""
+    from hse_opt.sim.campaign import default_align_config
+    from hse_opt.sim.align import align
+    t = TruthConfig.ideal().updated({"table": {"jitter_arcsec": 5.0}})
+    run = RunSpec(rate=-0.7, azimuth=1.0, duration=120.0, tilt=(300 * ARCSEC, -200 * ARCSEC))
+    log = generate(t, run, np.random.default_rng(1))
+    enc_dev = log.encoder - log.encoder[0] - (-0.7) * (log.t - log.t[0])
+    assert 3 * ARCSEC < enc_dev.std() < 7 * ARCSEC      # the encoder sees the jitter
+    res = align(log, default_align_config(t))
+    assert abs(res.heading - 1.0) < 0.02 * ARCSEC
+
+
+@pytest.mark.parametrize("rate_dps", [-40.0, 40.0])
+def test_pulse_quantization_locks_without_jitter_and_is_white_with_it(rate_dps):
+    """RLG pulses of 0.5 arcsec, nothing else random. Without table jitter the counters'
+    remainders follow the table angle: at -40 deg/s (gyro 3 counts 332.2497 pulses per
+    sample, next to a quarter) the heading error is a bias of tens of arcsec. With the
+    default 0.5 arcsec jitter the remainders are dithered and the error is white: its scatter
+    over seeds is the random walk q |Omega| sqrt(dt/12) of hse_opt.sim.align.quantization_arw
+    through the gyrocompass, N / (w_ie cos L sqrt(T)) (formula written out here)."""
+    from hse_opt.sim.campaign import default_align_config, simulate_alignment
+    base = TruthConfig.default().updated({"mount": {"warmup_xi_z_arcsec": 0.0},
+                                          "gyro": {"bias_warmup_dph": [0.0, 0.0, 0.0]}})
+    pulses = base.updated({"gyro": {"arw_dph_rthz": 0.0}, "accel": {"vrw_ug_rthz": 0.0, "pulse_mps": 0.0},
+                           "encoder": {"resolution_arcsec": 0.0}})
+    cfg = default_align_config(base)
+    T, rate = 300.0, rate_dps * math.pi / 180
+    run = RunSpec(rate=rate, azimuth=0.0, duration=T, t_start=1500.0, alpha0=0.4)
+    ref = simulate_alignment(base.noise_free(), run, None, cfg)[0].heading
+    errs = {}
+    for jitter in (0.0, 0.5):
+        t = pulses.updated({"table": {"jitter_arcsec": jitter}})
+        errs[jitter] = np.array([simulate_alignment(t, run, np.random.default_rng(s), cfg)[0].heading - ref
+                                 for s in range(24)]) / ARCSEC
+    q, dt, lat = 0.5 * ARCSEC, 0.002, base.site.latitude
+    white = q * abs(rate) * math.sqrt(dt / 12) / (7.292115e-5 * math.cos(lat) * math.sqrt(T)) / ARCSEC
+    rms = np.sqrt(np.mean(errs[0.5] ** 2))
+    assert 0.7 * white < rms < 1.4 * white                  # 24 seeds: 15 % standard error
+    if rate_dps < 0:
+        assert np.sqrt(np.mean(errs[0.0] ** 2)) > 3 * white  # locked: a bias, not noise

@@ -27,6 +27,9 @@ Steps
    in its error model, so both match). b0 is static, so the heading of the navigation
    solution is held (the vertical b0 rate carries no heading information on a static base;
    it reaches heading only through the tilt, which the filter sees in the east rate).
+   Process noise: the gyros' angle random walk and the pulse quantization noise
+   (:func:`quantization_arw`) on the horizontal attitude, the accelerometers' white noise
+   on the velocity.
    States (9): attitude error phi = (N, E, D) of the navigation solution, horizontal
    velocity error, the horizontal gyro and accelerometer biases of the table top seen in b0
    (they rotate at the table rate: ``d/dt x = Omega [[0, -1], [1, 0]] x``). The model is
@@ -52,7 +55,7 @@ from hse_opt.frames import dcm_to_zyx, earth_rate_n, skew
 from hse_opt.sim._fastmath import PhaseTable, cos_sin
 from hse_opt.sim.rawlog import RawLog
 
-__all__ = ["AlignConfig", "AlignResult", "AlignHistory", "align", "triad"]
+__all__ = ["AlignConfig", "AlignResult", "AlignHistory", "align", "triad", "quantization_arw"]
 
 _CHUNK_TARGET = 16384
 
@@ -80,7 +83,8 @@ class AlignConfig:
     vrw : float
         Accelerometer white noise assumed by the filter, m/s/sqrt(s).
     gyro_pulse, accel_pulse : float
-        Quanta, rad and m/s (the velocity quantum sets the measurement noise).
+        Quanta, rad and m/s: the RLG pulse adds its quantization random walk to the process
+        noise (:func:`quantization_arw`), the velocity pulse sets the measurement noise.
     filter_rate : float
         Approximate filter rate, Hz (1 Hz default).
     smoothing_revolutions : int
@@ -97,7 +101,7 @@ class AlignConfig:
     C_s_b_cal: tuple = _mat(np.eye(3))
     A_acc_cal: tuple = _mat(np.eye(3))
     latitude: float | None = None
-    arw: float = 0.0120 * units.DEG_PER_H
+    arw: float = 0.0111 * units.DEG_PER_H
     vrw: float = 1.0 * units.MICRO_G
     gyro_pulse: float = 0.5 * units.ARCSEC
     accel_pulse: float = 1e-4
@@ -318,8 +322,26 @@ def _expm(A):
     return E
 
 
-def _filter_matrices(C0, w_n, g, rate, T, config):
-    """Transition Phi, process noise Qd (Van Loan) for one block of length T (s)."""
+def quantization_arw(pulse, rate, dt):
+    """Angle random walk (rad/sqrt(s)) that RLG pulse quantization adds to each horizontal
+    axis in b0: ``q |Omega| sqrt(dt / 12)``.
+
+    The pulse counter carries its remainder, so its error in the cumulative angle is bounded
+    (uniform over one pulse ``q``, independent from sample to sample once the table's
+    jitter dithers it). The processor turns each increment into b0 with the table angle;
+    summed by parts, the bounded error meets the turn ``Omega dt`` of every sample, which
+    leaves a white angle error of ``q / sqrt(12) Omega dt`` per sample in the horizontal
+    axes: a random walk that grows with the table rate (0.0045 deg/h/sqrt(Hz) for 0.5 arcsec
+    pulses at 40 deg/s). Undithered, the remainder can lock to the table angle at rates
+    where a gyro's pulses per sample are close to a simple fraction, and the error becomes a
+    bias of tens of arcseconds in heading (``tests/test_sim_imu.py``).
+    """
+    return pulse * abs(rate) * math.sqrt(dt / 12.0)
+
+
+def _filter_matrices(C0, w_n, g, rate, T, dt, config):
+    """Transition Phi, process noise Qd (Van Loan) for one block of length T (s); ``dt`` is
+    the sample period (s), for the pulse quantization noise."""
     F = np.zeros((9, 9))
     # attitude error (N, E; D held): phi_dot = -[w x] phi - C0[:, :2] x_g
     Wx = skew(w_n)
@@ -333,7 +355,7 @@ def _filter_matrices(C0, w_n, g, rate, T, config):
     F[5:7, 5:7] = J
     F[7:9, 7:9] = J
     Qc = np.zeros((9, 9))
-    Qc[0, 0] = Qc[1, 1] = config.arw ** 2
+    Qc[0, 0] = Qc[1, 1] = config.arw ** 2 + quantization_arw(config.gyro_pulse, rate, dt) ** 2
     Qc[3, 3] = Qc[4, 4] = config.vrw ** 2
     M = np.zeros((18, 18))
     M[:9, :9] = -F
@@ -434,7 +456,7 @@ def align(log, config=None):
     dve = fn[1] - g * T * 0.5 * (pn0 + psi_n)
     vel = np.vstack([np.cumsum(dvn), np.cumsum(dve)])
 
-    Phi, Qd = _filter_matrices(C0, w_n, g, blk["rate"], T, config)
+    Phi, Qd = _filter_matrices(C0, w_n, g, blk["rate"], T, blk["dt"], config)
     Rv = config.accel_pulse ** 2 / 12.0 + config.velocity_floor ** 2
     P = np.diag([config.sigma0_tilt ** 2, config.sigma0_tilt ** 2, config.sigma0_heading ** 2,
                  config.velocity_floor ** 2, config.velocity_floor ** 2,

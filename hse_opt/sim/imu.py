@@ -6,8 +6,9 @@ Physics (``PHYSICS.md``; frames n NED, b0 turntable base, b table top, s IMU, g 
   tilted by ``tau_n = (tau_N, tau_E, 0)`` (fixed in n), the true stand azimuth ``A`` (reading
   plus its offset and periodic error), the base tilt ``(gamma, theta)`` = stand mount tilt +
   the run's deliberate tilt (fixed in b0).
-* Table angle ``alpha(t) = alpha0 + W t + W r / (h |W|) (sin(h |W| t + phi) - sin(phi))``
-  with ``W = Omega (1 + rate_error)`` (ripple ``r`` at ``h`` cycles per revolution);
+* Table angle ``alpha(t) = alpha0 + W t + W r / (h |W|) (sin(h |W| t + phi) - sin(phi))
+  + j(t)`` with ``W = Omega (1 + rate_error)`` (ripple ``r`` at ``h`` cycles per revolution)
+  and the servo jitter ``j``, white at the samples and linear between them;
   ``C_b^b0 = rot_z(alpha)``.
 * Body rate and specific force in b: ``w_ib^b = rot_z(-alpha) w^b0 + alpha_dot e_z`` with
   ``w^b0 = C_n^b0 w_ie^n``; ``f^b = rot_z(-alpha) f^b0``, ``f^b0 = C_n^b0 (0, 0, -g)``.
@@ -242,6 +243,7 @@ def generate(truth, run, rng=None):
     ptab = PhaseTable(W * dt, size)
     rtab = PhaseTable(nu * dt, size) if tb.ripple else None
     kidx = np.arange(size, dtype=float)
+    jit_last = float(normal_f32(rng, (1,), tb.jitter)[0]) if tb.jitter else 0.0
     buf = np.empty(3 * (size - 1))                    # signal rows, (3, m) views of it
     vbuf = np.empty((3 + len(extra)) * (size - 1))    # basis rows, (k, m) views of it
     for i0 in range(0, n, CHUNK):
@@ -251,11 +253,17 @@ def generate(truth, run, rng=None):
         t_on = t_first + ktab[:m + 1]                 # boundaries, time since power-on
         t_out[i0:i1] = t_on[1:]
         expo = {name: tab[:m + 1] * math.exp(-t_first / taus[name]) for name, tab in tables.items()}
-        # table angle at the boundaries: alpha = phi0 + W dt k + d_alpha (ripple)
+        # table angle at the boundaries: alpha = phi0 + W dt k + d_alpha (ripple, jitter)
         phi0 = alpha0 + W * dt * i0
         d_alpha = None
         if tb.ripple:
             d_alpha = _ripple(tb, run.rate, rtab.sin(nu * dt * i0 + tb.ripple_phase, m + 1))
+        if tb.jitter:
+            jit = np.empty(m + 1)
+            jit[0] = jit_last                         # the boundary shared with the last chunk
+            jit[1:] = normal_f32(rng, (m,), tb.jitter)
+            jit_last = jit[-1]
+            d_alpha = jit if d_alpha is None else d_alpha + jit
         temp = None
         if need_temp:
             temp = thermal.ambient_c + thermal.rise_c * (1.0 - expo["temp"])
@@ -319,9 +327,11 @@ def generate(truth, run, rng=None):
         acc_s.finish(out, rng, accel[:, i0:i1])
 
         am = encoder[i0:i1]
-        if enc.sync_delay:
+        if enc.sync_delay:      # (the jitter of the sample, white: it changes little in dt_sync)
             am[:] = table_angle(tb, run.rate, alpha0,
                                 dt * np.arange(i0 + 1, i1 + 1, dtype=float) - enc.sync_delay)
+            if tb.jitter:
+                am += jit[1:]
         else:
             np.multiply(kidx[1:m + 1], W * dt, out=am)
             am += phi0

@@ -15,7 +15,10 @@ may give any subset of keys, the rest keep their default values)
 ``[table]`` (single-axis bias turntable; the signed rate itself is a run parameter, PLAN.csv)
     ``rate_error_ppm`` (true rate = commanded rate * (1 + error)), ``ripple_ppm`` (relative
     amplitude of a periodic rate ripple), ``ripple_order`` (its frequency in cycles per
-    revolution), ``ripple_phase_deg``.
+    revolution), ``ripple_phase_deg``, ``jitter_arcsec`` (1-sigma of the table angle about
+    the commanded turn, independent from sample to sample: the servo's position noise; the
+    gyros and the encoder see the same angle, so it reaches the heading only through the
+    quantizers, which it dithers).
 ``[encoder]``
     ``resolution_arcsec`` (0 = no quantization), ``sync_delay_us`` (the encoder angle is
     latched ``sync_delay_us`` *after* the gyro sample it is used with, i.e. it is late:
@@ -68,7 +71,8 @@ Chosen to resemble the paper's prototype and Table 1 (``paper_table1.csv``):
 
 * latitude 28.07 deg (0.49 rad, the paper's worked example), 2 ms sampling, encoder
   resolution 0.18 arcsec, table rate ripple 100 ppm once per revolution (the paper's rate
-  stability 1e-4).
+  stability 1e-4), table-angle jitter 0.5 arcsec (a servo holding the table to a few
+  encoder counts; it also dithers the pulse counters, see below).
 * HSE: eps = (1.6, 1.2, 1.4) arcsec, lambda2 = 4.2 arcsec (the paper's calibrated value; the
   paper does not give the split). The base of the turntable is tilted on the stand top by
   roll -55 arcsec, pitch -120 arcsec (fixed in b0): with Eq. 14 at 40 deg/s this gives the
@@ -83,11 +87,16 @@ Chosen to resemble the paper's prototype and Table 1 (``paper_table1.csv``):
   heading scatter is ``sigma = N / (w_ie cos L sqrt(T))``, N the angle random walk, which
   gives N = 0.0124 deg/h/sqrt(Hz) for 7.90 arcsec. The accelerometer noise adds to it
   (it limits how well the filter sees the tilt drift: 10 ug/sqrt(Hz) would add 50 %), so
-  the default accelerometer is quiet, 1 ug/sqrt(Hz), with 1e-4 m/s velocity pulses and
-  0.5 arcsec RLG pulses; with those the processor's Kalman filter gives a 1-sigma of 7.90
-  arcsec for ``arw_dph_rthz = 0.0120`` (2.0e-4 deg/sqrt(h)), and a 200-seed Monte-Carlo
-  scatter of 7.5 arcsec at 40 deg/s (``tests/test_sim_noise.py``). That is a very quiet
-  gyro: the paper's repeat scatter is small.
+  the default accelerometer is quiet, 1 ug/sqrt(Hz), with 1e-4 m/s velocity pulses.
+  The 0.5 arcsec RLG pulses add a random walk of their own, ``q |Omega| sqrt(dt / 12)``
+  (0.0045 deg/h/sqrt(Hz) at 40 deg/s; :func:`hse_opt.sim.align.quantization_arw`), once the
+  table jitter dithers the counters (without it, at rates where a gyro's pulses per sample
+  sit close to a simple fraction, -40 deg/s here, the counter's remainder locks to the
+  table angle and biases the heading by tens of arcseconds). With those the processor's
+  Kalman filter gives a 1-sigma of 7.88 arcsec for ``arw_dph_rthz = 0.0111``
+  (1.85e-4 deg/sqrt(h)) at 40 deg/s, and 200 seeds scatter by the same
+  (``studies/simulator_noise.py``). That is a very quiet gyro: the paper's repeat scatter
+  is small.
 * Realistic residuals that do not reach heading at first order: gyro biases of a few
   1e-3 deg/h, non-orthogonal true K_g (tens of arcsec; it cancels), r_zb^s 1e-3 away from
   ideal and calibrated to about 2 arcsec, xi = (3, -2, 0) arcsec, accelerometer biases of
@@ -201,6 +210,9 @@ class TableConfig:
     ripple_order: int = _p("ripple_order", "1", 1, lo=1, hi=1000, integer=True,
                            doc="ripple frequency, cycles per revolution")
     ripple_phase: float = _p("ripple_phase_deg", "deg", 0.0, doc="ripple phase")
+    jitter: float = _p("jitter_arcsec", "arcsec", 0.5, lo=0.0, hi=60.0,
+                       doc="table-angle jitter about the commanded turn (servo position noise), "
+                           "white at the sample rate")
 
 
 @dataclass(frozen=True)
@@ -238,7 +250,7 @@ class GyroConfig:
                          doc="scale-factor error")
     sf_nonlinearity: tuple = _p("sf_nonlinearity_ppm_per_dps", "ppm/(deg/s)", (0.0, 0.0, 0.0),
                                 n=3, lo=-1e3, hi=1e3, doc="scale-factor error per deg/s of input")
-    arw: float = _p("arw_dph_rthz", "deg/h/rtHz", 0.0120, lo=0.0, hi=100.0,
+    arw: float = _p("arw_dph_rthz", "deg/h/rtHz", 0.0111, lo=0.0, hi=100.0,
                     doc="angle random walk")
     pulse: float = _p("pulse_arcsec", "arcsec", 0.5, lo=0.0, hi=100.0,
                       doc="RLG pulse quantum (0: no quantization)")
@@ -486,7 +498,7 @@ class TruthConfig:
         d = cls().to_dict(decimals=True)
         zero3 = [0.0, 0.0, 0.0]
         ideal_r = [float(v) for v in R_ZB_S_IDEAL]
-        d["table"].update(rate_error_ppm=0.0, ripple_ppm=0.0)
+        d["table"].update(rate_error_ppm=0.0, ripple_ppm=0.0, jitter_arcsec=0.0)
         d["encoder"].update(resolution_arcsec=0.0, sync_delay_us=0.0, harmonics=[])
         d["gyro"].update(axes_nonorth_arcsec=[25.0, -40.0, 30.0], eps_arcsec=zero3, bias_dph=zero3,
                          axis_bias_dph=0.0, bias_warmup_dph=zero3, bias_tempco_dph_per_c=zero3,
@@ -505,13 +517,13 @@ class TruthConfig:
         RLG and velocity pulses, encoder resolution); deterministic errors kept."""
         return self.updated({"gyro": {"arw_dph_rthz": 0.0, "pulse_arcsec": 0.0},
                              "accel": {"vrw_ug_rthz": 0.0, "pulse_mps": 0.0},
-                             "encoder": {"resolution_arcsec": 0.0}})
+                             "encoder": {"resolution_arcsec": 0.0}, "table": {"jitter_arcsec": 0.0}})
 
     @property
     def is_noise_free(self):
         """True when no random draw is needed to simulate a run (except the start angle)."""
         return (self.gyro.arw == 0 and self.accel.vrw == 0 and self.gyro.pulse == 0
-                and self.accel.pulse == 0)
+                and self.accel.pulse == 0 and self.table.jitter == 0)
 
     @classmethod
     def from_dict(cls, d, base=None):
