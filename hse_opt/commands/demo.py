@@ -48,6 +48,7 @@ def _progress_bar(enabled):
 
 def summary_lines(result, out_dir):
     """The printed summary (a list of lines)."""
+    from ..demo import next_plan_text
     r = result
     fb, fa = r.fit_before, r.fit_after
     plan = r.plan
@@ -81,8 +82,7 @@ def summary_lines(result, out_dir):
                 v, s = fa.value(name)
                 lines.append(f"            {name} = {v:.4g} +- {s:.2g} {r.hidden.units[name]} "
                              f"(hidden: {r.hidden.values[name]:.4g})")
-    if r.next_plan is None:
-        lines.append("  design    (not available yet: hse_opt.design has not landed)")
+    lines.append("  design    " + next_plan_text(r.next_plan))
     lines.append(f"  report    {Path(out_dir) / 'report.html'}")
     return lines
 
@@ -107,4 +107,8 @@ def run(args):
         print_json(data)
     else:
         print("\n".join(summary_lines(result, out)))
+    if result.next_plan.design is None:
+        message("hse-opt demo: error: the design step failed (see the summary); the other "
+                f"results are in {out}")
+        return 1
     return 0
