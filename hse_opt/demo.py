@@ -249,6 +249,9 @@ class NextPlan:
         ``c:lambda2`` (the paper's goal) within the paper plan's test time, rates 20-60 deg/s
         in one sense (the paper's), the campaign's 0.5-deg tilt fixture allowed; None when
         the design failed (``notes`` gives the solver's status).
+    level : hse_opt.design.DesignResult or None
+        The same under the paper's own limits (no tilt fixture): how much of the gain the
+        design makes without new hardware.
     baseline : hse_opt.design.Evaluation or None
         The paper's plan (:func:`hse_opt.design.paper_plan`) for the same model; None when
         it cannot identify the model (``notes`` says why).
@@ -256,32 +259,55 @@ class NextPlan:
     """
 
     design: object
+    level: object
     baseline: object
     notes: tuple = ()
 
-    @property
-    def gain(self):
-        """sigma(lambda2) of the paper's plan over the optimised plan's (None without a
-        baseline or a design)."""
-        if self.baseline is None or self.design is None:
+    def gain(self, which="design"):
+        """sigma(lambda2) of the paper's plan over that of ``design`` or ``level`` (None when
+        either is missing)."""
+        d = getattr(self, which)
+        if self.baseline is None or d is None:
             return None
-        return self.baseline.std_of("lambda2") / self.design.std_of("lambda2")
+        return self.baseline.std_of("lambda2") / d.std_of("lambda2")
 
     def to_dict(self):
+        def one(d, which):
+            if d is None:
+                return None
+            return {"n_runs": d.n_runs, "total_time_h": d.total_time / units.HOUR,
+                    "efficiency": float(d.efficiency), "sigma_lambda2_arcsec": d.std_of("lambda2"),
+                    "gain": self.gain(which)}
         d = self.design
-        if d is None:
-            return {"failed": True, "notes": list(self.notes)}
-        return {"failed": False, "effects": list(d.evaluation.effects), "criterion": d.criterion,
-                "n_runs": d.n_runs, "total_time_h": d.total_time / units.HOUR,
-                "efficiency": float(d.efficiency),
-                "sigma_lambda2_arcsec": d.std_of("lambda2"),
+        return {"failed": d is None, "criterion": None if d is None else d.criterion,
+                "effects": None if d is None else list(d.evaluation.effects),
+                "tilt_fixture": one(d, "design"), "paper_limits": one(self.level, "level"),
                 "paper_sigma_lambda2_arcsec": (None if self.baseline is None
                                                else self.baseline.std_of("lambda2")),
-                "gain": self.gain, "notes": list(self.notes)}
+                "notes": list(self.notes)}
+
+
+def _design(model, kw, notes, label):
+    """``design(model, 'c:lambda2', **kw)``; an IPOPT refinement failure falls back to the
+    rounded design, any other failure returns None; both are noted."""
+    from .design import DesignError, design
+    failures = (DesignError, np.linalg.LinAlgError)   # the latter: a solver's factorisation
+    try:
+        return design(model, "c:lambda2", **kw)
+    except failures as err:
+        if "refinement" in str(err):
+            notes.append(f"{label}: {err}; the rounded design on the candidate grid is used.")
+            try:
+                return design(model, "c:lambda2", refine=False, **kw)
+            except failures as err2:
+                err = err2
+        notes.append(f"{label}: the design failed: {type(err).__name__}: {err}")
+        return None
 
 
 def design_next(model, values=None):
-    """The optimised next plan for ``model`` (:class:`NextPlan`).
+    """The optimised next plan for ``model`` (:class:`NextPlan`), with and without the tilt
+    fixture, and the paper's plan for comparison.
 
     Parameters
     ----------
@@ -290,43 +316,32 @@ def design_next(model, values=None):
     values : mapping name -> value (display units), optional
         Where to linearise (e.g. the fitted values); default the parameters' nominal values.
 
-
     Covariate effects are left out of the design model (a covariate is recorded, not
-    planned); nonlinear parameters are linearised at their fitted values. When the IPOPT
-    refinement fails the rounded design on the candidate grid is kept, and said; when the
-    design itself fails, ``design`` is None and the notes give the solver's status.
+    planned). When the IPOPT refinement fails the rounded design on the candidate grid is
+    kept, and said; when a design fails it is None and the notes give the solver's status.
     """
-    from .design import DesignError, DesignSpace, design, evaluate, paper_plan
+    from .design import DesignSpace, evaluate, paper_plan
     from .information import UnidentifiableError
 
     effects = [e for e in model.effect_names if not e.startswith("covariate:")]
     notes = []
     if len(effects) < len(model.effect_names):
-        notes.append("covariate effects are recorded, not planned: the plan is designed for "
+        notes.append("Covariate effects are recorded, not planned: the plan is designed for "
                      + " + ".join(effects) + ".")
     model = Model(effects)
     names = model.measurement(True).names
     nominal = {n: float(v) for n, v in (values or {}).items() if n in names}
     paper = paper_plan()
-    budget = float(paper.t_start[-1] + paper.duration[-1])
-    kw = dict(budget=budget, nominal=nominal,
-              space=DesignSpace(max_tilt=_FIXTURE_TILT_ARCSEC * units.ARCSEC))
-    try:
-        try:
-            result = design(model, "c:lambda2", **kw)
-        except DesignError as err:
-            if "refinement" not in str(err):
-                raise
-            result = design(model, "c:lambda2", refine=False, **kw)
-            notes.append(f"{err}: the rounded design on the candidate grid is used.")
-    except DesignError as err:
-        return NextPlan(None, None, tuple(notes) + (f"The design failed: {err}",))
+    kw = dict(budget=float(paper.t_start[-1] + paper.duration[-1]), nominal=nominal)
+    fixture = _design(model, {**kw, "space": DesignSpace(max_tilt=_FIXTURE_TILT_ARCSEC * units.ARCSEC)},
+                      notes, "with the tilt fixture")
+    level = _design(model, kw, notes, "without the tilt fixture")
     try:
         baseline = evaluate(paper, model, nominal=nominal)
     except UnidentifiableError as err:
         baseline = None
         notes.append(f"The paper's plan cannot identify {' + '.join(effects)}: {err}")
-    return NextPlan(result, baseline, tuple(notes))
+    return NextPlan(fixture, level, baseline, tuple(notes))
 
 
 # -- the chain -------------------------------------------------------------------------------
@@ -473,7 +488,7 @@ def run_demo(seed=0, progress=None):
 
 # -- outputs ---------------------------------------------------------------------------------
 #: files :func:`write_outputs` writes into the output directory
-OUTPUT_FILES = ("report.html", "summary.json", "RUNS.csv", "PLAN.csv", "TRUTH.toml")
+OUTPUT_FILES = ("report.html", "summary.json", "RUNS.csv", "PLAN.csv", "TRUTH.toml", "NEXT_PLAN.csv")
 
 
 def report_sections(result):
@@ -521,25 +536,28 @@ def summary_text(result):
 
 
 def next_plan_text(next_plan):
-    """One sentence on the next plan's gain over the paper's plan."""
+    """The next plan's gain over the paper's plan, in words."""
     n = next_plan
     if n.design is None:
         return " ".join(n.notes)
-    own = n.design.std_of("lambda2")
-    if n.gain is None:
-        return (f"The optimised next plan ({n.design.n_runs} alignments in the paper plan's "
-                f"{n.design.total_time / units.HOUR:.2f} h) gives sigma(lambda2) = {own:.3g} arcsec "
-                f"for {' + '.join(n.design.evaluation.effects)}; the paper's plan cannot identify "
-                "that model.")
-    return (f"The optimised next plan ({n.design.n_runs} alignments in the paper plan's "
-            f"{n.design.total_time / units.HOUR:.2f} h) gives sigma(lambda2) = {own:.3g} arcsec "
-            f"against {n.baseline.std_of('lambda2'):.3g} arcsec with the paper's plan: "
-            f"{n.gain:.1f} times smaller.")
+    d = n.design
+    text = (f"The optimised next plan ({d.n_runs} alignments in the paper plan's "
+            f"{d.total_time / units.HOUR:.2f} h, with the 0.5-deg tilt fixture) gives "
+            f"sigma(lambda2) = {d.std_of('lambda2'):.3g} arcsec")
+    if n.baseline is None:
+        return text + f"; the paper's plan cannot identify {' + '.join(d.evaluation.effects)}."
+    text += (f" against {n.baseline.std_of('lambda2'):.3g} arcsec with the paper's plan: "
+             f"{n.gain():.0f} times smaller")
+    if n.level is not None:
+        text += (f"; under the paper's own limits (no fixture) {n.level.std_of('lambda2'):.3g} "
+                 f"arcsec, {n.gain('level'):.1f} times smaller")
+    return text + "."
 
 
 def write_outputs(result, directory):
     """Write the report and the data of a demo run into ``directory`` (created when missing;
-    each file whole or not at all): :data:`OUTPUT_FILES`.
+    each file whole or not at all): :data:`OUTPUT_FILES` (``NEXT_PLAN.csv`` only when the
+    design succeeded).
 
     Returns
     -------
@@ -555,6 +573,8 @@ def write_outputs(result, directory):
                                f"hse-opt demo, seed {result.seed}", summary_text(result))
     save_runs(result.runs, directory / "RUNS.csv")
     save_plan(result.plan, directory / "PLAN.csv")
+    if result.next_plan.design is not None:
+        save_plan(result.next_plan.design.plan, directory / "NEXT_PLAN.csv")
     report.write_text_atomic(directory / "TRUTH.toml", result.truth.to_toml())
     data = {**result.to_dict(), "report": str(path)}
     report.write_text_atomic(directory / "summary.json", json.dumps(data, indent=2, allow_nan=False) + "\n")

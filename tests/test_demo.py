@@ -140,12 +140,15 @@ def test_the_demo_designs_a_better_next_plan(demo_run):
     assert not nxt["failed"]
     assert nxt["effects"] == ["hse", demo_run[0]["named_effect"]]
     assert nxt["criterion"] == "c:lambda2"
-    # within the paper plan's test time, and better than it for the paper's goal
+    # within the paper plan's test time, and better than it for the paper's goal: a little
+    # under the paper's own limits, by far with the tilt fixture (issue 5's targets)
     from hse_opt.design import paper_plan
     paper = paper_plan()
-    assert nxt["total_time_h"] <= (paper.t_start[-1] + paper.duration[-1]) / 3600 + 1e-9
-    assert nxt["gain"] == pytest.approx(nxt["paper_sigma_lambda2_arcsec"] / nxt["sigma_lambda2_arcsec"])
-    assert nxt["gain"] > 5
+    for key, least in (("paper_limits", 1.0), ("tilt_fixture", 5.0)):
+        d = nxt[key]
+        assert d["total_time_h"] <= (paper.t_start[-1] + paper.duration[-1]) / 3600 + 1e-9
+        assert d["gain"] == pytest.approx(nxt["paper_sigma_lambda2_arcsec"] / d["sigma_lambda2_arcsec"])
+        assert d["gain"] > least, key
 
 
 @pytest.mark.parametrize("name", [
@@ -160,5 +163,5 @@ def test_the_next_plan_is_designed_for_every_drawable_effect(name):
     hidden values (what the refit recovers)."""
     h = next(demo.hidden_effect(s) for s in range(200) if demo.hidden_effect(s).name == name)
     nxt = demo.design_next(Model(["hse", name]), h.values)
-    assert nxt.design is not None, nxt.notes
+    assert nxt.design is not None and nxt.level is not None, nxt.notes
     assert nxt.design.std_of("lambda2") < 0.2
