@@ -9,7 +9,7 @@ import importlib
 import sys
 
 #: command modules, in the order ``--help`` lists them
-COMMANDS = ("demo", "fit", "compensate", "diagnose", "design")
+COMMANDS = ("demo", "design", "simulate", "fit", "compensate", "diagnose")
 
 
 class _Parser(argparse.ArgumentParser):

@@ -133,6 +133,8 @@ def _to_si(value, factor):
 def _to_text(x, factor):
     """SI float -> shortest decimal text in file units that :func:`_to_si` reads back exactly."""
     x = float(x)
+    if x == 0:  # keep the sign of zero (Context.plus would turn -0 into 0)
+        return "-0" if np.signbit(x) else "0"
     f = decimal.Decimal(factor)
     q = _EXACT.divide(decimal.Decimal(x), f)
     for digits in (15, 16, 17, 18):  # 18 digits always land inside the rounding interval

@@ -426,11 +426,6 @@ class DemoResult:
         return out
 
 
-def _runs_from_rows(rows, source):
-    cols = {k: [r[k] for r in rows] for k in rows[0]}
-    return Runs.from_columns(cols, source)
-
-
 def run_demo(seed=0, progress=None):
     """Run the demo chain (module docstring).
 
@@ -458,8 +453,8 @@ def run_demo(seed=0, progress=None):
 
     t0 = time.perf_counter()
     cb = None if progress is None else (lambda done, total: progress("simulate", done, total))
-    rows = run_campaign(plan, truth, int(seed), progress=cb)
-    runs = _runs_from_rows(rows, f"demo campaign (seed {seed})")
+    runs = run_campaign(plan, truth, int(seed), progress=cb).replace(
+        source=f"demo campaign (seed {seed})")
     seconds["simulate"] = time.perf_counter() - t0
 
     t0 = time.perf_counter()

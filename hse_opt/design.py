@@ -1899,12 +1899,10 @@ def monte_carlo(plan, model=None, n_rep=100, *, truth=None, seed=0, jobs=1, tilt
     finally:
         if bar is not None:
             bar.close()
-    keys = ("run", "rate_dps", "azimuth_deg", "heading_err_arcsec", "latitude_deg", "duration_s", "t_start_s",
-            "pitch_arcsec", "roll_arcsec", "heading_std_arcsec")
-    replicates = [Runs.from_columns({k: [row[k] for row in out[r * n:(r + 1) * n]] for k in keys},
-                                    source=f"replicate {r}") for r in range(n_rep)]
+    replicates = [out.subset(np.arange(r * n, (r + 1) * n)).replace(source=f"replicate {r}")
+                  for r in range(n_rep)]
     # every replicate repeats each run's deterministic errors: the scatter across them is noise
-    h = np.array([row["heading_err_arcsec"] for row in out]).reshape(n_rep, n) * units.ARCSEC
+    h = np.asarray(out.heading_err).reshape(n_rep, n)
     ratio = float(np.sqrt(np.mean(h.var(axis=0, ddof=1) / stand.sigma(plan.duration) ** 2)))
     results = []
     for m, pred in zip(models, preds):

@@ -11,9 +11,9 @@ import pytest
 
 from hse_opt.frames import c_b_s, dcm_zyx, earth_rate_n, rot_z, skew
 from hse_opt.sim.align import AlignConfig, align
-from hse_opt.sim.campaign import simulate_alignment, simulate_heading_error
+from hse_opt.sim.campaign import default_align_config, simulate_alignment, simulate_heading_error
 from hse_opt.sim.imu import generate
-from hse_opt.sim.rawlog import load_rawlog, save_rawlog
+from hse_opt.sim.rawlog import RawLog, load_rawlog, save_rawlog
 from hse_opt.sim.truth import RunSpec, TruthConfig
 
 ARCSEC = math.pi / 180 / 3600
@@ -72,8 +72,9 @@ def test_eps_only_against_eq14_over_random_configurations():
         az = rng.uniform(0, 2 * np.pi)
         tilt = tuple(rng.uniform(-400, 400, 2) * ARCSEC)
         t = IDEAL.updated({"gyro": {"eps_arcsec": list(eps)}, "site": {"latitude_deg": lat}})
-        hp = simulate_heading_error(t, rate, az, duration=600.0, tilt=tilt)
-        hm = simulate_heading_error(t, -rate, az, duration=600.0, tilt=tilt)
+        dur = 2 * np.pi / rate * 20                 # 20 revolutions (noise is off)
+        hp = simulate_heading_error(t, rate, az, duration=dur, tilt=tilt)
+        hm = simulate_heading_error(t, -rate, az, duration=dur, tilt=tilt)
         psi, theta, gamma = az, tilt[1], tilt[0]
         c23 = _c23(psi, theta, gamma)
         lam2 = eps.sum() * ARCSEC
@@ -177,7 +178,13 @@ def test_raw_log_file_round_trip_aligns_the_same(tmp_path):
 
 
 def test_too_short_a_log_is_rejected():
-    t = IDEAL
-    log = generate(t, RunSpec(rate=40 * DPS, duration=12.0, alpha0=0.0))
-    with pytest.raises(ValueError, match="two revolutions"):
-        align(log, AlignConfig.from_truth(TruthConfig.default()))
+    """Less than one revolution of encoder span is rejected; one revolution plus one sample
+    (the shortest run the truth allows) aligns."""
+    cfg = default_align_config(IDEAL)
+    rev = 9.0                                          # one revolution at 40 deg/s
+    log = generate(IDEAL, RunSpec(rate=40 * DPS, duration=rev + 0.002, alpha0=0.0))
+    res = align(log, cfg)
+    assert res.n_revolutions == 1 and abs(res.heading) < 1e-3 * ARCSEC
+    short = RawLog(log.t[:-2], log.gyro[:-2], log.accel[:-2], log.encoder[:-2], log.meta)
+    with pytest.raises(ValueError, match=r"turned 0\.999.* revolutions; the alignment needs at least one"):
+        align(short, cfg)

@@ -62,8 +62,11 @@ def _reference_increments(truth, run, alpha0, k):
         C_b_s = Cbs0 @ rot_z(-xi)
         w_ib_b = C_b_n.T @ w_ie_n + np.array([0, 0, _alpha_dot(truth, run, t) + xidot])
         f_b = -C_b_n.T @ g_n
-        bias = np.asarray(truth.gyro.bias) + np.asarray(truth.gyro.bias_warmup) * math.exp(
-            -(run.t_start + t) / truth.gyro.bias_warmup_tau)
+        th, t_on = truth.thermal, run.t_start + t
+        temp = th.ambient_c + th.rise_c * (1 - math.exp(-t_on / th.tau)) + th.swing_c * math.sin(
+            2 * math.pi * t_on / th.swing_period + th.swing_phase)
+        bias = (np.asarray(truth.gyro.bias) + np.asarray(truth.gyro.bias_warmup) * math.exp(
+            -t_on / truth.gyro.bias_warmup_tau) + np.asarray(truth.gyro.bias_tempco) * (temp - th.reference_c))
         gyro += w * (K_g_inv @ C_b_s @ w_ib_b + bias)
         acc += w * (C_b_s @ f_b)
     return gyro, acc
@@ -74,7 +77,9 @@ def tilted_system():
     t = TruthConfig.ideal().updated({
         "table": {"ripple_ppm": 300.0, "ripple_order": 2, "ripple_phase_deg": 40.0, "rate_error_ppm": 50.0},
         "gyro": {"axes_nonorth_arcsec": [60.0, -90.0, 45.0], "bias_dph": [0.01, -0.02, 0.03],
-                 "bias_warmup_dph": [0.05, 0.02, -0.04], "bias_warmup_tau_s": 300.0},
+                 "bias_warmup_dph": [0.05, 0.02, -0.04], "bias_warmup_tau_s": 300.0,
+                 "bias_tempco_dph_per_c": [0.02, -0.01, 0.005]},
+        "thermal": {"tau_s": 250.0, "swing_c": 4.0, "swing_period_s": 600.0, "swing_phase_deg": 30.0},
         "mount": {"r_zb_s_true": [-0.5772, -0.578, -0.57685020585937], "warmup_xi_z_arcsec": -30.0,
                   "warmup_tau_s": 200.0},
         "stand": {"mount_tilt_arcsec": [300.0, -500.0]},
@@ -187,3 +192,18 @@ def test_fast_cos_sin_matches_numpy():
     c, s = cos_sin_linear(-2.0, 0.003, 100003)
     ph = -2.0 + 0.003 * np.arange(100003)
     assert np.abs(c - np.cos(ph)).max() < 1e-13 and np.abs(s - np.sin(ph)).max() < 1e-13
+
+
+def test_fast_normal_is_standard_normal():
+    """The Box-Muller noise source against the normal distribution (KS test, moments) and
+    its independence from sample to sample."""
+    from scipy import stats
+
+    from hse_opt.sim._fastmath import normal_f32
+    z = normal_f32(np.random.default_rng(3), (3, 66667), 2.5).astype(float).ravel() / 2.5
+    assert z.dtype == float and z.size == 200001
+    assert stats.kstest(z, "norm").pvalue > 0.01
+    assert abs(z.mean()) < 5 / math.sqrt(z.size) and abs(z.std() - 1) < 5 / math.sqrt(2 * z.size)
+    assert abs(stats.kurtosis(z)) < 5 * math.sqrt(24 / z.size)
+    for lag in (1, 2, (z.size + 1) // 2):       # including the Box-Muller pair offset
+        assert abs(np.corrcoef(z[lag:], z[:-lag])[0, 1]) < 5 / math.sqrt(z.size)

@@ -14,14 +14,15 @@ def _arrays(n=2000, dt=0.002, rate=0.7):
     return t, gyro, accel, enc
 
 
+@pytest.mark.parametrize("bad", [np.nan, np.inf, -np.inf])
 @pytest.mark.parametrize("which, col", [("t", None), ("gyro", 1), ("accel", 2), ("encoder", None)])
-def test_nan_is_rejected_with_sample_index(which, col):
+def test_nan_is_rejected_with_sample_index(which, col, bad):
     t, g, a, e = _arrays()
     arr = {"t": t, "gyro": g, "accel": a, "encoder": e}[which]
     if col is None:
-        arr[1234] = np.nan
+        arr[1234] = bad
     else:
-        arr[1234, col] = np.nan
+        arr[1234, col] = bad
     with pytest.raises(ValueError, match="sample index 1234"):
         RawLog(t, g, a, e)
 
@@ -37,6 +38,13 @@ def test_gap_is_rejected_with_index():
     t, g, a, e = _arrays()
     t[700:] += 0.01
     with pytest.raises(ValueError, match="gap before sample index 700"):
+        RawLog(t, g, a, e)
+
+
+def test_encoder_jump_is_rejected_with_index():
+    t, g, a, e = _arrays()
+    e[900:] += 2.0                                   # a 2 rad step: a lost encoder reading
+    with pytest.raises(ValueError, match="encoder_rad jumps by 2.* at sample index 900.*allowed < pi/2"):
         RawLog(t, g, a, e)
 
 

@@ -4,7 +4,7 @@ import math
 import numpy as np
 import pytest
 
-from hse_opt.sim.truth import EFFECT_KEYS, RunSpec, TruthConfig, load_truth, validate_run
+from hse_opt.sim.truth import EFFECT_KEYS, RunError, RunSpec, TruthConfig, load_truth, validate_run
 
 # independent unit factors written out here (not taken from hse_opt.units)
 ARCSEC = math.pi / 180 / 3600
@@ -25,6 +25,23 @@ def test_toml_round_trip_default_and_modified(tmp_path):
     back = load_truth(p)
     assert back == t2
     assert back.encoder.harmonics[0].phase == pytest.approx(30 * math.pi / 180, rel=1e-15)
+
+
+def test_toml_round_trip_is_exact_for_any_values(tmp_path):
+    """Values with all 17 digits, from every unit, come back bit for bit (TRUTH.toml written
+    with --write-truth reproduces the simulation exactly)."""
+    rng = np.random.default_rng(7)
+    p = tmp_path / "t.toml"
+    for _ in range(20):
+        t = TruthConfig.default().updated({
+            "site": {"latitude_deg": rng.uniform(-80, 80)},
+            "gyro": {"eps_arcsec": list(rng.normal(0, 5, 3)), "arw_dph_rthz": rng.uniform(0, 0.1),
+                     "bias_dph": list(rng.normal(0, 0.01, 3)), "sf_nonlinearity_ppm_per_dps": list(rng.normal(0, 1, 3))},
+            "encoder": {"sync_delay_us": rng.normal(0, 50), "harmonics": [
+                {"order": 1, "amplitude_arcsec": rng.normal(), "phase_deg": rng.uniform(0, 360)}]},
+            "accel": {"vrw_ug_rthz": rng.uniform(0, 10)}, "stand": {"mount_tilt_arcsec": list(rng.normal(0, 300, 2))}})
+        t.to_toml(p)
+        assert load_truth(p) == t
 
 
 def test_units_in_key_names_convert_to_si():
@@ -70,6 +87,8 @@ def test_unknown_key_in_file_names_file_and_key(tmp_path):
     ({"gyro": {"arw_dph_rthz": -0.01}}, "gyro.arw_dph_rthz", ">= 0|\\[0"),
     ({"accel": {"vrw_ug_rthz": -1.0}}, "accel.vrw_ug_rthz", "\\[0"),
     ({"gyro": {"pulse_arcsec": -1.0}}, "gyro.pulse_arcsec", "\\[0"),
+    ({"accel": {"pulse_mps": -1e-4}}, "accel.pulse_mps", "\\[0"),
+    ({"encoder": {"resolution_arcsec": -0.18}}, "encoder.resolution_arcsec", "\\[0"),
     ({"stand": {"mount_tilt_arcsec": [5000.0, 0.0]}}, "stand.mount_tilt_arcsec", "3600"),
     ({"stand": {"tilt_arcsec": [0.0, -4000.0]}}, "stand.tilt_arcsec", "3600"),
     ({"site": {"latitude_deg": 95.0}}, "site.latitude_deg", "89"),
@@ -97,10 +116,18 @@ def test_lockin_zone_rate_is_rejected_with_allowed_rate():
 
 def test_duration_shorter_than_one_revolution_is_rejected():
     t = TruthConfig.default()
-    # 40 deg/s: one revolution takes 9 s
-    with pytest.raises(ValueError, match=r"duration_s = 8\.9 .*allowed duration_s >= 9 s"):
-        validate_run(t, RunSpec(rate=40 * math.pi / 180, duration=8.9))
-    validate_run(t, RunSpec(rate=40 * math.pi / 180, duration=9.0))
+    # 40 deg/s: one revolution takes 9 s, plus one 2 ms sample
+    with pytest.raises(RunError, match=r"duration_s = 9 .*allowed duration_s >= 9\.002 s") as exc:
+        validate_run(t, RunSpec(rate=40 * math.pi / 180, duration=9.0))
+    assert exc.value.column == "duration_s"
+    validate_run(t, RunSpec(rate=40 * math.pi / 180, duration=9.002))
+
+
+def test_thermal_mount_rotation_too_large_is_rejected():
+    t = TruthConfig.ideal().updated({"mount": {"warmup_xi_z_arcsec": 300.0, "warmup_tau_s": 600.0}})
+    from hse_opt.sim.imu import generate
+    with pytest.raises(ValueError, match=r"thermal mount rotation exceeds.*allowed \|warmup_xi_z"):
+        generate(t, RunSpec(rate=0.7, duration=20.0, t_start=0.0, alpha0=0.0))
 
 
 def test_run_tilt_too_large_names_plan_column():

@@ -16,22 +16,21 @@ align
     :func:`align` -- the alignment processor (coarse TRIAD + Kalman filter + whole-revolution
     smoothing) for simulated or real logs; :class:`AlignConfig`, :class:`AlignResult`.
 campaign
-    :func:`run_campaign` (PLAN -> RUNS, parallel, Dask), :func:`simulate_run`,
-    :func:`simulate_heading_error` (noise-free, one error source at a time),
-    :func:`simulate_main` (``hse-opt simulate``).
+    :func:`run_campaign` (Plan -> Runs of :mod:`hse_opt.data`, parallel, Dask),
+    :func:`simulate_run`, :func:`simulate_heading_error` (noise-free, one error source at a
+    time). The command ``hse-opt simulate`` is :mod:`hse_opt.commands.simulate`.
 """
 from hse_opt.sim.align import AlignConfig, AlignHistory, AlignResult, align, triad
-from hse_opt.sim.campaign import (add_simulate_arguments, default_align_config, read_plan_csv,
-                                  run_campaign, simulate_alignment, simulate_heading_error,
-                                  simulate_main, simulate_run, write_runs_csv)
+from hse_opt.sim.campaign import (RunResult, default_align_config, run_campaign, simulate_alignment,
+                                  simulate_heading_error, simulate_run)
 from hse_opt.sim.imu import generate, true_attitude
 from hse_opt.sim.rawlog import RawLog, load_rawlog, save_rawlog, validate_rawlog
 from hse_opt.sim.truth import EFFECT_KEYS, Harmonic, RunSpec, TruthConfig, load_truth, save_truth
 
 __all__ = [
-    "AlignConfig", "AlignHistory", "AlignResult", "align", "triad", "add_simulate_arguments",
-    "default_align_config", "read_plan_csv", "run_campaign", "simulate_alignment",
-    "simulate_heading_error", "simulate_main", "simulate_run", "write_runs_csv", "generate",
+    "AlignConfig", "AlignHistory", "AlignResult", "align", "triad", "RunResult",
+    "default_align_config", "run_campaign", "simulate_alignment", "simulate_heading_error",
+    "simulate_run", "generate",
     "true_attitude", "RawLog", "load_rawlog", "save_rawlog", "validate_rawlog", "EFFECT_KEYS",
     "Harmonic", "RunSpec", "TruthConfig", "load_truth", "save_truth",
 ]

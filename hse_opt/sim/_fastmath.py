@@ -41,19 +41,29 @@ class PhaseTable:
         s += cb * s0
         return c, s
 
+    def sin(self, phi0, m):
+        """Array (m,) of ``sin(phi0 + k dphi)``."""
+        s = self.s[:m] * math.cos(phi0)
+        s += self.c[:m] * math.sin(phi0)
+        return s
 
-def rotate_small(c, s, d):
+
+def rotate_small(c, s, d, out=None):
     """cos and sin of ``phase + d`` from ``c = cos(phase)``, ``s = sin(phase)`` and a small
-    ``d`` (|d| <= :data:`MAX_DEVIATION`, rad); arrays of one shape."""
+    ``d`` (|d| <= :data:`MAX_DEVIATION`, rad); arrays of one shape. Returns ``(cos, sin)``,
+    written into ``out`` (shape (2, ...)) when given (``out`` must not overlap the inputs)."""
     d2 = d * d
     cd = d2 * (d2 / 24.0 - 0.5)
     cd += 1.0
     sd = d2 * (-1.0 / 6.0)
     sd += 1.0
     sd *= d
-    cn = c * cd
+    if out is None:
+        out = np.empty((2,) + np.shape(c))
+    cn, sn = out[0], out[1]
+    np.multiply(c, cd, out=cn)
     cn -= s * sd
-    sn = s * cd
+    np.multiply(s, cd, out=sn)
     sn += c * sd
     return cn, sn
 
@@ -63,37 +73,54 @@ def cos_sin_linear(phi0, dphi, n):
     return PhaseTable(dphi, n).cos_sin(phi0, n)
 
 
-def cos_sin(phase, table=None):
+def cos_sin(phase, table=None, out=None):
     """cos and sin of a phase sequence that is nearly linear in its index (rad, shape (n,)).
 
     The phase is split into the line ``phase[0] + k * dphi`` and a deviation; ``dphi`` is
     ``table.dphi`` when a :class:`PhaseTable` of at least ``n`` entries is given, else the
     slope through the first and last samples. Deviations within :data:`MAX_DEVIATION` use
-    the fast path, larger ones ``np.cos``/``np.sin``.
+    the fast path, larger ones ``np.cos``/``np.sin``. Returns ``(cos, sin)``, written into
+    ``out`` (shape (2, n)) when given.
     """
     phase = np.asarray(phase, dtype=float)
     n = phase.shape[0]
-    if n < 3:
-        return np.cos(phase), np.sin(phase)
+    if out is None:
+        out = np.empty((2, n))
     if table is None or table.c.shape[0] < n:
-        table = PhaseTable((phase[-1] - phase[0]) / (n - 1), n)
+        table = PhaseTable((phase[-1] - phase[0]) / max(n - 1, 1), n)
     d = phase - phase[0]
     d -= table.dphi * np.arange(n, dtype=float)
-    if not np.abs(d).max() <= MAX_DEVIATION:
-        return np.cos(phase), np.sin(phase)
+    if n < 3 or not np.abs(d).max() <= MAX_DEVIATION:
+        np.cos(phase, out=out[0])
+        np.sin(phase, out=out[1])
+        return out[0], out[1]
     c, s = table.cos_sin(float(phase[0]), n)
-    return rotate_small(c, s, d)
+    return rotate_small(c, s, d, out=out)
 
 
-def apply3(M, X, out=None):
-    """``M @ X`` for a 3x3 ``M`` and ``X`` of shape (3, k), row by row into ``out`` (3, k).
+def normal_f32(rng, shape, scale=1.0):
+    """Gaussian white noise, float32, of standard deviation ``scale``: the Box-Muller
+    transform of float32 uniforms from ``rng`` (a numpy Generator).
 
-    Plain ufuncs instead of BLAS: no worker threads on a shared machine, and the rows stay
-    in cache when ``k`` is a chunk."""
-    if out is None:
-        out = np.empty_like(X)
-    for i in range(3):
-        np.multiply(X[0], M[i, 0], out=out[i])
-        out[i] += M[i, 1] * X[1]
-        out[i] += M[i, 2] * X[2]
-    return out
+    Exact in distribution up to the 24-bit resolution of the uniforms (the tails are cut at
+    5.77 sigma, a probability of 8e-9 per sample). About three times faster than
+    ``Generator.standard_normal(dtype=float32)`` (the ziggurat) here, where numpy's float32
+    log/sqrt/sin/cos are vectorised: the simulator draws 1.8 million samples per 10-minute
+    run.
+    """
+    n = int(np.prod(shape))
+    h = (n + 1) // 2
+    u = rng.random(2 * h, dtype=np.float32)
+    r, a = u[:h], u[h:]
+    np.subtract(np.float32(1.0), r, out=r)                 # (0, 1]: log is finite
+    np.log(r, out=r)
+    r *= np.float32(-2.0)
+    np.sqrt(r, out=r)
+    r *= np.float32(scale)
+    a *= np.float32(2.0 * math.pi)
+    out = np.empty(2 * h, dtype=np.float32)
+    np.cos(a, out=out[:h])
+    np.sin(a, out=out[h:])
+    out[:h] *= r
+    out[h:] *= r
+    return out[:n].reshape(shape)

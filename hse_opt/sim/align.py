@@ -10,11 +10,17 @@ Steps
    divided by ``sinc(d alpha / 2)`` (the exact average of a rotating vector over the
    interval). On a static base b0 is fixed in n, so the projected record is that of a
    quasi-static IMU in which every b-frame constant error rotates at the table rate.
+   The projection is linear, so it is done on block sums: per block, the sums of
+   ``cos(alpha_mid) x``, ``sin(alpha_mid) x`` and ``x`` of the raw increments ``x`` (one
+   batched matrix product), then the calibration and the turn.
 3. Blocks. The projected increments are summed over blocks of ``L`` samples chosen so that a
    whole number ``m`` of blocks makes one revolution (``m`` = revolution time x
-   ``filter_rate``, rounded); the filter runs once per block.
-4. Coarse alignment (TRIAD) over the largest whole number of revolutions in the record:
-   the down axis from the mean specific force, east from ``down x`` mean rate.
+   ``filter_rate``, rounded, at least 3); the filter runs once per block.
+4. Coarse alignment (TRIAD): the down axis from the mean specific force, east from
+   ``down x`` mean rate. The means are fitted together with the table-fixed parts (a vector
+   fixed in b turns with the table in b0: biases, the table rate leaking through a
+   misaligned axis, up to several times the Earth rate), so they are free of them even
+   though ``m L`` samples match a revolution only to within a few samples.
 5. Fine alignment: a linear Kalman filter on the error of a navigation solution that is
    integrated open loop from the coarse attitude ``C0`` (horizontal attitude from the
    measured rates, velocity from the specific force, no Coriolis term in the navigation or
@@ -43,7 +49,7 @@ import numpy as np
 
 from hse_opt import units
 from hse_opt.frames import dcm_to_zyx, earth_rate_n, skew
-from hse_opt.sim._fastmath import PhaseTable, apply3, cos_sin
+from hse_opt.sim._fastmath import PhaseTable, cos_sin
 from hse_opt.sim.rawlog import RawLog
 
 __all__ = ["AlignConfig", "AlignResult", "AlignHistory", "align", "triad"]
@@ -164,11 +170,11 @@ class AlignResult:
     heading_std, pitch_std, roll_std : float
         The filter's 1-sigma, averaged over the smoothing window.
     coarse_heading, coarse_pitch, coarse_roll : float
-        The TRIAD coarse alignment over whole revolutions.
+        The coarse alignment (step 4).
     rate : float
         Mean table rate from the encoder, rad/s.
     n_revolutions : int
-        Whole revolutions used by the coarse alignment.
+        Whole revolutions of filter blocks in the record.
     block_samples, blocks_per_revolution : int
         Filter block length (samples) and blocks per revolution.
     history : AlignHistory
@@ -212,58 +218,86 @@ def triad(f_b0, w_b0):
 
 
 def _blocks(log, config):
-    """Calibrate, project into b0 and block-sum. Returns dict of block sums and geometry."""
+    """Calibrate, project into b0 and block-sum.
+
+    Returns a dict: ``dth``, ``dv`` (3, nb) block sums of the calibrated gyro and
+    accelerometer increments projected into b0 (table turn removed from the gyro z);
+    ``rot`` (nb,) complex block sums of ``exp(i alpha)`` times the sample period (the
+    projection of a vector fixed in b: ``sum rot_z(alpha_k) v dt``); geometry ``L``,
+    ``m``, ``nb``, ``dt``, ``rate``, ``block_time``.
+
+    The projection is linear, so the calibration matrices are applied to block sums: for
+    each block the processor forms ``sum cos(alpha_k) x_k``, ``sum sin(alpha_k) x_k`` and
+    ``sum x_k`` of the raw increments ``x_k`` (one batched matrix product), then the 3x3
+    calibration and the turn into b0.
+    """
     n = len(log)
     enc = log.encoder
     span = enc[-1] - enc[0]
     duration = log.t[-1] - log.t[0]
     rate = span / duration
     if not abs(span) >= 2 * np.pi:
-        raise ValueError(f"raw log: the table turned {abs(span) / (2 * np.pi):.3f} revolutions; "
+        raise ValueError(f"raw log: the table turned {abs(span) / (2 * np.pi):.5f} revolutions; "
                          "the alignment needs at least one whole revolution")
     dt = duration / (n - 1)
     rev_samples = 2 * np.pi / (abs(rate) * dt)
-    m = max(1, int(round(rev_samples * dt * config.filter_rate)))
-    L = max(1, int(round(rev_samples / m)))
+    # at least 3 blocks per revolution: the table-fixed (once per revolution) states stay
+    # observable
+    m = max(3, int(round(rev_samples * dt * config.filter_rate)))
     nint = n - 1                               # intervals with an encoder angle at both ends
+    # m blocks of L samples make one revolution; a log of barely one revolution gets blocks
+    # one sample shorter, so that it still holds m of them
+    L = max(1, min(int(round(rev_samples / m)), nint // m))
     nb = nint // L
-    if nb < 2 * m:
-        nb_need = 2 * m
-        raise ValueError(f"raw log: {nint} usable samples make {nb} filter blocks; at least "
-                         f"{nb_need} (two revolutions) are needed")
-    A_g = np.asarray(config.C_s_b_cal) @ np.asarray(config.K_g_cal)
-    A_a = np.asarray(config.C_s_b_cal) @ np.asarray(config.A_acc_cal)
-    gyro = log.gyro.T
-    accel = log.accel.T
-    dth_sum = np.empty((3, nb))
-    dv_sum = np.empty((3, nb))
-    per_chunk = max(1, _CHUNK_TARGET // L)
-    ptab = PhaseTable(span / (n - 1), per_chunk * L)
-    for b0 in range(0, nb, per_chunk):
-        b1 = min(nb, b0 + per_chunk)
-        i0, i1 = 1 + b0 * L, 1 + b1 * L          # rows of the log (row i: interval i-1 -> i)
-        e = enc[i0 - 1:i1]
-        amid = 0.5 * (e[1:] + e[:-1])
-        da = np.diff(e)
-        c, s = cos_sin(amid, ptab)
-        kb = b1 - b0
-        for src, A, out, turn in ((gyro, A_g, dth_sum, da), (accel, A_a, dv_sum, None)):
-            x = apply3(A, src[:, i0:i1])
-            hx = c * x[0]
-            hx -= s * x[1]
-            hy = s * x[0]
-            hy += c * x[1]
-            out[0, b0:b1] = hx.reshape(kb, L).sum(axis=1)
-            out[1, b0:b1] = hy.reshape(kb, L).sum(axis=1)
-            z = x[2] if turn is None else x[2] - turn
-            out[2, b0:b1] = z.reshape(kb, L).sum(axis=1)
+    nu = nb * L                                # rows 1 .. nu of the log are used
+    # cos and sin of the encoder angle at each interval's midpoint, chunk by chunk
+    cs = np.empty((2, nu))
+    per_chunk = max(1, _CHUNK_TARGET // L) * L
+    ptab = PhaseTable(span / nint, per_chunk)
+    for i0 in range(0, nu, per_chunk):
+        i1 = min(nu, i0 + per_chunk)
+        e = enc[i0:i1 + 1]
+        amid = e[1:] + e[:-1]
+        amid *= 0.5
+        cos_sin(amid, ptab, out=cs[:, i0:i1])
+    W = cs.reshape(2, nb, L).transpose(1, 0, 2)          # (nb, 2, L)
+    rot = W.sum(axis=2)
     # exact average of a rotating vector over an interval: divide by sinc(d alpha / 2)
-    da_mean = span / nint
-    corr = 1.0 / np.sinc(da_mean / (2 * np.pi))   # np.sinc(x) = sin(pi x) / (pi x)
-    dth_sum[:2] *= corr
-    dv_sum[:2] *= corr
-    return {"dth": dth_sum, "dv": dv_sum, "L": L, "m": m, "nb": nb, "dt": dt, "rate": rate,
-            "block_time": L * dt}
+    corr = 1.0 / np.sinc(span / nint / (2 * np.pi))    # np.sinc(x) = sin(pi x) / (pi x)
+    out = {}
+    for name, src, A in (("dth", log.gyro, np.asarray(config.C_s_b_cal) @ np.asarray(config.K_g_cal)),
+                         ("dv", log.accel, np.asarray(config.C_s_b_cal) @ np.asarray(config.A_acc_cal))):
+        X = src[1:nu + 1].T.reshape(3, nb, L)
+        CS = np.matmul(W, X.transpose(1, 2, 0)) @ A.T     # (nb, 2, 3): sum cos y, sum sin y
+        y = A @ X.sum(axis=2)                            # (3, nb): sum y, y = A x
+        s = np.empty((3, nb))
+        s[0] = CS[:, 0, 0] - CS[:, 1, 1]
+        s[1] = CS[:, 1, 0] + CS[:, 0, 1]
+        s[:2] *= corr
+        s[2] = y[2]
+        out[name] = s
+    out["dth"][2] -= np.diff(enc[0:nu + 1:L])           # the table turn of each block
+    out.update(rot=(rot[:, 0] + 1j * rot[:, 1]) * (corr * dt), L=L, m=m, nb=nb, dt=dt, rate=rate,
+               block_time=L * dt)
+    return out
+
+
+def _coarse(dth, dv, rot, T):
+    """Mean rate and specific force in b0 with the table-fixed parts fitted out.
+
+    A vector fixed in the turntable top b (a gyro or accelerometer bias, or the table rate
+    leaking through a misaligned r_zb^s) turns with the table in b0; its block sums are
+    ``rot_j v``. The horizontal block sums are fitted as ``T w + rot_j v`` (least squares,
+    complex form), so the mean ``w`` is free of them even when the blocks do not span whole
+    revolutions exactly; the vertical parts are plain means.
+    """
+    means = []
+    for x in (dth, dv):
+        z = x[0] + 1j * x[1]
+        A = np.column_stack([np.full(z.shape, T, dtype=complex), rot])
+        sol = np.linalg.lstsq(A, z, rcond=None)[0]
+        means.append(np.array([sol[0].real, sol[0].imag, x[2].mean() / T]))
+    return means
 
 
 def _expm(A):
@@ -312,6 +346,42 @@ def _filter_matrices(C0, w_n, g, rate, T, config):
     return Phi, Qd
 
 
+def _kalman(Phi, Qd, Rv, P, vel):
+    """The fine-alignment Kalman filter over the blocks: state 9 (x0 = 0, covariance ``P``),
+    time update ``Phi``, ``Qd``, measurement of states 3, 4 (velocity) ``vel`` (2, nb) with
+    noise variance ``Rv`` each. Returns the attitude states (nb, 3) and their covariance
+    (nb, 3, 3) after each update.
+
+    Written for the interpreter: preallocated 9x9 work arrays, ``np.dot`` with ``out=``
+    (single-threaded for these sizes), the 2x2 innovation inverse in closed form."""
+    dot = np.dot
+    nb = vel.shape[1]
+    P = np.array(P, dtype=float)
+    x, xp, dx = np.zeros(9), np.empty(9), np.empty(9)
+    T1, T2, K, Si, r = np.empty((9, 9)), np.empty((9, 9)), np.empty((9, 2)), np.empty((2, 2)), np.empty(2)
+    xs, Ps = np.empty((nb, 3)), np.empty((nb, 3, 3))
+    PhiT = Phi.T.copy()
+    PH, HP = P[:, 3:5], P[3:5]                    # views: P H^T and H P
+    for j in range(nb):
+        dot(Phi, P, out=T1)
+        dot(T1, PhiT, out=P)
+        P += Qd
+        S00, S11, S01 = P[3, 3] + Rv, P[4, 4] + Rv, P[3, 4]
+        det = S00 * S11 - S01 * S01
+        Si[0, 0], Si[1, 1] = S11 / det, S00 / det
+        Si[0, 1] = Si[1, 0] = -S01 / det
+        dot(PH, Si, out=K)
+        dot(Phi, x, out=xp)
+        r[0], r[1] = vel[0, j] - xp[3], vel[1, j] - xp[4]
+        dot(K, r, out=dx)
+        np.add(xp, dx, out=x)
+        dot(K, HP, out=T2)
+        P -= T2
+        xs[j] = x[:3]
+        Ps[j] = P[:3, :3]
+    return xs, Ps
+
+
 def align(log, config=None):
     """Align one raw log.
 
@@ -328,8 +398,7 @@ def align(log, config=None):
     Raises
     ------
     ValueError
-        The log is too short (fewer than two revolutions of filter blocks), has no table
-        turn, or no latitude is known.
+        The table turned less than one revolution, or no latitude is known.
     """
     if not isinstance(log, RawLog):
         raise ValueError("align: a RawLog is required (see hse_opt.sim.rawlog)")
@@ -343,11 +412,9 @@ def align(log, config=None):
     dth, dv, nb, m, T = blk["dth"], blk["dv"], blk["nb"], blk["m"], blk["block_time"]
     w_n = earth_rate_n(lat)
 
-    # coarse alignment over whole revolutions
+    # coarse alignment: TRIAD on the means, table-fixed parts fitted out
     n_rev = nb // m
-    nc = n_rev * m
-    f_mean = dv[:, :nc].sum(axis=1) / (nc * T)
-    w_mean = dth[:, :nc].sum(axis=1) / (nc * T)
+    w_mean, f_mean = _coarse(dth, dv, blk["rot"], T)
     C0 = triad(f_mean, w_mean)
     g = float(np.linalg.norm(f_mean))
 
@@ -369,29 +436,11 @@ def align(log, config=None):
 
     Phi, Qd = _filter_matrices(C0, w_n, g, blk["rate"], T, config)
     Rv = config.accel_pulse ** 2 / 12.0 + config.velocity_floor ** 2
-    x = np.zeros(9)
     P = np.diag([config.sigma0_tilt ** 2, config.sigma0_tilt ** 2, config.sigma0_heading ** 2,
                  config.velocity_floor ** 2, config.velocity_floor ** 2,
                  config.sigma0_gyro_bias ** 2, config.sigma0_gyro_bias ** 2,
                  config.sigma0_accel_bias ** 2, config.sigma0_accel_bias ** 2])
-    xs = np.empty((nb, 3))
-    Ps = np.empty((nb, 3, 3))
-    PhiT = Phi.T.copy()
-    dot = np.dot                     # np.dot: single-threaded for these 9x9 products
-    for j in range(nb):
-        x = dot(Phi, x)
-        P = dot(dot(Phi, P), PhiT)
-        P += Qd
-        S00 = P[3, 3] + Rv
-        S11 = P[4, 4] + Rv
-        S01 = P[3, 4]
-        det = S00 * S11 - S01 * S01
-        PH = P[:, 3:5]
-        K = dot(PH, np.array([[S11, -S01], [-S01, S00]]) / det)
-        x += dot(K, vel[:, j] - x[3:5])
-        P -= dot(K, PH.T)
-        xs[j] = x[0:3]
-        Ps[j] = P[0:3, 0:3]
+    xs, Ps = _kalman(Phi, Qd, Rv, P, vel)
 
     # corrected attitude: C = (I + [(phi - psi) x]) C0, psi = (psi_N, psi_E, 0)
     delta = xs.copy()

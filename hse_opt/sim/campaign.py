@@ -1,54 +1,44 @@
-"""Campaigns: PLAN rows + the true system -> RUNS rows (simulated alignments), in parallel.
+"""Campaigns: a test plan + the true system -> simulated alignment results, in parallel.
 
+* :func:`run_campaign` -- every run of a :class:`hse_opt.data.Plan` (``PLAN.csv``), in
+  parallel on local processes (``jobs``) or on a Dask cluster (``client``); returns a
+  :class:`hse_opt.data.Runs` (``RUNS.csv``; save it with :func:`hse_opt.data.save_runs`).
+  Results do not depend on ``jobs``, the chunking or the cluster.
 * :func:`simulate_run` -- one run: raw data (:mod:`hse_opt.sim.imu`), alignment
-  (:mod:`hse_opt.sim.align`), one RUNS.csv row.
-* :func:`run_campaign` -- every row of a plan, in parallel on local processes
-  (``jobs``) or on a Dask cluster (``client``); results do not depend on either.
+  (:mod:`hse_opt.sim.align`), a :class:`RunResult`.
 * :func:`simulate_heading_error` -- the noise-free heading error of one configuration,
   the simulator side of the symbolic-vs-numeric comparison.
-* :func:`simulate_main` / :func:`add_simulate_arguments` -- ``hse-opt simulate``.
+
+The command line (``hse-opt simulate``) is :mod:`hse_opt.commands.simulate`; PLAN.csv and
+RUNS.csv are read and written by :mod:`hse_opt.data` only.
 
 Seeds. Run ``r`` (its PLAN ``run`` id) draws everything from
 ``numpy.random.default_rng(numpy.random.SeedSequence([seed, r]))``, so a run's result
 depends only on the seed, its id and its row, not on ``jobs``, chunking or the cluster.
 
 Time and temperature carry from run to run through ``t_start_s``, the time since power-on
-of each row (the thermal model and the warm-up transients are functions of it); a plan
-without ``t_start_s`` runs back to back from power-on.
+of each row (the thermal model and the warm-up transients are functions of it).
 """
 from __future__ import annotations
 
 import contextlib
-import csv
-import math
-import os
-import sys
-import tempfile
 from concurrent.futures import ProcessPoolExecutor, as_completed
+from dataclasses import dataclass
 
 import numpy as np
 
 from hse_opt import units
+from hse_opt.frames import wrap_angle
+from hse_opt.data import DataError, Plan, Runs
 from hse_opt.sim.align import AlignConfig, align
 from hse_opt.sim.imu import generate, true_attitude
-from hse_opt.sim.truth import RunSpec, TruthConfig, validate_run
+from hse_opt.sim.truth import RunError, RunSpec, TruthConfig, validate_run
 
-__all__ = ["simulate_run", "simulate_alignment", "default_align_config", "simulate_heading_error", "run_campaign",
-           "read_plan_csv", "write_runs_csv", "RUNS_COLUMNS", "PLAN_COLUMNS",
-           "add_simulate_arguments", "simulate_main"]
+__all__ = ["RunResult", "simulate_run", "simulate_alignment", "default_align_config",
+           "simulate_heading_error", "run_campaign"]
 
-#: RUNS.csv columns written by the simulator, in order (DESIGN.md contract + temp_c);
-#: extra PLAN columns follow them.
-RUNS_COLUMNS = ("run", "rate_dps", "azimuth_deg", "heading_err_arcsec", "latitude_deg",
-                "duration_s", "t_start_s", "pitch_arcsec", "roll_arcsec", "heading_std_arcsec",
-                "temp_c")
-#: required PLAN.csv columns (``t_start_s`` may be missing: runs then follow back to back)
-PLAN_COLUMNS = ("run", "rate_dps", "azimuth_deg", "t_start_s", "duration_s")
-_PLAN_OPTIONAL = ("tilt_x_arcsec", "tilt_y_arcsec")
-
-
-def _wrap(a):
-    return (a + math.pi) % (2 * math.pi) - math.pi
+#: covariate column the simulator adds to RUNS (the run's mean IMU temperature)
+TEMP_COLUMN = "temp_c"
 
 
 def _tuning_truth(truth):
@@ -85,8 +75,31 @@ def simulate_alignment(truth, run, rng=None, align_config=None):
     return align(log, cfg), true_attitude(truth, run), log.meta
 
 
-def simulate_run(truth, run, rng, align_config=None, run_id=0, extra=None):
-    """One simulated alignment as a RUNS.csv row.
+@dataclass(frozen=True)
+class RunResult:
+    """One simulated alignment (SI).
+
+    Attributes
+    ----------
+    heading_err : float
+        Alignment heading minus the stand azimuth reading, rad (RUNS ``heading_err_arcsec``).
+    pitch, roll : float
+        The alignment's own leveling of b0, rad.
+    heading_std : float
+        The filter's 1-sigma heading, rad.
+    temp_c : float
+        Mean IMU temperature over the run, degC.
+    """
+
+    heading_err: float
+    pitch: float
+    roll: float
+    heading_std: float
+    temp_c: float
+
+
+def simulate_run(truth, run, rng, align_config=None):
+    """Simulate and align one run.
 
     Parameters
     ----------
@@ -94,33 +107,15 @@ def simulate_run(truth, run, rng, align_config=None, run_id=0, extra=None):
     run : RunSpec
     rng : numpy.random.Generator
     align_config : AlignConfig, optional
-    run_id : int
-    extra : dict, optional
-        Extra (PLAN) columns copied to the row.
+        Processor (default: :func:`default_align_config`).
 
     Returns
     -------
-    dict
-        Column name -> value in the column's unit (:data:`RUNS_COLUMNS`, then ``extra``).
-        ``heading_err_arcsec`` is the alignment heading minus the stand azimuth reading.
+    RunResult
     """
-    res, att, meta = simulate_alignment(truth, run, rng, align_config)
-    row = {
-        "run": int(run_id),
-        "rate_dps": run.rate / units.DEG_PER_S,
-        "azimuth_deg": run.azimuth / units.DEG,
-        "heading_err_arcsec": _wrap(res.heading - run.azimuth) / units.ARCSEC,
-        "latitude_deg": truth.site.latitude / units.DEG,
-        "duration_s": run.duration,
-        "t_start_s": run.t_start,
-        "pitch_arcsec": res.pitch / units.ARCSEC,
-        "roll_arcsec": res.roll / units.ARCSEC,
-        "heading_std_arcsec": res.heading_std / units.ARCSEC,
-        "temp_c": meta["temp_c"],
-    }
-    for k, v in (extra or {}).items():
-        row.setdefault(k, v)
-    return row
+    res, _, meta = simulate_alignment(truth, run, rng, align_config)
+    return RunResult(heading_err=float(wrap_angle(res.heading - run.azimuth)), pitch=res.pitch,
+                     roll=res.roll, heading_std=res.heading_std, temp_c=float(meta["temp_c"]))
 
 
 def simulate_heading_error(truth, rate, azimuth, latitude=None, duration=600.0, *,
@@ -172,61 +167,41 @@ def simulate_heading_error(truth, rate, azimuth, latitude=None, duration=600.0, 
                   tilt=tuple(tilt), alpha0=alpha0)
     res, att, _ = simulate_alignment(truth.noise_free(), run, None, cfg)
     ref = run.azimuth if reference == "stand" else att["heading"]
-    return _wrap(res.heading - ref)
+    return float(wrap_angle(res.heading - ref))
 
 
 # -- plans and campaigns -------------------------------------------------------------------------
-def _plan_to_rows(plan_rows):
-    """Rows (list of dict, file units) from a sequence of mappings or an object with
-    ``to_columns()`` (e.g. hse_opt.data.Plan)."""
-    if hasattr(plan_rows, "to_columns"):
-        cols = plan_rows.to_columns()
-        n = len(next(iter(cols.values()))) if cols else 0
-        return [{k: (int(v[i]) if k == "run" else float(v[i])) for k, v in cols.items()}
-                for i in range(n)]
-    return [dict(r) for r in plan_rows]
-
-
-def _prepare(plan_rows, truth):
-    """Validate the plan against the system; returns [(run_id, RunSpec, extra)]."""
-    rows = _plan_to_rows(plan_rows)
+def _as_plan(plan):
+    """A :class:`Plan` from a Plan or a sequence of row mappings (column -> value in the
+    column's unit, as in PLAN.csv), validated by :meth:`Plan.from_columns`."""
+    if isinstance(plan, Plan):
+        return plan
+    rows = [dict(r) for r in plan]
     if not rows:
-        raise ValueError("PLAN: no rows")
-    out, seen = [], set()
-    t_next = 0.0
-    for i, row in enumerate(rows, start=1):
-        where = f"PLAN row {i}"
+        raise DataError("<plan>", "no rows; allowed: at least one planned run")
+    names = list(rows[0])
+    for i, r in enumerate(rows, start=1):
+        if list(r) != names:
+            raise DataError("<plan>", f"has columns {sorted(r)}, row 1 has {sorted(names)}; allowed: "
+                                      "the same columns in every row", row=i)
+    return Plan.from_columns({k: [r[k] for r in rows] for k in names}, source="<plan>")
+
+
+def _prepare(plan, truth):
+    """Validate every run against the system; returns [(run_id, RunSpec)]."""
+    tilt_x = plan.tilt_x if plan.tilt_x is not None else np.zeros(len(plan))
+    tilt_y = plan.tilt_y if plan.tilt_y is not None else np.zeros(len(plan))
+    out = []
+    for i in range(len(plan)):
+        spec = RunSpec(rate=float(plan.rate[i]), azimuth=float(plan.azimuth[i]),
+                       duration=float(plan.duration[i]), t_start=float(plan.t_start[i]),
+                       tilt=(float(tilt_x[i]), float(tilt_y[i])))
         try:
-            missing = [c for c in PLAN_COLUMNS if c != "t_start_s" and c not in row]
-            if missing:
-                raise ValueError(f"missing column(s) {missing}; required {list(PLAN_COLUMNS)}")
-            try:
-                rid = float(row["run"])
-            except (TypeError, ValueError):
-                raise ValueError(f"run = {row['run']!r}: an integer >= 0 is required") from None
-            if not (math.isfinite(rid) and rid.is_integer() and rid >= 0):
-                raise ValueError(f"run = {row['run']!r}: an integer >= 0 is required")
-            rid = int(rid)
-            if rid in seen:
-                raise ValueError(f"run = {rid} is not unique")
-            seen.add(rid)
-            r = dict(row)
-            if r.get("t_start_s") in (None, ""):
-                r["t_start_s"] = t_next
-            spec = RunSpec.from_plan_row(r)
             validate_run(truth, spec)
-        except ValueError as exc:
-            raise ValueError(f"{where} (run {row.get('run', '?')}): {exc}") from None
-        t_next = spec.t_start + spec.duration
-        extra = {}
-        for k, v in row.items():
-            if k in PLAN_COLUMNS or k in RUNS_COLUMNS:
-                continue
-            try:
-                extra[k] = float(v)
-            except (TypeError, ValueError):
-                raise ValueError(f"{where}: column {k} = {v!r}: extra columns must be numeric") from None
-        out.append((rid, spec, extra))
+        except RunError as exc:
+            raise DataError(plan.source, f"run {plan.run[i]}: {exc.problem}", row=i + 1,
+                            column=exc.column) from None
+        out.append((int(plan.run[i]), spec))
     return out
 
 
@@ -241,23 +216,24 @@ def _single_blas_thread():
 
 
 def _simulate_chunk(truth, align_config, seed, items):
-    """Worker: simulate a list of (run_id, RunSpec, extra); returns [(run_id, row)]."""
+    """Worker: simulate a list of (run_id, RunSpec); returns [(run_id, RunResult)]."""
     out = []
     with _single_blas_thread():
-        for rid, spec, extra in items:
+        for rid, spec in items:
             rng = np.random.default_rng(np.random.SeedSequence([int(seed), int(rid)]))
-            out.append((rid, simulate_run(truth, spec, rng, align_config, rid, extra)))
+            out.append((rid, simulate_run(truth, spec, rng, align_config)))
     return out
 
 
-def run_campaign(plan_rows, truth, seed, jobs=1, client=None, progress=None, *,
+def run_campaign(plan, truth, seed, jobs=1, client=None, progress=None, *,
                  align_config=None, chunk_size=None):
     """Simulate every run of a plan.
 
     Parameters
     ----------
-    plan_rows : sequence of mapping, or hse_opt.data.Plan
-        PLAN.csv rows (column name -> value in the column's unit), in execution order.
+    plan : hse_opt.data.Plan or sequence of mapping
+        The plan (``load_plan("PLAN.csv")``), or its rows as mappings of PLAN column name ->
+        value in the column's unit, in execution order.
     truth : TruthConfig
     seed : int
         Campaign seed (>= 0); run ``r`` uses ``SeedSequence([seed, r])``.
@@ -274,14 +250,27 @@ def run_campaign(plan_rows, truth, seed, jobs=1, client=None, progress=None, *,
 
     Returns
     -------
-    list of dict
-        RUNS rows in plan order (:data:`RUNS_COLUMNS`, then the plan's extra columns).
+    hse_opt.data.Runs
+        One row per planned run, in plan order: the plan's run, rate, azimuth, duration and
+        t_start, the site latitude, the alignment's heading error (heading minus the stand
+        reading), pitch, roll and 1-sigma; covariates ``temp_c`` (mean IMU temperature), then
+        the plan's ``tilt_x_arcsec``, ``tilt_y_arcsec`` and extra columns as written.
+
+    Raises
+    ------
+    hse_opt.data.DataError
+        A run the system cannot make (lock-in, shorter than a revolution, tilt too large),
+        naming the plan, row and column; a plan column named ``temp_c``.
     """
     if isinstance(seed, bool) or not isinstance(seed, (int, np.integer)) or seed < 0:
         raise ValueError(f"seed = {seed!r} is not allowed: an integer >= 0 is required")
     if isinstance(jobs, bool) or not isinstance(jobs, (int, np.integer)) or jobs < 1:
         raise ValueError(f"jobs = {jobs!r} is not allowed: an integer >= 1 is required")
-    items = _prepare(plan_rows, truth)
+    plan = _as_plan(plan)
+    if TEMP_COLUMN in plan.covariates:
+        raise DataError(plan.source, "clashes with the simulated mean IMU temperature; allowed: "
+                                     "another name for a plan column", column=TEMP_COLUMN)
+    items = _prepare(plan, truth)
     cfg = default_align_config(truth) if align_config is None else align_config
     total = len(items)
     workers = jobs if client is None else max(1, len(client.scheduler_info().get("workers", {})) or 1)
@@ -289,15 +278,11 @@ def run_campaign(plan_rows, truth, seed, jobs=1, client=None, progress=None, *,
         chunk_size = max(1, min(64, -(-total // (4 * workers))))
     chunks = [items[i:i + chunk_size] for i in range(0, total, chunk_size)]
     results = {}
-    done = 0
 
     def _collect(part):
-        nonlocal done
-        for rid, row in part:
-            results[rid] = row
-        done += len(part)
+        results.update(part)
         if progress is not None:
-            progress(done, total)
+            progress(len(results), total)
 
     if client is not None:
         from distributed import as_completed as dask_as_completed
@@ -306,136 +291,21 @@ def run_campaign(plan_rows, truth, seed, jobs=1, client=None, progress=None, *,
         for fut in dask_as_completed(futures):
             _collect(fut.result())
     elif jobs == 1:
-        for ch in chunks:
-            for item in ch:
-                _collect(_simulate_chunk(truth, cfg, seed, [item]))
+        for item in items:
+            _collect(_simulate_chunk(truth, cfg, seed, [item]))
     else:
         with ProcessPoolExecutor(max_workers=jobs) as pool:
             futures = [pool.submit(_simulate_chunk, truth, cfg, int(seed), ch) for ch in chunks]
             for fut in as_completed(futures):
                 _collect(fut.result())
-    return [results[rid] for rid, _, _ in items]
-
-
-# -- CSV (local until hse_opt.data is merged into this branch) -----------------------------------
-def read_plan_csv(path):
-    """Read PLAN.csv into rows (dict of column -> float; ``run`` int).
-
-    Raises ValueError naming the file, the 1-based data row and the column."""
-    path = os.fspath(path)
-    rows = []
-    with open(path, newline="", encoding="utf-8") as fh:
-        reader = csv.DictReader(fh)
-        header = [h.strip() for h in (reader.fieldnames or [])]
-        missing = [c for c in PLAN_COLUMNS if c not in header]
-        if missing:
-            raise ValueError(f"{path}: missing column(s) {missing}; required {list(PLAN_COLUMNS)}")
-        if len(set(header)) != len(header):
-            raise ValueError(f"{path}: duplicate column names in {header}")
-        for i, raw in enumerate(reader, start=1):
-            row = {}
-            for k, v in raw.items():
-                k = (k or "").strip()
-                v = (v or "").strip() if isinstance(v, str) else v
-                if k == "" or v is None:
-                    raise ValueError(f"{path}: data row {i}: wrong number of fields")
-                try:
-                    x = float(v)
-                except ValueError:
-                    raise ValueError(f"{path}: data row {i}, column {k} = {v!r}: a number is required") from None
-                if not math.isfinite(x):
-                    raise ValueError(f"{path}: data row {i}, column {k} = {v!r}: a finite number is required")
-                row[k] = int(x) if k == "run" and x.is_integer() else x
-            rows.append(row)
-    return rows
-
-
-def _fmt(v):
-    if isinstance(v, (int, np.integer)) and not isinstance(v, bool):
-        return str(int(v))
-    return repr(float(v))
-
-
-def write_runs_csv(rows, path):
-    """Write RUNS rows (dicts, file units) to ``path`` atomically (temporary file, then
-    rename): :data:`RUNS_COLUMNS` first, then any extra columns in first-seen order."""
-    path = os.fspath(path)
-    cols = list(RUNS_COLUMNS)
-    for r in rows:
-        for k in r:
-            if k not in cols:
-                cols.append(k)
-    d = os.path.dirname(os.path.abspath(path))
-    fd, tmp = tempfile.mkstemp(prefix=".runs-", suffix=".csv", dir=d)
-    try:
-        with os.fdopen(fd, "w", newline="", encoding="utf-8") as fh:
-            w = csv.writer(fh, lineterminator="\n")
-            w.writerow(cols)
-            for r in rows:
-                w.writerow(["" if r.get(c) is None else _fmt(r[c]) for c in cols])
-            fh.flush()
-            os.fsync(fh.fileno())
-        os.replace(tmp, path)
-    except BaseException:
-        if os.path.exists(tmp):
-            os.unlink(tmp)
-        raise
-
-
-# -- command line helper --------------------------------------------------------------------------
-def add_simulate_arguments(parser):
-    """Add the ``hse-opt simulate`` arguments to an argparse (sub)parser."""
-    parser.add_argument("plan", help="PLAN.csv")
-    parser.add_argument("--truth", help="TRUTH.toml (default: the paper-like system)")
-    parser.add_argument("-o", "--output", required=True, help="RUNS.csv to write")
-    parser.add_argument("--seed", type=int, default=0, help="campaign seed (default 0)")
-    parser.add_argument("--jobs", type=int, default=1, help="local worker processes (default 1)")
-    parser.add_argument("--dask", metavar="ADDRESS", default=None,
-                        help="run on the Dask scheduler at ADDRESS (e.g. tcp://host:8786)")
-    parser.add_argument("--no-progress", dest="progress", action="store_false",
-                        help="no progress bar on stderr")
-    parser.add_argument("--write-truth", metavar="FILE", default=None,
-                        help="also write the truth used, every key, to FILE (TOML)")
-    return parser
-
-
-def simulate_main(args):
-    """Run ``hse-opt simulate`` for parsed ``args`` (see :func:`add_simulate_arguments`).
-
-    Returns the exit status: 0 success, 2 bad input (message on stderr naming the file, row,
-    column or key), 1 anything else.
-    """
-    bar = None
-    try:
-        truth = TruthConfig.from_toml(args.truth) if args.truth else TruthConfig.default()
-        plan = read_plan_csv(args.plan)
-        client = None
-        if getattr(args, "dask", None):
-            from distributed import Client
-            client = Client(args.dask)
-        progress = None
-        if getattr(args, "progress", True):
-            from tqdm import tqdm
-            bar = tqdm(total=len(plan), unit="run", file=sys.stderr, desc="simulate")
-
-            def progress(done, total):
-                bar.update(done - bar.n)
-        try:
-            rows = run_campaign(plan, truth, args.seed, jobs=args.jobs, client=client,
-                                progress=progress)
-        finally:
-            if client is not None:
-                client.close()
-        write_runs_csv(rows, args.output)
-        if getattr(args, "write_truth", None):
-            truth.to_toml(args.write_truth)
-        return 0
-    except (ValueError, OSError) as exc:
-        print(f"hse-opt simulate: {exc}", file=sys.stderr)
-        return 2
-    except Exception as exc:  # noqa: BLE001 - the exit-status contract: 1 for anything else
-        print(f"hse-opt simulate: unexpected error: {type(exc).__name__}: {exc}", file=sys.stderr)
-        return 1
-    finally:
-        if bar is not None:
-            bar.close()
+    res = [results[rid] for rid, _ in items]
+    column = lambda name: np.array([getattr(r, name) for r in res])  # noqa: E731
+    written = plan.to_columns()              # the plan's values as written, file units
+    covariates = {TEMP_COLUMN: column("temp_c")}
+    for name in ("tilt_x_arcsec", "tilt_y_arcsec", *plan.covariates):
+        if name in written:
+            covariates[name] = written[name]
+    return Runs(run=plan.run, rate=plan.rate, azimuth=plan.azimuth, heading_err=column("heading_err"),
+                latitude=np.full(total, truth.site.latitude), duration=plan.duration,
+                t_start=plan.t_start, pitch=column("pitch"), roll=column("roll"),
+                heading_std=column("heading_std"), covariates=covariates, source="<simulated>")

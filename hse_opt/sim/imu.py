@@ -37,7 +37,7 @@ import math
 import numpy as np
 
 from hse_opt.frames import (dcm_to_zyx, earth_rate_n, rot_x, rot_y, rot_z, rotvec_to_dcm)
-from hse_opt.sim._fastmath import MAX_DEVIATION, PhaseTable, apply3, rotate_small
+from hse_opt.sim._fastmath import MAX_DEVIATION, PhaseTable, normal_f32, rotate_small
 from hse_opt.sim.rawlog import RawLog
 from hse_opt.sim.truth import gyro_matrices, temperature, validate_run
 
@@ -99,25 +99,6 @@ def _ripple(table, rate, sin_phase):
     return (w * table.ripple / _ripple_nu(table, rate)) * (sin_phase - math.sin(table.ripple_phase))
 
 
-def _angle_cos_sin(table, rate, alpha0, i0, m, dt, tabs):
-    """alpha, cos(alpha), sin(alpha) at the boundaries ``tau_k = k dt``, ``k = i0 .. i0 + m``;
-    ``tabs`` = (PhaseTable of W dt, PhaseTable of the ripple's nu dt or None)."""
-    w = rate * (1.0 + table.rate_error)
-    lin = alpha0 + w * dt * np.arange(i0, i0 + m + 1, dtype=float)
-    c, s = tabs[0].cos_sin(alpha0 + w * dt * i0, m + 1)
-    if not table.ripple:
-        return lin, c, s
-    if tabs[1] is None:                  # ripple too large for the series: plain numpy
-        a = table_angle(table, rate, alpha0, dt * np.arange(i0, i0 + m + 1, dtype=float))
-        return a, np.cos(a), np.sin(a)
-    nu = _ripple_nu(table, rate)
-    _, rs = tabs[1].cos_sin(nu * dt * i0 + table.ripple_phase, m + 1)
-    d = _ripple(table, rate, rs)
-    c, s = rotate_small(c, s, d)
-    lin += d
-    return lin, c, s
-
-
 #: samples per generation chunk: the chunks keep the working arrays in cache; the random
 #: stream is drawn chunk by chunk (gyro noise, then accelerometer noise), so a seeded run is
 #: reproducible for this chunk size.
@@ -133,34 +114,37 @@ class _Sensor:
     the pulses are scaled back by q.
     """
 
-    def __init__(self, M, v0, bias_dt, sigma, q, phase):
+    def __init__(self, M, v0, bias_dt, sigma, q, phase, extra=(), z=None):
         self.k = 1.0 / q if q else 1.0
         self.q = q
         M = np.asarray(M, dtype=float)
-        # row i of M @ (x, y, z) with x = Ci v0x + Si v0y, y = Ci v0y - Si v0x
-        self.a = (M[:, 0] * v0[0] + M[:, 1] * v0[1]) * self.k
-        self.b = (M[:, 0] * v0[1] - M[:, 1] * v0[0]) * self.k
-        self.c = M[:, 2] * self.k
-        self.bias = np.asarray(bias_dt, dtype=float) * self.k
+        bias = np.asarray(bias_dt, dtype=float)
+        # outputs = M @ (x, y, z) with x = Ci v0x + Si v0y, y = Ci v0y - Si v0x: one column
+        # per basis row (Ci, Si, z, *extra); ``extra`` are the coefficient vectors of further
+        # basis rows (time-varying biases). A constant z increment ``z`` goes into the bias.
+        cols = [M[:, 0] * v0[0] + M[:, 1] * v0[1], M[:, 0] * v0[1] - M[:, 1] * v0[0]]
+        if z is None:
+            cols += [M[:, 2], *extra]
+        else:
+            bias = bias + M[:, 2] * z
+        self.B = np.column_stack(cols) * self.k
+        self.bias = (bias * self.k)[:, None]
         self.sigma = sigma * self.k
         self.rem = None if not q else np.asarray(phase, dtype=float).copy()
 
-    def rows(self, Ci, Si, z, out):
-        """Unscaled-by-q signal rows into ``out`` (3, m), in counts when quantized."""
-        for i in range(3):
-            r = out[i]
-            np.multiply(Ci, self.a[i], out=r)
-            r += self.b[i] * Si
-            r += self.c[i] * z
-            r += self.bias[i]
+    def rows(self, V, out):
+        """Signal rows ``B @ V + bias`` into ``out`` (3, m), in counts when quantized; ``V``
+        (k, m) holds the basis rows (the first columns of B are used)."""
+        # a (3 x k) by (k x m) product, k <= 5, m <= CHUNK: BLAS stays on one thread below
+        # its threading threshold (m n k < 262144 in OpenBLAS)
+        np.dot(self.B, V[:self.B.shape[1]], out=out)
+        out += self.bias
         return out
 
     def finish(self, out, rng, dest):
         """Noise, quantization; SI increments into ``dest`` (3, m)."""
         if self.sigma:
-            noise = rng.standard_normal(out.shape, dtype=np.float32)
-            noise *= np.float32(self.sigma)
-            out += noise
+            out += normal_f32(rng, out.shape, self.sigma)
         if self.rem is None:
             dest[...] = out
             return
@@ -222,15 +206,19 @@ def generate(truth, run, rng=None):
     thermal_xi = bool(mount.warmup_xi_z or mount.xi_z_tempco)
     need_temp = bool(mount.xi_z_tempco or tc.any())
     gq = 0.0 if scale else g.pulse      # with a scale-factor error, quantize after scaling
+    # time-varying gyro biases as extra basis rows: the warm-up transient's integral over
+    # each interval, -tau d(exp(-t_on / tau)), and the temperature term dt (temp_mid - ref)
+    extra = ([bw * -g.bias_warmup_tau] if bw.any() else []) + ([tc * dt] if tc.any() else [])
     gyro_s = _Sensor(G, w0, (np.asarray(g.bias) + g.axis_bias * G[:, 2]) * dt,
                      g.arw * math.sqrt(dt), gq,
-                     rng.uniform(0.0, 1.0, 3) if (gq and rng is not None) else np.full(3, 0.5))
+                     rng.uniform(0.0, 1.0, 3) if (gq and rng is not None) else np.full(3, 0.5), extra)
     gcount = None
     if scale and g.pulse:
         gcount = _Sensor(np.eye(3), np.zeros(3), np.zeros(3), 0.0, g.pulse,
                          rng.uniform(0.0, 1.0, 3) if rng is not None else np.full(3, 0.5))
     acc_s = _Sensor(A, f0, np.asarray(a.bias) * dt, a.vrw * math.sqrt(dt), a.pulse,
-                    rng.uniform(0.0, 1.0, 3) if (a.pulse and rng is not None) else np.full(3, 0.5))
+                    rng.uniform(0.0, 1.0, 3) if (a.pulse and rng is not None) else np.full(3, 0.5),
+                    z=f0[2] * dt)
 
     gyro = np.empty((3, n))
     accel = np.empty((3, n))
@@ -247,12 +235,15 @@ def generate(truth, run, rng=None):
         taus["temp"] = thermal.tau
     ktab = dt * np.arange(min(n, CHUNK) + 1, dtype=float)
     tables = {name: np.exp(-ktab / tau) for name, tau in taus.items()}
-    w_true = run.rate * (1.0 + truth.table.rate_error)
-    ripple_ok = 2 * abs(truth.table.ripple / truth.table.ripple_order) <= MAX_DEVIATION
-    ptabs = (PhaseTable(w_true * dt, min(n, CHUNK) + 1),
-             PhaseTable(_ripple_nu(truth.table, run.rate) * dt, min(n, CHUNK) + 1)
-             if truth.table.ripple and ripple_ok else None)
-    buf = np.empty((3, min(n, CHUNK)))
+    tb = truth.table
+    W = run.rate * (1.0 + tb.rate_error)             # true mean table rate
+    nu = _ripple_nu(tb, run.rate) if tb.ripple else 0.0
+    size = min(n, CHUNK) + 1
+    ptab = PhaseTable(W * dt, size)
+    rtab = PhaseTable(nu * dt, size) if tb.ripple else None
+    kidx = np.arange(size, dtype=float)
+    buf = np.empty(3 * (size - 1))                    # signal rows, (3, m) views of it
+    vbuf = np.empty((3 + len(extra)) * (size - 1))    # basis rows, (k, m) views of it
     for i0 in range(0, n, CHUNK):
         i1 = min(n, i0 + CHUNK)
         m = i1 - i0
@@ -260,50 +251,61 @@ def generate(truth, run, rng=None):
         t_on = t_first + ktab[:m + 1]                 # boundaries, time since power-on
         t_out[i0:i1] = t_on[1:]
         expo = {name: tab[:m + 1] * math.exp(-t_first / taus[name]) for name, tab in tables.items()}
-        alpha, ca, sa = _angle_cos_sin(truth.table, run.rate, alpha0, i0, m, dt, ptabs)
-        dalpha = np.diff(alpha)
-        r = dt / dalpha
-        Ci = np.diff(sa)
-        Ci *= r                                       # int cos(alpha) dt over each interval
-        Si = np.diff(ca)
-        Si *= r
-        np.negative(Si, out=Si)                       # int sin(alpha) dt
-        zg = dalpha
-        zg += w0[2] * dt                              # z increment: table turn + Earth rate
+        # table angle at the boundaries: alpha = phi0 + W dt k + d_alpha (ripple)
+        phi0 = alpha0 + W * dt * i0
+        d_alpha = None
+        if tb.ripple:
+            d_alpha = _ripple(tb, run.rate, rtab.sin(nu * dt * i0 + tb.ripple_phase, m + 1))
         temp = None
         if need_temp:
             temp = thermal.ambient_c + thermal.rise_c * (1.0 - expo["temp"])
             if thermal.swing_c:
                 temp += thermal.swing_c * np.sin(2 * np.pi * t_on / thermal.swing_period
                                                  + thermal.swing_phase)
+        # The IMU's horizontal axes turn with beta = alpha + xi_w: the thermal rotation xi_w of
+        # the IMU about z_b (C_b^s(t) = C_b^s rot_z(-xi_w)) adds to the table angle, and its
+        # rate to the z increment. Over each interval beta is taken linear (xi_w changes by
+        # < 1e-9 rad per sample), so int cos(beta) dt = (sin beta_k - sin beta_{k-1}) dt / d beta.
+        d_beta = d_alpha
         if thermal_xi:
-            # thermal rotation xi_w of the IMU about z_b: C_b^s(t) = C_b^s rot_z(-xi_w), i.e.
-            # the horizontal increments see alpha + xi_w; xi_w is checked below 1e-3 rad,
-            # where cos = 1 - xi^2/2 and sin = xi are exact to < 1e-13 relative
             xi = mount.warmup_xi_z * expo["xi"]
             if mount.xi_z_tempco:
                 xi += mount.xi_z_tempco * (temp - thermal.reference_c)
             if np.abs(xi).max() > 1e-3:
                 raise ValueError("mount: the thermal mount rotation exceeds 1e-3 rad (206 arcsec); "
                                  "allowed |warmup_xi_z + tempco * dT| <= 206 arcsec")
-            s = 0.5 * (xi[1:] + xi[:-1])
-            c = 1.0 - 0.5 * s * s
-            Ci, Si = c * Ci - s * Si, c * Si + s * Ci
-            zg += np.diff(xi)                         # the mount's own rotation rate
-
-        out = buf[:, :m]
-        gyro_s.rows(Ci, Si, zg, out)
+            d_beta = xi if d_beta is None else d_beta + xi
+        ca, sa = ptab.cos_sin(phi0, m + 1)
+        if d_beta is None:
+            dbeta = W * dt                            # scalar: a constant-rate turn
+        else:
+            if np.abs(d_beta).max() <= MAX_DEVIATION:
+                ca, sa = rotate_small(ca, sa, d_beta)
+            else:
+                beta = W * dt * kidx[:m + 1]
+                beta += phi0
+                beta += d_beta
+                ca, sa = np.cos(beta), np.sin(beta)
+            dbeta = np.diff(d_beta)
+            dbeta += W * dt
+        r = dt / dbeta
+        V = vbuf[:(3 + len(extra)) * m].reshape(-1, m)   # basis rows of this chunk
+        np.subtract(sa[1:], sa[:-1], out=V[0])
+        V[0] *= r                                     # int cos(beta) dt over each interval
+        np.subtract(ca[1:], ca[:-1], out=V[1])
+        V[1] *= -r                                    # int sin(beta) dt
+        np.add(dbeta, w0[2] * dt, out=V[2])           # z increment: turn + Earth rate
+        row = 3
         if bw.any():
-            e = np.diff(expo["bias"])
-            e *= -g.bias_warmup_tau * gyro_s.k
-            for i in range(3):
-                out[i] += bw[i] * e
+            np.subtract(expo["bias"][1:], expo["bias"][:-1], out=V[row])
+            row += 1
         if tc.any():   # thermal terms vary over minutes: midpoint rule, error < 1e-12 relative
-            tmid = 0.5 * (temp[1:] + temp[:-1])
-            tmid -= thermal.reference_c
-            tmid *= dt * gyro_s.k
-            for i in range(3):
-                out[i] += tc[i] * tmid
+            np.add(temp[1:], temp[:-1], out=V[row])
+            V[row] *= 0.5
+            V[row] -= thermal.reference_c
+
+        out = buf[:3 * m].reshape(3, m)
+        gyro_s.rows(V, out)
         if scale:
             out *= 1.0 + sf + nl * (np.abs(out) / dt)
         if gcount is None:
@@ -313,25 +315,27 @@ def generate(truth, run, rng=None):
             out *= gcount.k                               # to counts, then quantize
             gcount.finish(out, rng, gyro[:, i0:i1])
 
-        out = buf[:, :m]
-        acc_s.rows(Ci, Si, np.full(m, f0[2] * dt), out)
+        acc_s.rows(V, out)
         acc_s.finish(out, rng, accel[:, i0:i1])
 
+        am = encoder[i0:i1]
         if enc.sync_delay:
-            am = table_angle(truth.table, run.rate, alpha0,
-                             dt * np.arange(i0 + 1, i1 + 1, dtype=float) - enc.sync_delay)
+            am[:] = table_angle(tb, run.rate, alpha0,
+                                dt * np.arange(i0 + 1, i1 + 1, dtype=float) - enc.sync_delay)
         else:
-            am = alpha[1:]
+            np.multiply(kidx[1:m + 1], W * dt, out=am)
+            am += phi0
+            if d_alpha is not None:
+                am += d_alpha[1:]
         if enc.harmonics:
             err = np.zeros(m)
             for h in enc.harmonics:
                 err += h.value(am)
-            am = am + err
+            am += err
         if enc.resolution:
-            am = am / enc.resolution
+            am /= enc.resolution
             np.round(am, out=am)
             am *= enc.resolution
-        encoder[i0:i1] = am
 
     meta = {"latitude_deg": math.degrees(truth.site.latitude),
             "rate_dps": math.degrees(run.rate), "azimuth_deg": math.degrees(run.azimuth),

@@ -45,6 +45,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from hse_opt.sim._io import atomic_path
+
 __all__ = ["RawLog", "validate_rawlog", "load_rawlog", "save_rawlog", "CSV_COLUMNS"]
 
 CSV_COLUMNS = ("t_s", "gyro_x_rad", "gyro_y_rad", "gyro_z_rad", "accel_x_mps", "accel_y_mps",
@@ -149,19 +151,21 @@ def validate_rawlog(t, gyro, accel, encoder):
 
 
 def save_rawlog(log, path):
-    """Write ``log`` to ``path`` (``.npz``; or ``.csv`` with a ``.json`` sidecar for meta)."""
+    """Write ``log`` to ``path`` (``.npz``; or ``.csv`` with a ``.json`` sidecar for meta),
+    each file whole or not at all."""
     path = os.fspath(path)
     if path.endswith(".csv"):
         data = np.column_stack([log.t, log.gyro, log.accel, log.encoder])
-        np.savetxt(path, data, delimiter=",", header=",".join(CSV_COLUMNS), comments="",
-                   fmt="%.17g")
-        with open(path + ".json", "w", encoding="utf-8") as fh:
+        with atomic_path(path) as tmp:
+            np.savetxt(tmp, data, delimiter=",", header=",".join(CSV_COLUMNS), comments="", fmt="%.17g")
+        with atomic_path(path + ".json") as tmp, open(tmp, "w", encoding="utf-8") as fh:
             json.dump(log.meta, fh, indent=1, sort_keys=True)
         return
     if not path.endswith(".npz"):
         raise ValueError(f"{path}: raw log files end in .npz or .csv")
-    np.savez(path, t_s=log.t, gyro_rad=log.gyro, accel_mps=log.accel, encoder_rad=log.encoder,
-             meta_json=np.array(json.dumps(log.meta, sort_keys=True)))
+    with atomic_path(path) as tmp:
+        np.savez(tmp, t_s=log.t, gyro_rad=log.gyro, accel_mps=log.accel, encoder_rad=log.encoder,
+                 meta_json=np.array(json.dumps(log.meta, sort_keys=True)))
 
 
 def load_rawlog(path, meta=None):

@@ -100,12 +100,15 @@ import difflib
 import math
 import sys
 from dataclasses import dataclass, field
-from typing import Any
+from decimal import Decimal
 
 import numpy as np
 
 from hse_opt import units
+# the exact decimal <-> SI conversions of the file formats (one implementation, in data.py)
+from hse_opt.data import _to_si, _to_text
 from hse_opt.frames import R_ZB_S_IDEAL, c_b_s, skew
+from hse_opt.sim._io import atomic_path
 
 if sys.version_info >= (3, 11):
     import tomllib
@@ -115,7 +118,7 @@ else:  # pragma: no cover
 __all__ = [
     "Harmonic", "SiteConfig", "TimingConfig", "TableConfig", "EncoderConfig", "GyroConfig",
     "MountConfig", "AccelConfig", "StandConfig", "ThermalConfig", "TruthConfig", "RunSpec",
-    "EFFECT_KEYS", "MAX_TILT", "load_truth", "save_truth", "validate_run", "temperature",
+    "EFFECT_KEYS", "MAX_TILT", "RunError", "load_truth", "save_truth", "validate_run", "temperature",
     "gyro_matrices",
 ]
 
@@ -136,11 +139,10 @@ _UNIT = {
 
 def _p(key, unit, default, *, n=None, lo=None, hi=None, integer=False, doc=""):
     """A schema field: TOML ``key`` in ``unit``; ``default`` given in that unit; bounds in it."""
-    f = _UNIT[unit]
     if n is None:
-        dflt = int(default) if integer else float(default) * f
+        dflt = int(default) if integer else _to_si(default, _UNIT[unit])
     else:
-        dflt = tuple(float(v) * f for v in default)
+        dflt = tuple(_to_si(v, _UNIT[unit]) for v in default)
     return field(default=dflt, metadata=dict(key=key, unit=unit, n=n, lo=lo, hi=hi,
                                             integer=integer, doc=doc))
 
@@ -345,6 +347,30 @@ def _unknown(name, valid, where):
     return ValueError(f"unknown key {name!r} in {where}{hint} Valid keys: {', '.join(sorted(valid))}")
 
 
+def _is_number(v):
+    return isinstance(v, (int, float, Decimal)) and not isinstance(v, bool)
+
+
+def _shown(raw):
+    """A value as the user wrote it, for messages (TOML floats are read as Decimal)."""
+    if isinstance(raw, (list, tuple)):
+        return [_shown(v) for v in raw]
+    return float(raw) if isinstance(raw, Decimal) else raw
+
+
+def _si(value, unit):
+    """A value in ``unit`` (TOML Decimal, float or int) -> SI float: the decimal as written
+    times the unit factor, rounded once (as :mod:`hse_opt.data` reads CSV files)."""
+    return _to_si(str(value) if isinstance(value, Decimal) else value, _UNIT[unit])
+
+
+def _display(x, unit, decimals):
+    """SI float -> the shortest decimal in ``unit`` that :func:`_si` reads back exactly;
+    a Decimal for the TOML file, else its float."""
+    text = _to_text(x, _UNIT[unit])
+    return Decimal(text) if decimals else float(text)
+
+
 def _check_bounds(where, value, meta):
     lo, hi = meta["lo"], meta["hi"]
     vals = value if isinstance(value, (list, tuple)) else [value]
@@ -352,25 +378,24 @@ def _check_bounds(where, value, meta):
         if not math.isfinite(v) or (lo is not None and v < lo) or (hi is not None and v > hi):
             rng = f"[{lo}, {hi}]" if lo is not None and hi is not None else (
                 f">= {lo}" if lo is not None else f"<= {hi}" if hi is not None else "finite")
-            raise ValueError(f"{where} = {value!r} is not allowed: each value must be finite "
+            raise ValueError(f"{where} = {_shown(value)!r} is not allowed: each value must be finite "
                              f"and in {rng} {meta['unit']}")
 
 
 def _parse_value(where, raw, meta):
     n = meta["n"]
     if n is None:
-        if isinstance(raw, bool) or not isinstance(raw, (int, float)):
-            raise ValueError(f"{where} = {raw!r} is not allowed: a number in {meta['unit']} is required")
+        if not _is_number(raw):
+            raise ValueError(f"{where} = {_shown(raw)!r} is not allowed: a number in {meta['unit']} is required")
         if meta["integer"] and (not float(raw).is_integer()):
-            raise ValueError(f"{where} = {raw!r} is not allowed: an integer is required")
+            raise ValueError(f"{where} = {_shown(raw)!r} is not allowed: an integer is required")
         _check_bounds(where, raw, meta)
-        return int(raw) if meta["integer"] else float(raw) * _UNIT[meta["unit"]]
-    if (not isinstance(raw, (list, tuple)) or len(raw) != n
-            or any(isinstance(v, bool) or not isinstance(v, (int, float)) for v in raw)):
-        raise ValueError(f"{where} = {raw!r} is not allowed: a list of {n} numbers in "
+        return int(raw) if meta["integer"] else _si(raw, meta["unit"])
+    if not isinstance(raw, (list, tuple)) or len(raw) != n or not all(_is_number(v) for v in raw):
+        raise ValueError(f"{where} = {_shown(raw)!r} is not allowed: a list of {n} numbers in "
                          f"{meta['unit']} is required")
     _check_bounds(where, list(raw), meta)
-    return tuple(float(v) * _UNIT[meta["unit"]] for v in raw)
+    return tuple(_si(v, meta["unit"]) for v in raw)
 
 
 def _parse_harmonics(where, raw):
@@ -393,17 +418,17 @@ def _parse_harmonics(where, raw):
             raise ValueError(f"{w}.order = {order!r} is not allowed: an integer >= 1 is required")
         amp, ph = h["amplitude_arcsec"], h.get("phase_deg", 0.0)
         for k, v in (("amplitude_arcsec", amp), ("phase_deg", ph)):
-            if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v):
-                raise ValueError(f"{w}.{k} = {v!r} is not allowed: a finite number is required")
+            if not _is_number(v) or not math.isfinite(v):
+                raise ValueError(f"{w}.{k} = {_shown(v)!r} is not allowed: a finite number is required")
         if abs(amp) > 3600.0:
-            raise ValueError(f"{w}.amplitude_arcsec = {amp!r} is not allowed: |amplitude| <= 3600 arcsec")
-        out.append(Harmonic(order, float(amp) * units.ARCSEC, float(ph) * units.DEG))
+            raise ValueError(f"{w}.amplitude_arcsec = {_shown(amp)!r} is not allowed: |amplitude| <= 3600 arcsec")
+        out.append(Harmonic(order, _si(amp, "arcsec"), _si(ph, "deg")))
     return tuple(out)
 
 
-def _harmonics_to_toml(hs):
-    return [{"order": h.order, "amplitude_arcsec": h.amplitude / units.ARCSEC,
-             "phase_deg": h.phase / units.DEG} for h in hs]
+def _harmonics_to_toml(hs, decimals):
+    return [{"order": h.order, "amplitude_arcsec": _display(h.amplitude, "arcsec", decimals),
+             "phase_deg": _display(h.phase, "deg", decimals)} for h in hs]
 
 
 @dataclass(frozen=True)
@@ -458,7 +483,7 @@ class TruthConfig:
     def ideal(cls):
         """A perfect system: every error, noise and quantization off (latitude, gravity,
         sampling kept), ideal rotation axis; the start for one-error-at-a-time studies."""
-        d = cls().to_dict()
+        d = cls().to_dict(decimals=True)
         zero3 = [0.0, 0.0, 0.0]
         ideal_r = [float(v) for v in R_ZB_S_IDEAL]
         d["table"].update(rate_error_ppm=0.0, ripple_ppm=0.0)
@@ -522,8 +547,10 @@ class TruthConfig:
             sections[sname] = dataclasses.replace(current, **changes)
         return cls(**sections)
 
-    def to_dict(self):
-        """The TOML-shaped dict (unit-named keys, values in those units)."""
+    def to_dict(self, decimals=False):
+        """The TOML-shaped dict (unit-named keys, values in those units): each value the
+        shortest decimal that reads back to exactly the same SI float, as ``decimal.Decimal``
+        with ``decimals=True`` (what :meth:`to_toml` writes), else as float."""
         out = {}
         for sname, scls in _SECTIONS.items():
             sec = getattr(self, sname)
@@ -531,15 +558,15 @@ class TruthConfig:
             for f in dataclasses.fields(scls):
                 v = getattr(sec, f.name)
                 if (scls, f.name) in _HARMONIC_CLS_FIELDS:
-                    sd[f.name] = _harmonics_to_toml(v)
+                    sd[f.name] = _harmonics_to_toml(v, decimals)
                     continue
                 m = f.metadata
                 if m["integer"]:
                     sd[m["key"]] = int(v)
                 elif m["n"] is None:
-                    sd[m["key"]] = _clean(v / _UNIT[m["unit"]])
+                    sd[m["key"]] = _display(v, m["unit"], decimals)
                 else:
-                    sd[m["key"]] = [_clean(x / _UNIT[m["unit"]]) for x in v]
+                    sd[m["key"]] = [_display(x, m["unit"], decimals) for x in v]
             out[sname] = sd
         return out
 
@@ -553,7 +580,7 @@ class TruthConfig:
         """Load ``TRUTH.toml``; missing keys take the default system's values."""
         with open(path, "rb") as fh:
             try:
-                d = tomllib.load(fh)
+                d = tomllib.load(fh, parse_float=Decimal)    # exact: see _si
             except tomllib.TOMLDecodeError as exc:
                 raise ValueError(f"{path}: not valid TOML: {exc}") from None
         try:
@@ -562,19 +589,14 @@ class TruthConfig:
             raise ValueError(f"{path}: {exc}") from None
 
     def to_toml(self, path=None):
-        """Write (or, with ``path=None``, return) the TOML text; every key is written."""
+        """Write (or, with ``path=None``, return) the TOML text; every key is written, and
+        reading it back gives exactly this configuration."""
         import tomli_w
-        text = tomli_w.dumps(self.to_dict())
+        text = tomli_w.dumps(self.to_dict(decimals=True))
         if path is not None:
-            with open(path, "w", encoding="utf-8") as fh:
+            with atomic_path(path) as tmp, open(tmp, "w", encoding="utf-8") as fh:
                 fh.write(text)
         return text
-
-
-def _clean(x):
-    """Round-trip-safe float for TOML (drop the last-bit noise of unit conversions)."""
-    r = float(f"{x:.15g}")
-    return r if r != 0 else 0.0
 
 
 def load_truth(path):
@@ -656,63 +678,55 @@ class RunSpec:
     tilt: tuple = (0.0, 0.0)
     alpha0: float | None = None
 
-    @classmethod
-    def from_plan_row(cls, row):
-        """From a PLAN.csv row (mapping of column name -> value in the column's unit)."""
-        def num(name, default=None):
-            if name not in row or row[name] in (None, ""):
-                if default is None:
-                    raise ValueError(f"PLAN column {name!r} is missing")
-                return default
-            try:
-                v = float(row[name])
-            except (TypeError, ValueError):
-                raise ValueError(f"PLAN column {name} = {row[name]!r}: a number is required") from None
-            if not math.isfinite(v):
-                raise ValueError(f"PLAN column {name} = {row[name]!r}: a finite number is required")
-            return v
-        return cls(rate=num("rate_dps") * units.DEG_PER_S,
-                   azimuth=num("azimuth_deg") * units.DEG,
-                   duration=num("duration_s"),
-                   t_start=num("t_start_s"),
-                   tilt=(num("tilt_x_arcsec", 0.0) * units.ARCSEC,
-                         num("tilt_y_arcsec", 0.0) * units.ARCSEC))
+
+class RunError(ValueError):
+    """A run the system cannot make. ``column`` is the PLAN column at fault, ``problem`` the
+    message (what is wrong and what is allowed)."""
+
+    def __init__(self, column, problem):
+        self.column, self.problem = column, problem
+        super().__init__(problem)
+
+    def __reduce__(self):
+        return type(self), (self.column, self.problem)
 
 
 def validate_run(truth, run):
-    """Check a run against the system; ValueError naming the PLAN column and what is allowed.
+    """Check a run against the system; :class:`RunError` naming the PLAN column and what is
+    allowed.
 
     Checks: a finite non-zero rate outside the gyros' lock-in zone (each gyro's input rate
     ``|Omega r_g . r_zb^s|``, less the Earth rate, must exceed ``gyro.lockin_dps``), a duration
-    of at least one table revolution (and at most one day), ``t_start >= 0`` and each
+    of at least one table revolution plus one sample (and at most one day), ``t_start >= 0`` and each
     total tilt component within :data:`MAX_TILT`.
     """
     for name, v in (("rate_dps", run.rate), ("azimuth_deg", run.azimuth),
                     ("duration_s", run.duration), ("t_start_s", run.t_start)):
         if not math.isfinite(v):
-            raise ValueError(f"{name} = {v!r} is not allowed: a finite number is required")
+            raise RunError(name, f"{name} = {v!r} is not allowed: a finite number is required")
     mats = gyro_matrices(truth)
     axes_s = np.linalg.inv(mats["K_g"])                       # rows: gyro axes in s
     proj = np.abs(axes_s @ mats["C_b_s"][:, 2])               # |cos| between axis and z_b
     from hse_opt.frames import EARTH_RATE
     min_rate = (truth.gyro.lockin + EARTH_RATE) / proj.min()
     if not abs(run.rate) > min_rate:
-        raise ValueError(
-            f"rate_dps = {run.rate / units.DEG_PER_S:g} is inside the gyros' lock-in zone "
+        raise RunError(
+            "rate_dps", f"rate_dps = {run.rate / units.DEG_PER_S:g} is inside the gyros' lock-in zone "
             f"(gyro.lockin_dps = {truth.gyro.lockin / units.DEG_PER_S:g} on each gyro's input "
             f"rate): allowed |rate_dps| > {min_rate / units.DEG_PER_S:.4g}")
-    t_rev = 2 * math.pi / abs(run.rate)
-    if run.duration < t_rev:
-        raise ValueError(f"duration_s = {run.duration:g} is shorter than one table revolution: "
-                         f"allowed duration_s >= {t_rev:.4g} s at rate_dps = "
-                         f"{run.rate / units.DEG_PER_S:g}")
+    # one revolution of encoder span: the first sample's increment has no angle at its start
+    t_min = 2 * math.pi / abs(run.rate) + truth.timing.sample_period
+    if run.duration < t_min:
+        raise RunError("duration_s", f"duration_s = {run.duration:g} is shorter than one table "
+                       f"revolution plus one sample: allowed duration_s >= {t_min:.6g} s at "
+                       f"rate_dps = {run.rate / units.DEG_PER_S:g}")
     if run.duration > 86400.0:
-        raise ValueError(f"duration_s = {run.duration:g} is not allowed: at most 86400 s")
+        raise RunError("duration_s", f"duration_s = {run.duration:g} is not allowed: at most 86400 s")
     if run.t_start < 0:
-        raise ValueError(f"t_start_s = {run.t_start:g} is not allowed: time since power-on >= 0")
+        raise RunError("t_start_s", f"t_start_s = {run.t_start:g} is not allowed: time since power-on >= 0")
     for i, name in enumerate(("tilt_x_arcsec", "tilt_y_arcsec")):
         total = run.tilt[i] + truth.stand.mount_tilt[i]
         if abs(total) > MAX_TILT:
-            raise ValueError(f"{name} = {run.tilt[i] / units.ARCSEC:g}: |tilt| too large (with "
+            raise RunError(name, f"{name} = {run.tilt[i] / units.ARCSEC:g}: |tilt| too large (with "
                              f"stand.mount_tilt_arcsec {truth.stand.mount_tilt[i] / units.ARCSEC:g}); "
                              f"allowed |total tilt| <= {MAX_TILT / units.ARCSEC:.0f} arcsec")
