@@ -166,6 +166,8 @@ def run(args):
     if not args.output:
         raise ValueError("-o PLAN.csv is required to design a plan (or use --evaluate PLAN.csv)")
     lo, hi = _pair(args.rates, "--rates", sep=":")
+    if not 0 < lo <= hi:
+        raise ValueError(f"--rates {args.rates}: allowed LO:HI in deg/s with 0 < LO <= HI")
     space = DesignSpace(rates=(lo * units.DEG_PER_S, hi * units.DEG_PER_S), n_rates=args.n_rates,
                         reverse=args.reverse, sense=-1 if args.negative else 1,
                         azimuth_step=args.azimuth_step_deg * units.DEG,
