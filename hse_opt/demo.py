@@ -238,6 +238,112 @@ def hidden_effect(seed, plan=None, truth=None):
     return HiddenEffect(name, values, {k: units_[k] for k in values}, _TO_TRUTH[name](values))
 
 
+# -- the next plan ---------------------------------------------------------------------------
+@dataclass(frozen=True)
+class NextPlan:
+    """The optimised next plan and the paper's plan, for the same model and test time.
+
+    Attributes
+    ----------
+    design : hse_opt.design.DesignResult or None
+        ``c:lambda2`` (the paper's goal) within the paper plan's test time, rates 20-60 deg/s
+        in one sense (the paper's), the campaign's 0.5-deg tilt fixture allowed; None when
+        the design failed (``notes`` gives the solver's status).
+    level : hse_opt.design.DesignResult or None
+        The same under the paper's own limits (no tilt fixture): how much of the gain the
+        design makes without new hardware.
+    baseline : hse_opt.design.Evaluation or None
+        The paper's plan (:func:`hse_opt.design.paper_plan`) for the same model; None when
+        it cannot identify the model (``notes`` says why).
+    notes : tuple of str
+    """
+
+    design: object
+    level: object
+    baseline: object
+    notes: tuple = ()
+
+    def gain(self, which="design"):
+        """sigma(lambda2) of the paper's plan over that of ``design`` or ``level`` (None when
+        either is missing)."""
+        d = getattr(self, which)
+        if self.baseline is None or d is None:
+            return None
+        return self.baseline.std_of("lambda2") / d.std_of("lambda2")
+
+    def to_dict(self):
+        def one(d, which):
+            if d is None:
+                return None
+            return {"n_runs": d.n_runs, "total_time_h": d.total_time / units.HOUR,
+                    "efficiency": float(d.efficiency), "sigma_lambda2_arcsec": d.std_of("lambda2"),
+                    "gain": self.gain(which)}
+        d = self.design
+        return {"failed": d is None, "criterion": None if d is None else d.criterion,
+                "effects": None if d is None else list(d.evaluation.effects),
+                "tilt_fixture": one(d, "design"), "paper_limits": one(self.level, "level"),
+                "paper_sigma_lambda2_arcsec": (None if self.baseline is None
+                                               else self.baseline.std_of("lambda2")),
+                "notes": list(self.notes)}
+
+
+def _design(model, kw, notes, label):
+    """``design(model, 'c:lambda2', **kw)``; an IPOPT refinement failure falls back to the
+    rounded design, any other failure returns None; both are noted."""
+    from .design import DesignError, design
+    failures = (DesignError, np.linalg.LinAlgError)   # the latter: a solver's factorisation
+    try:
+        return design(model, "c:lambda2", **kw)
+    except failures as err:
+        if "refinement" in str(err):
+            notes.append(f"{label}: {err}; the rounded design on the candidate grid is used.")
+            try:
+                return design(model, "c:lambda2", refine=False, **kw)
+            except failures as err2:
+                err = err2
+        notes.append(f"{label}: the design failed: {type(err).__name__}: {err}")
+        return None
+
+
+def design_next(model, values=None):
+    """The optimised next plan for ``model`` (:class:`NextPlan`), with and without the tilt
+    fixture, and the paper's plan for comparison.
+
+    Parameters
+    ----------
+    model : hse_opt.model.Model
+        The calibrated model (e.g. ``fit.model``).
+    values : mapping name -> value (display units), optional
+        Where to linearise (e.g. the fitted values); default the parameters' nominal values.
+
+    Covariate effects are left out of the design model (a covariate is recorded, not
+    planned). When the IPOPT refinement fails the rounded design on the candidate grid is
+    kept, and said; when a design fails it is None and the notes give the solver's status.
+    """
+    from .design import DesignSpace, evaluate, paper_plan
+    from .information import UnidentifiableError
+
+    effects = [e for e in model.effect_names if not e.startswith("covariate:")]
+    notes = []
+    if len(effects) < len(model.effect_names):
+        notes.append("Covariate effects are recorded, not planned: the plan is designed for "
+                     + " + ".join(effects) + ".")
+    model = Model(effects)
+    names = model.measurement(True).names
+    nominal = {n: float(v) for n, v in (values or {}).items() if n in names}
+    paper = paper_plan()
+    kw = dict(budget=float(paper.t_start[-1] + paper.duration[-1]), nominal=nominal)
+    fixture = _design(model, {**kw, "space": DesignSpace(max_tilt=_FIXTURE_TILT_ARCSEC * units.ARCSEC)},
+                      notes, "with the tilt fixture")
+    level = _design(model, kw, notes, "without the tilt fixture")
+    try:
+        baseline = evaluate(paper, model, nominal=nominal)
+    except UnidentifiableError as err:
+        baseline = None
+        notes.append(f"The paper's plan cannot identify {' + '.join(effects)}: {err}")
+    return NextPlan(fixture, level, baseline, tuple(notes))
+
+
 # -- the chain -------------------------------------------------------------------------------
 @dataclass(frozen=True)
 class DemoResult:
@@ -362,9 +468,10 @@ def run_demo(seed=0, progress=None):
     after = None if after_diagnosis is None else after_diagnosis.fit
     seconds["diagnose"] = time.perf_counter() - t0
 
-    # SEAM (issue 5, hse_opt.design): design the next plan for the final model within the
-    # paper plan's test time and compare predicted sigmas with the paper's plan.
-    next_plan = None
+    t0 = time.perf_counter()
+    final = after if after is not None else before
+    next_plan = design_next(final.model, dict(zip(final.names, final.values)))
+    seconds["design"] = time.perf_counter() - t0
 
     from .model.paper import reproduce
     noise = float(np.median(runs.heading_std) / units.ARCSEC)
@@ -376,7 +483,7 @@ def run_demo(seed=0, progress=None):
 
 # -- outputs ---------------------------------------------------------------------------------
 #: files :func:`write_outputs` writes into the output directory
-OUTPUT_FILES = ("report.html", "summary.json", "RUNS.csv", "PLAN.csv", "TRUTH.toml")
+OUTPUT_FILES = ("report.html", "summary.json", "RUNS.csv", "PLAN.csv", "TRUTH.toml", "NEXT_PLAN.csv")
 
 
 def report_sections(result):
@@ -397,7 +504,12 @@ def report_sections(result):
         sections += [report.comparison_section(compare(r.diagnosis, r.diagnosis_after),
                                                title=f"Adding {r.named}: before and after"),
                      report.fit_section(r.fit_after, r.runs, f"The model with {r.named}")]
-    # SEAM (issue 5): report.design_section(r.design, baseline=paper plan)
+    n = r.next_plan
+    if n.design is not None:
+        sections.append(report.design_section(n.design, n.baseline, "The next plan",
+                                              " ".join(n.notes) or None))
+    else:
+        sections.append(report.Section("The next plan", (report._notes(list(n.notes)),)))
     return sections
 
 
@@ -414,12 +526,33 @@ def summary_text(result):
     if fa is not None:
         lines.append(f"With it the RMS falls to {fa.rms_arcsec:.1f} arcsec (reduced chi-square "
                      f"{fa.chi2_red:.2f}); verdict {r.diagnosis_after.verdict}.")
+    lines.append(next_plan_text(r.next_plan))
     return lines
+
+
+def next_plan_text(next_plan):
+    """The next plan's gain over the paper's plan, in words."""
+    n = next_plan
+    if n.design is None:
+        return " ".join(n.notes)
+    d = n.design
+    text = (f"The optimised next plan ({d.n_runs} alignments in the paper plan's "
+            f"{d.total_time / units.HOUR:.2f} h, with the 0.5-deg tilt fixture) gives "
+            f"sigma(lambda2) = {d.std_of('lambda2'):.3g} arcsec")
+    if n.baseline is None:
+        return text + f"; the paper's plan cannot identify {' + '.join(d.evaluation.effects)}."
+    text += (f" against {n.baseline.std_of('lambda2'):.3g} arcsec with the paper's plan: "
+             f"{n.gain():.0f} times smaller")
+    if n.level is not None:
+        text += (f"; under the paper's own limits (no fixture) {n.level.std_of('lambda2'):.3g} "
+                 f"arcsec, {n.gain('level'):.1f} times smaller")
+    return text + "."
 
 
 def write_outputs(result, directory):
     """Write the report and the data of a demo run into ``directory`` (created when missing;
-    each file whole or not at all): :data:`OUTPUT_FILES`.
+    each file whole or not at all): :data:`OUTPUT_FILES` (``NEXT_PLAN.csv`` only when the
+    design succeeded).
 
     Returns
     -------
@@ -435,6 +568,8 @@ def write_outputs(result, directory):
                                f"hse-opt demo, seed {result.seed}", summary_text(result))
     save_runs(result.runs, directory / "RUNS.csv")
     save_plan(result.plan, directory / "PLAN.csv")
+    if result.next_plan.design is not None:
+        save_plan(result.next_plan.design.plan, directory / "NEXT_PLAN.csv")
     report.write_text_atomic(directory / "TRUTH.toml", result.truth.to_toml())
     data = {**result.to_dict(), "report": str(path)}
     report.write_text_atomic(directory / "summary.json", json.dumps(data, indent=2, allow_nan=False) + "\n")

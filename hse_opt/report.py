@@ -43,7 +43,7 @@ from . import __version__, units
 from .data import Runs
 
 __all__ = ["Section", "Figure", "fit_section", "comparison_section", "diagnosis_section",
-           "design_section", "plan_section", "plot_sigmas", "render_html", "plot_candidates", "plot_factor_tests",
+           "design_section", "evaluation_section", "plan_section", "plot_sigmas", "render_html", "plot_candidates", "plot_factor_tests",
            "write_report", "write_text_atomic", "plot_calibration_line", "plot_azimuth",
            "plot_residuals", "plot_before_after", "plot_plan", "factors", "REPORT_NAME"]
 
@@ -866,6 +866,29 @@ def _jsonable(obj):
     return json.loads(json.dumps(obj, default=lambda o: o.tolist() if hasattr(o, "tolist") else str(o)))
 
 
+def _evaluation_blocks(ev, plan, baseline, baseline_note, label):
+    """Plan over time, predicted sigmas (plot and table) against a baseline plan's."""
+    rows, keys = [], []
+    for i, (n, u, sd) in enumerate(zip(ev.names, ev.units, ev.std)):
+        b = None
+        if baseline is not None and n in baseline.names:
+            b = float(baseline.std[list(baseline.names).index(n)])
+        rows.append([f"<code>{html.escape(n)}</code>", html.escape(u), _fmt(sd, 3), _fmt(b, 3),
+                     _fmt(sd / b, 3) if b else "&ndash;", _fmt(ev.drift_bias[i], 3)])
+        keys.append(f"sigma:{n}")
+    return [
+        _embed(plot_plan(plan, label), f"Each bar is one alignment of {label.lower()}, from its "
+               "start to its end.", "the plan's runs over time"),
+        _embed(plot_sigmas(ev, baseline, (label.lower(), "paper's plan")),
+               "Predicted 1-sigma of each parameter (log scale)"
+               + (" against the paper's plan in the same model; x: the ratio."
+                  if baseline is not None else "."), "predicted sigmas"),
+        _table(["parameter", "unit", "predicted sigma", "paper's plan", "ratio",
+                "bias per arcsec/h of drift"], rows, keys=keys, cls="sigmas"),
+        _paragraph(baseline_note) if baseline_note else "",
+    ]
+
+
 def design_section(result, baseline=None, title=None, baseline_note=None):
     """The report section of an optimised plan: its runs over time, its predicted sigmas
     against a baseline plan's (the paper's), efficiency and times.
@@ -895,30 +918,40 @@ def design_section(result, baseline=None, title=None, baseline_note=None):
              ("efficiency against the whole budget", "budget_efficiency",
               _fmt(result.budget_efficiency)),
              ("refinement", "refinement", html.escape(result.refinement))]
-    rows, keys = [], []
-    for i, (n, u, sd) in enumerate(zip(ev.names, ev.units, ev.std)):
-        b = None
-        if baseline is not None and n in baseline.names:
-            b = float(baseline.std[list(baseline.names).index(n)])
-        rows.append([f"<code>{html.escape(n)}</code>", html.escape(u), _fmt(sd, 3), _fmt(b, 3),
-                     _fmt(sd / b, 3) if b else "&ndash;", _fmt(ev.drift_bias[i], 3)])
-        keys.append(f"sigma:{n}")
-    blocks = [
-        _table(["", "value"], [[lab, v] for lab, _, v in stats], keys=[k for _, k, _ in stats],
-               cls="stats"),
-        _embed(plot_plan(result.plan, "The optimised plan"),
-               "Each bar is one alignment of the optimised plan, from its start to its end.",
-               "the optimised plan's runs over time"),
-        _embed(plot_sigmas(ev, baseline),
-               "Predicted 1-sigma of each parameter (log scale)"
-               + (" for the optimised plan and the paper's plan in the same model; x: the ratio."
-                  if baseline is not None else "."), "predicted sigmas"),
-        _table(["parameter", "unit", "predicted sigma", "paper's plan", "ratio",
-                "bias per arcsec/h of drift"], rows, keys=keys, cls="sigmas"),
-        _paragraph(baseline_note) if baseline_note else "",
-        _notes(list(result.notes)),
-    ]
+    blocks = [_table(["", "value"], [[lab, v] for lab, _, v in stats],
+                     keys=[k for _, k, _ in stats], cls="stats")]
+    blocks += _evaluation_blocks(ev, result.plan, baseline, baseline_note, "The optimised plan")
+    blocks.append(_notes(list(result.notes)))
     data = {"design": _jsonable(result.to_dict()),
+            "baseline": None if baseline is None else _jsonable(baseline.to_dict())}
+    return Section(title, tuple(b for b in blocks if b), data)
+
+
+def evaluation_section(evaluation, plan, baseline=None, title=None, baseline_note=None):
+    """The report section of an existing plan's evaluation (``hse-opt design --evaluate``):
+    its runs over time and predicted sigmas against a baseline plan's.
+
+    Parameters
+    ----------
+    evaluation : hse_opt.design.Evaluation
+    plan : hse_opt.data.Plan
+    baseline : hse_opt.design.Evaluation, optional
+    title, baseline_note : str, optional
+
+    Returns
+    -------
+    Section
+    """
+    ev = evaluation
+    title = title or f"The plan evaluated for {' + '.join(ev.effects)}"
+    stats = [("alignments", "n_runs", _fmt(ev.n_runs)),
+             ("total time [h]", "total_time_h", _fmt(ev.total_time / units.HOUR)),
+             ("criterion", "criterion", html.escape(f"{ev.criterion} = {ev.criterion_value:.6g}")),
+             ("condition number", "condition", _fmt(ev.condition, 3))]
+    blocks = [_table(["", "value"], [[lab, v] for lab, _, v in stats],
+                     keys=[k for _, k, _ in stats], cls="stats")]
+    blocks += _evaluation_blocks(ev, plan, baseline, baseline_note, "The plan")
+    data = {"evaluation": _jsonable(ev.to_dict()),
             "baseline": None if baseline is None else _jsonable(baseline.to_dict())}
     return Section(title, tuple(b for b in blocks if b), data)
 

@@ -133,3 +133,35 @@ def test_bad_arguments_exit_2_with_one_line(args, match, capsys):
     assert main(["demo", *args, "--no-progress"]) == 2
     err = capsys.readouterr().err.strip()
     assert len(err.splitlines()) == 1 and re.search(match, err)
+
+
+def test_the_demo_designs_a_better_next_plan(demo_run):
+    nxt = demo_run[0]["next_plan"]
+    assert not nxt["failed"]
+    assert nxt["effects"] == ["hse", demo_run[0]["named_effect"]]
+    assert nxt["criterion"] == "c:lambda2"
+    # within the paper plan's test time, and better than it for the paper's goal: a little
+    # under the paper's own limits, by far with the tilt fixture (issue 5's targets)
+    from hse_opt.design import paper_plan
+    paper = paper_plan()
+    for key, least in (("paper_limits", 1.0), ("tilt_fixture", 5.0)):
+        d = nxt[key]
+        assert d["total_time_h"] <= (paper.t_start[-1] + paper.duration[-1]) / 3600 + 1e-9
+        assert d["gain"] == pytest.approx(nxt["paper_sigma_lambda2_arcsec"] / d["sigma_lambda2_arcsec"])
+        assert d["gain"] > least, key
+
+
+@pytest.mark.parametrize("name", [
+    "axis_bias", "sync_delay", "scale_nonlinearity", "azimuth_harmonic2", "covariate:temp_c",
+    pytest.param("warmup", marks=pytest.mark.xfail(
+        strict=True, raises=AssertionError,
+        reason="hse_opt.design fails for hse+warmup: the approximate design's convex program "
+               "ends optimal_inaccurate (CLARABEL), certified efficiency ~0.6 (design issue)")),
+])
+def test_the_next_plan_is_designed_for_every_drawable_effect(name):
+    """The design step of the chain for the model each seed can end with, linearised at the
+    hidden values (what the refit recovers)."""
+    h = next(demo.hidden_effect(s) for s in range(200) if demo.hidden_effect(s).name == name)
+    nxt = demo.design_next(Model(["hse", name]), h.values)
+    assert nxt.design is not None and nxt.level is not None, nxt.notes
+    assert nxt.design.std_of("lambda2") < 0.2

@@ -49,41 +49,50 @@ def _progress_bar(enabled):
 def summary_lines(result, out_dir):
     """The printed summary (a list of lines)."""
     r = result
-    fb, fa = r.fit_before, r.fit_after
-    plan = r.plan
-    hours = float((plan.t_start[-1] + plan.duration[-1]) / 3600.0)
+    fb, fa, d, n = r.fit_before, r.fit_after, r.diagnosis, r.next_plan
+    hours = float((r.plan.t_start[-1] + r.plan.duration[-1]) / 3600.0)
+    hidden = ", ".join(f"{k} = {v:.4g} {r.hidden.units[k]}" for k, v in r.hidden.values.items())
     lines = [
-        f"hse-opt demo, seed {r.seed}: a simulated campaign whose truth hides one effect "
-        "the paper's model lacks",
-        f"  campaign  {len(r.runs)} alignments of 10 min over {hours:.1f} h (20/40/60 deg/s x 6 "
-        f"azimuths, half on a 0.5-deg tilt fixture); noise {r.noise_arcsec:.1f} arcsec per alignment",
-        f"  hidden    {r.hidden.describe()}",
-        f"  paper fit {'+'.join(fb.model.effect_names)}: RMS {fb.rms_arcsec:.1f} arcsec, "
-        f"reduced chi-square {fb.chi2_red:.2f}",
+        f"hse-opt demo, seed {r.seed}: a simulated campaign hides one effect the paper's model lacks",
+        f"  campaign  {len(r.runs)} ten-minute alignments over {hours:.1f} h, noise "
+        f"{r.noise_arcsec:.1f} arcsec each",
+        f"  hidden    {r.hidden.name}: {hidden}",
+        f"  paper fit RMS {fb.rms_arcsec:.1f} arcsec, reduced chi-square {fb.chi2_red:.2f}",
     ]
-    d = r.diagnosis
     if r.named is None:
-        lines.append(f"  diagnose  verdict {d.verdict}: no significant candidate "
-                     f"(the hidden effect {r.hidden.name} was not found)")
+        lines.append(f"  diagnose  {d.verdict}: no significant candidate (missed {r.hidden.name})")
     else:
         c = d.best
-        lines.append(f"  diagnose  verdict {d.verdict}; names {r.named} (score p {c.p_value:.2g}, "
+        lines.append(f"  diagnose  {d.verdict}; best candidate {r.named} (p {c.p_value:.2g}, "
                      f"Delta-BIC {c.delta_bic:.1f}): "
                      + ("the hidden effect" if r.found else f"NOT the hidden {r.hidden.name}"))
         if d.ambiguous:
-            lines.append(f"            ambiguous here: {', '.join(d.ambiguous)}")
+            lines.append(f"            cannot be told apart here: {', '.join(d.ambiguous)}")
     if fa is not None:
-        lines.append(f"  refit     {'+'.join(fa.model.effect_names)}: RMS {fb.rms_arcsec:.1f} -> "
+        lines.append(f"  refit     {' + '.join(fa.model.effect_names)}: RMS {fb.rms_arcsec:.1f} -> "
                      f"{fa.rms_arcsec:.1f} arcsec, reduced chi-square {fa.chi2_red:.2f}, "
-                     f"verdict {r.diagnosis_after.verdict}")
-        for name in r.hidden.values:
+                     f"{r.diagnosis_after.verdict}")
+        for name, value in r.hidden.values.items():
             if name in fa.names:
-                v, s = fa.value(name)
-                lines.append(f"            {name} = {v:.4g} +- {s:.2g} {r.hidden.units[name]} "
-                             f"(hidden: {r.hidden.values[name]:.4g})")
-    if r.next_plan is None:
-        lines.append("  design    (not available yet: hse_opt.design has not landed)")
-    lines.append(f"  report    {Path(out_dir) / 'report.html'}")
+                v, sd = fa.value(name)
+                lines.append(f"            {name} = {v:.4g} +- {sd:.2g} {r.hidden.units[name]} "
+                             f"(hidden {value:.4g})")
+    if n.design is None:
+        lines.append(f"  next plan {' '.join(n.notes)}")
+    else:
+        lines.append(f"  next plan sigma(lambda2) in the paper plan's {n.design.total_time / 3600:.1f} h:")
+        if n.baseline is None:
+            lines.append("            the paper's plan cannot identify this model")
+        else:
+            lines.append(f"            {n.baseline.std_of('lambda2'):.3g} arcsec with the paper's plan")
+        for d, which, label in ((n.level, "level", "the paper's limits"),
+                                (n.design, "design", "a 0.5-deg tilt fixture")):
+            if d is not None:
+                gain = n.gain(which)
+                lines.append(f"            {d.std_of('lambda2'):.3g} arcsec optimised, {label}"
+                             + ("" if gain is None else f" ({gain:.1f}x smaller)"))
+    lines.append(f"  report    {Path(out_dir) / 'report.html'} (data: RUNS.csv, PLAN.csv, "
+                 "NEXT_PLAN.csv, TRUTH.toml, summary.json)")
     return lines
 
 
@@ -107,4 +116,8 @@ def run(args):
         print_json(data)
     else:
         print("\n".join(summary_lines(result, out)))
+    if result.next_plan.design is None:
+        message("hse-opt demo: error: the design step failed (see the summary); the other "
+                f"results are in {out}")
+        return 1
     return 0

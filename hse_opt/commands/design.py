@@ -3,7 +3,7 @@ import os
 
 import numpy as np
 
-from . import message, print_json
+from . import add_report_argument, message, print_json, write_report
 
 NAME = "design"
 HELP = "optimise a calibration test plan (PLAN.csv), or evaluate one (--evaluate)"
@@ -22,7 +22,8 @@ examples:
   hse-opt design --budget-h 4.5 --reverse -o PLAN.csv
   hse-opt design --budget-h 4.5 --effects axis_bias,sync_delay --criterion D --json -o PLAN.csv
   hse-opt design --budget-h 4.5 --reverse --max-tilt-arcsec 1800 --identify axis_bias,sync_delay -o PLAN.csv
-  hse-opt design --evaluate PLAN.csv --effects axis_bias,sync_delay --json"""
+  hse-opt design --evaluate PLAN.csv --effects axis_bias,sync_delay --json
+  hse-opt design --budget-h 4.5 --reverse -o PLAN.csv --report design_report   (HTML report)"""
 
 
 def add_arguments(parser):
@@ -77,6 +78,7 @@ def add_arguments(parser):
                         help="keep rates and azimuths on the candidate grid")
     parser.add_argument("--seed", type=int, default=0, help="seed of the run-order search (default 0)")
     parser.add_argument("--json", action="store_true", help="print one JSON object on stdout")
+    add_report_argument(parser)
 
 
 def _pair(text, option, n=2, sep=","):
@@ -125,6 +127,21 @@ def run(args):
     stand = _stand(args)
     prior = load_fit(args.prior) if args.prior else None
     tilt_known = not args.tilt_unknown
+    costs = Costs(warmup=args.warmup_s, azimuth_change=args.azimuth_change_s, rate_change=args.rate_change_s,
+                  tilt_change=args.tilt_change_s, run_overhead=args.run_overhead_s)
+
+    def report(section, plan_title, **kw):
+        """--report DIR: the section with the paper's plan evaluated the same way as baseline."""
+        if not args.report:
+            return
+        from .. import report as rep
+        from ..design import paper_plan
+        try:
+            base, note = evaluate(paper_plan(costs=costs), model, stand=stand, tilt_known=tilt_known,
+                                  nominal=_nominal(args.nominal), prior=prior), None
+        except UnidentifiableError as err:
+            base, note = None, f"The paper's plan cannot identify {'+'.join(model.effect_names)}: {err}"
+        write_report(args, [getattr(rep, section)(**kw, baseline=base, baseline_note=note)], plan_title)
     if args.evaluate:
         if args.output:
             raise ValueError("-o with --evaluate: an evaluation writes nothing; allowed: one of them")
@@ -135,6 +152,8 @@ def run(args):
         except UnidentifiableError as err:
             raise UnidentifiableError(f"{args.evaluate}: {err}", err.names, err.direction,
                                       err.condition) from None
+        report("evaluation_section", f"hse-opt design --evaluate {args.evaluate}", evaluation=ev,
+               plan=plan)
         if args.json:
             print_json({**ev.to_dict(), "source": args.evaluate})
         else:
@@ -147,14 +166,14 @@ def run(args):
     if not args.output:
         raise ValueError("-o PLAN.csv is required to design a plan (or use --evaluate PLAN.csv)")
     lo, hi = _pair(args.rates, "--rates", sep=":")
+    if not 0 < lo <= hi:
+        raise ValueError(f"--rates {args.rates}: allowed LO:HI in deg/s with 0 < LO <= HI")
     space = DesignSpace(rates=(lo * units.DEG_PER_S, hi * units.DEG_PER_S), n_rates=args.n_rates,
                         reverse=args.reverse, sense=-1 if args.negative else 1,
                         azimuth_step=args.azimuth_step_deg * units.DEG,
                         max_tilt=args.max_tilt_arcsec * units.ARCSEC,
                         durations=tuple(float(d) for d in args.durations_s.split(",")),
                         time_slots=args.time_slots)
-    costs = Costs(warmup=args.warmup_s, azimuth_change=args.azimuth_change_s, rate_change=args.rate_change_s,
-                  tilt_change=args.tilt_change_s, run_overhead=args.run_overhead_s)
     identify = None if args.identify is None else as_model(args.identify)
     result = design(model, args.criterion, budget=args.budget_h * units.HOUR, space=space, stand=stand,
                     costs=costs, max_runs=args.max_runs, tilt_known=tilt_known, nominal=_nominal(args.nominal),
@@ -164,6 +183,7 @@ def run(args):
         raise ValueError(f"-o {args.output}: is the input file; allowed: another path")
     save_plan(result.plan, args.output)
     message(f"hse-opt design: wrote {args.output} ({result.n_runs} runs)")
+    report("design_section", f"hse-opt design {args.output}", result=result)
     if args.json:
         print_json({**result.to_dict(), "output": args.output})
     else:
