@@ -1871,7 +1871,6 @@ def monte_carlo(plan, model=None, n_rep=100, *, truth=None, seed=0, jobs=1, tilt
     -------
     MonteCarloResult, or a tuple of them for a list of models
     """
-    from .data import Runs
     from .fit import fit
     from .sim import TruthConfig, run_campaign
 

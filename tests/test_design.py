@@ -157,6 +157,21 @@ def test_gradients_match_finite_differences(crit, rng):
         assert np.sum(grad * H) == pytest.approx(fd, rel=1e-6, abs=1e-9)
 
 
+def test_directional_derivatives_in_the_run_numbers_match_finite_differences(rng):
+    # the equivalence-theorem certificate and the exchange screening use d loss / d w_i
+    from hse_opt.design import _directional, _mean_loss, _Rows
+    rows = rng.normal(size=(2, 12, 3))  # two prior draws, 12 candidates, 3 parameters
+    spec = _Rows(("a", "b", "c"), None, [])
+    w = rng.uniform(0.5, 2.0, 12)
+    for crit in (D(), A(), C("c"), E()):
+        g = _directional(crit, rows, spec, w)
+        for i in range(0, 12, 5):
+            e = np.zeros(12)
+            e[i] = 1e-6
+            fd = (_mean_loss(crit, rows, spec, w + e) - _mean_loss(crit, rows, spec, w - e)) / 2e-6
+            assert g[i] == pytest.approx(fd, rel=1e-5, abs=1e-9)
+
+
 # ----------------------------------------------------------------------- rounding
 def test_apportion_is_efficient(rng):
     assert list(apportion([1, 1, 1], 4)) in ([2, 1, 1], [1, 2, 1], [1, 1, 2])
