@@ -509,7 +509,7 @@ def report_sections(result):
         sections.append(report.design_section(n.design, n.baseline, "The next plan",
                                               " ".join(n.notes) or None))
     else:
-        sections.append(report.Section("The next plan", (report._notes(list(n.notes)),)))
+        sections.append(report.text_section("The next plan", n.notes))
     return sections
 
 
