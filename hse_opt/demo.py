@@ -48,8 +48,9 @@ from .information import heading_sigma
 from .model.effects import CATALOGUE
 from .model.measurement import Model
 
-__all__ = ["DemoResult", "HiddenEffect", "run_demo", "demo_truth", "demo_plan", "hidden_effect",
-           "showable", "HIDDEN_SIGMAS"]
+__all__ = ["DemoResult", "HiddenEffect", "NextPlan", "run_demo", "demo_truth", "demo_plan",
+           "hidden_effect", "showable", "design_next", "report_sections", "write_outputs",
+           "HIDDEN_SIGMAS", "OUTPUT_FILES"]
 
 #: RMS, in noise sigmas, of the hidden effect's heading signature that the paper's model
 #: cannot absorb (over the demo plan)
