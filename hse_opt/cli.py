@@ -5,7 +5,9 @@ Each command lives in :mod:`hse_opt.commands` (one module each). Exit status: 0 
 and what is allowed), 1 anything else.
 """
 import argparse
+import contextlib
 import importlib
+import os
 import sys
 
 #: command modules, in the order ``--help`` lists them
@@ -34,12 +36,38 @@ def build_parser():
     return parser
 
 
+@contextlib.contextmanager
+def json_stdout():
+    """While a ``--json`` command runs, file descriptor 1 goes to stderr (solvers written in
+    C print there, past Python) and ``sys.stdout`` writes to the real stdout, which then
+    carries the one JSON object only. A no-op when ``sys.stdout`` is not file descriptor 1
+    (e.g. captured by a test)."""
+    try:
+        is_fd1 = sys.stdout.fileno() == 1
+    except (AttributeError, OSError, ValueError):
+        is_fd1 = False
+    if not is_fd1:
+        yield
+        return
+    sys.stdout.flush()
+    real = os.dup(1)
+    try:
+        os.dup2(2, 1)
+        with open(real, "w", closefd=False) as out, contextlib.redirect_stdout(out):
+            yield
+            out.flush()
+    finally:
+        os.dup2(real, 1)
+        os.close(real)
+
+
 def main(argv=None):
     args, extra = build_parser().parse_known_args(argv)
     if extra:  # reported by the command's own parser, so the message names the command
         args.subparser.error(f"unrecognized arguments: {' '.join(extra)}")
     try:
-        return args.run(args)
+        with json_stdout() if getattr(args, "json", False) else contextlib.nullcontext():
+            return args.run(args)
     except (ValueError, FileNotFoundError, IsADirectoryError, NotADirectoryError,
             PermissionError) as err:
         # bad input: one line naming the file, row, column or parameter and what is allowed

@@ -48,8 +48,9 @@ from .information import heading_sigma
 from .model.effects import CATALOGUE
 from .model.measurement import Model
 
-__all__ = ["DemoResult", "HiddenEffect", "run_demo", "demo_truth", "demo_plan", "hidden_effect",
-           "showable", "HIDDEN_SIGMAS"]
+__all__ = ["DemoResult", "HiddenEffect", "NextPlan", "run_demo", "demo_truth", "demo_plan",
+           "hidden_effect", "showable", "design_next", "report_sections", "write_outputs",
+           "HIDDEN_SIGMAS", "OUTPUT_FILES"]
 
 #: RMS, in noise sigmas, of the hidden effect's heading signature that the paper's model
 #: cannot absorb (over the demo plan)
@@ -509,7 +510,7 @@ def report_sections(result):
         sections.append(report.design_section(n.design, n.baseline, "The next plan",
                                               " ".join(n.notes) or None))
     else:
-        sections.append(report.Section("The next plan", (report._notes(list(n.notes)),)))
+        sections.append(report.text_section("The next plan", n.notes))
     return sections
 
 

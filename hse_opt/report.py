@@ -20,10 +20,20 @@ Sections
     error against bias rate (the paper's Fig. 2), heading error against azimuth with the
     model before and after compensation (Fig. 3), residuals against every factor.
 :func:`comparison_section`
-    the before/after of adding an effect: statistics side by side, residuals before and
-    after against every factor.
+    the before/after of adding an effect: statistics and parameters side by side,
+    residuals before and after against every factor.
+:func:`diagnosis_section`
+    verdict and goodness of fit, the ranking of candidate effects, residual structure
+    against each factor and in words, ambiguities, influential runs and outliers.
+:func:`design_section`, :func:`evaluation_section`
+    a plan's runs over time (rate, azimuth, tilt) and its predicted sigmas against the
+    paper's plan.
 :func:`write_report`
     renders sections into ``DIR/report.html``, written whole (temporary file + rename).
+
+The page also carries every section's numbers as an inert JSON block
+(``<script type="application/json" id="hse-opt-data">``) and marks table rows with
+``data-key`` attributes, so that tests and scripts can read back what it shows.
 """
 from __future__ import annotations
 
@@ -42,10 +52,12 @@ import numpy as np
 from . import __version__, units
 from .data import Runs
 
-__all__ = ["Section", "Figure", "fit_section", "comparison_section", "diagnosis_section",
-           "design_section", "evaluation_section", "plan_section", "plot_sigmas", "render_html", "plot_candidates", "plot_factor_tests",
-           "write_report", "write_text_atomic", "plot_calibration_line", "plot_azimuth",
-           "plot_residuals", "plot_before_after", "plot_plan", "factors", "REPORT_NAME"]
+__all__ = ["Section", "Figure", "REPORT_NAME", "SETUP_TOL",
+           "fit_section", "comparison_section", "diagnosis_section", "design_section",
+           "evaluation_section", "plan_section", "text_section", "render_html", "write_report", "write_text_atomic",
+           "plot_calibration_line", "plot_azimuth", "plot_residuals", "plot_before_after",
+           "plot_candidates", "plot_factor_tests", "plot_plan", "plot_sigmas", "factors",
+           "tilt_setups"]
 
 #: file name of the report inside the report directory
 REPORT_NAME = "report.html"
@@ -954,6 +966,11 @@ def evaluation_section(evaluation, plan, baseline=None, title=None, baseline_not
     data = {"evaluation": _jsonable(ev.to_dict()),
             "baseline": None if baseline is None else _jsonable(baseline.to_dict())}
     return Section(title, tuple(b for b in blocks if b), data)
+
+
+def text_section(title, lines):
+    """A section of plain text lines (a list)."""
+    return Section(title, (_notes(list(lines)),))
 
 
 def plan_section(plan, title="The test plan", text=None):

@@ -42,3 +42,17 @@ def test_usage_errors_are_one_line_with_status_2(name):
     assert len(lines) == 1
     assert lines[0].startswith(f"hse-opt {name}: error: ")
     assert lines[0].endswith(f"(see 'hse-opt {name} --help')")
+
+
+def test_json_stdout_keeps_stray_output_off_stdout():
+    """Output written straight to file descriptor 1 (as C solvers do) goes to stderr while a
+    --json command runs; stdout holds the JSON object only."""
+    code = ("import os; from hse_opt.cli import json_stdout; from hse_opt.commands import print_json\n"
+            "with json_stdout():\n"
+            "    os.write(1, b'ERROR: could not determine problem status.\\n')\n"
+            "    print_json({'a': 1})\n"
+            "print('after')\n")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=60)
+    assert out.returncode == 0
+    assert out.stdout == '{\n  "a": 1\n}\nafter\n'
+    assert "could not determine problem status" in out.stderr

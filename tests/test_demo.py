@@ -2,6 +2,7 @@
 against each other, and the report in a real browser."""
 import json
 import re
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -18,19 +19,22 @@ SEED = 0
 
 @pytest.fixture(scope="module")
 def demo_run(tmp_path_factory):
-    """One demo run through the command line: (JSON printed, output directory)."""
-    import contextlib
-    import io
+    """One demo run through the command line's steps: (JSON, output directory, printed lines)."""
+    from hse_opt.commands.demo import summary_lines
     out = tmp_path_factory.mktemp("demo") / "out"
-    buf = io.StringIO()
-    with contextlib.redirect_stdout(buf):
-        status = main(["demo", "--seed", str(SEED), "--out", str(out), "--json", "--no-progress"])
-    assert status == 0
-    return json.loads(buf.getvalue()), out
+    result = demo.run_demo(SEED)
+    data = json.loads(json.dumps(demo.write_outputs(result, out)))
+    return data, out, summary_lines(result, "hse_opt_demo")
+
+
+def test_the_readme_shows_what_the_demo_prints(demo_run):
+    readme = (Path(__file__).resolve().parents[1] / "README.md").read_text(encoding="utf-8")
+    shown = re.search(r"```text\n(hse-opt demo, seed 0:.*?)```", readme, re.S).group(1)
+    assert shown.splitlines() == demo_run[2]
 
 
 def test_json_is_the_summary_file_and_the_reports_numbers(demo_run):
-    data, out = demo_run
+    data, out, _ = demo_run
     assert sorted(p.name for p in out.iterdir()) == sorted(demo.OUTPUT_FILES)
     assert json.loads((out / "summary.json").read_text()) == data
     html = (out / "report.html").read_text(encoding="utf-8")
@@ -44,7 +48,7 @@ def test_json_is_the_summary_file_and_the_reports_numbers(demo_run):
 
 
 def test_the_campaign_shows_the_hidden_effect(demo_run):
-    data, _ = demo_run
+    data, _, _ = demo_run
     hidden = demo.hidden_effect(SEED)
     assert data["hidden_effect"] == hidden.name
     # the noise is the simulator's 10-minute heading scatter, and the paper's model misfits
@@ -57,7 +61,7 @@ def test_the_campaign_shows_the_hidden_effect(demo_run):
 
 
 def test_the_diagnosis_names_the_hidden_effect_and_the_error_falls(demo_run):
-    data, _ = demo_run
+    data, _, _ = demo_run
     assert data["diagnosis"]["verdict"] == "missing-effect"
     assert data["named_effect"] == data["hidden_effect"] and data["found"]
     after = data["after"]
@@ -78,7 +82,7 @@ def test_demo_reproduces_the_papers_numbers(demo_run):
 
 
 def test_demo_report_renders_in_chromium(demo_run, tmp_path):
-    _, out = demo_run
+    _, out, _ = demo_run
     probe, pixels = render(out / "report.html", tmp_path)
     assert probe["images"] == (out / "report.html").read_text().count('<img class="plot"') >= 9
     assert probe["decoded"] == probe["images"]
