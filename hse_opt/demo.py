@@ -535,7 +535,7 @@ def next_plan_text(next_plan):
     """The next plan's gain over the paper's plan, in words."""
     n = next_plan
     if n.design is None:
-        return " ".join(n.notes)
+        return "; ".join(n.notes)
     d = n.design
     text = (f"The optimised next plan ({d.n_runs} alignments in the paper plan's "
             f"{d.total_time / units.HOUR:.2f} h, with the 0.5-deg tilt fixture) gives "

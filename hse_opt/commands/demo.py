@@ -78,7 +78,7 @@ def summary_lines(result, out_dir):
                 lines.append(f"            {name} = {v:.4g} +- {sd:.2g} {r.hidden.units[name]} "
                              f"(hidden {value:.4g})")
     if n.design is None:
-        lines.append(f"  next plan {' '.join(n.notes)}")
+        lines.append(f"  next plan {'; '.join(n.notes)}")
     else:
         lines.append(f"  next plan sigma(lambda2) in the paper plan's {n.design.total_time / 3600:.1f} h:")
         if n.baseline is None:
@@ -91,8 +91,8 @@ def summary_lines(result, out_dir):
                 gain = n.gain(which)
                 lines.append(f"            {d.std_of('lambda2'):.3g} arcsec optimised, {label}"
                              + ("" if gain is None else f" ({gain:.1f}x smaller)"))
-    lines.append(f"  report    {Path(out_dir) / 'report.html'} (data: RUNS.csv, PLAN.csv, "
-                 "NEXT_PLAN.csv, TRUTH.toml, summary.json)")
+    data = "RUNS.csv, PLAN.csv, " + ("" if n.design is None else "NEXT_PLAN.csv, ")
+    lines.append(f"  report    {Path(out_dir) / 'report.html'} (data: {data}TRUTH.toml, summary.json)")
     return lines
 
 
