@@ -38,12 +38,9 @@ The page also carries every section's numbers as an inert JSON block
 from __future__ import annotations
 
 import base64
-import contextlib
 import html
 import io
 import json
-import os
-import secrets
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -1042,21 +1039,13 @@ def render_html(sections, title="hse_opt report", summary=None):
 
 
 def write_text_atomic(path, text):
-    """Write ``text`` (UTF-8) to ``path`` whole or not at all: a temporary file in the same
-    directory, flushed and fsynced, then renamed over ``path``."""
-    path = Path(path)
-    tmp = path.with_name(f".{path.name}.{secrets.token_hex(6)}.tmp")
-    try:
-        with open(tmp, "x", encoding="utf-8", newline="\n") as fh:
+    """Write ``text`` (UTF-8) to ``path`` whole or not at all (a temporary file next to it,
+    fsynced, then renamed over it: :func:`hse_opt.sim._io.atomic_path`)."""
+    from .sim._io import atomic_path
+    with atomic_path(path) as tmp:
+        with open(tmp, "w", encoding="utf-8", newline="\n") as fh:
             fh.write(text)
-            fh.flush()
-            os.fsync(fh.fileno())
-        os.replace(tmp, path)
-    except BaseException:
-        with contextlib.suppress(FileNotFoundError):
-            os.unlink(tmp)
-        raise
-    return path
+    return Path(path)
 
 
 def write_report(directory, sections, title="hse_opt report", summary=None):

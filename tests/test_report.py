@@ -124,7 +124,7 @@ def test_write_is_whole_or_nothing(tmp_path, monkeypatch):
 
     def broken(*a, **k):
         raise RuntimeError("disk full")
-    monkeypatch.setattr(report.os, "fsync", broken)
+    monkeypatch.setattr("os.fsync", broken)
     with pytest.raises(RuntimeError, match="disk full"):
         report.write_report(tmp_path, sec, title="another title")
     assert path.read_bytes() == first
