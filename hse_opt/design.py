@@ -1883,7 +1883,13 @@ def monte_carlo(plan, model=None, n_rep=100, *, truth=None, seed=0, jobs=1, tilt
     if any(v != 0 for v in truth.stand.tilt):
         raise ValueError("truth stand.tilt_arcsec (a tilt fixed in n) is not in the design's Stand model; "
                          "allowed: [0, 0] (the base tilt is stand.mount_tilt_arcsec)")
-    stand = Stand(latitude=truth.site.latitude, tilt=tuple(truth.stand.mount_tilt), arw=truth.gyro.arw)
+    # the truth's white heading noise: the gyros' own ARW and the pulse quantization (the
+    # counters' remainder, dithered by the table jitter: q |Omega| sqrt(dt / 12)) at the plan's
+    # RMS rate, in quadrature (studies/simulator_noise.py)
+    rms_rate = float(np.sqrt(np.mean(np.square(plan.rate))))
+    n_quant = truth.gyro.pulse * rms_rate * np.sqrt(truth.timing.sample_period / 12.0)
+    stand = Stand(latitude=truth.site.latitude, tilt=tuple(truth.stand.mount_tilt),
+                  arw=float(np.hypot(truth.gyro.arw, n_quant)))
     preds = [evaluate(plan, m, stand=stand, tilt_known=tilt_known) for m in models]
     cols, n = plan.to_columns(), plan.run.size
     rows = [{k: (r * n + i + 1 if k == "run" else float(v[i])) for k, v in cols.items()}

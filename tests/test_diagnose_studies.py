@@ -11,14 +11,14 @@ STUDIES = Path(__file__).resolve().parents[1] / "studies"
 @pytest.mark.parametrize("script", [
     "paper_table1_diagnosis.py",
     pytest.param("diagnose_error_rates.py", marks=pytest.mark.slow),
-    # strict=False: passes on the simulator before the session-2 noise retune (servo jitter
-    # dithering the pulse counters); after it the processor's 1-sigma at 300 s is ~13 % below the
-    # campaigns' actual scatter (11.7 vs 13.4 arcsec), so the chi-square test calls the warm-up
-    # case (chi2_red 1.62 after adding warmup, RMS 1.06 x noise) missing-effect. Open in issue 6.
+    # strict=False: the study's pass/fail is fragile at any seed (a 15 % noise tolerance is
+    # ~1.7 standard errors at 64 runs, and 9 campaigns each take p < 0.05 decisions): it passes
+    # or fails by seed on the simulator's current default system. Open in issue 6 (make the
+    # criteria robust: several seeds, tolerances from the sampling error).
     pytest.param("diagnose_hidden_effects.py", marks=[
         pytest.mark.slow,
-        pytest.mark.xfail(reason="simulator processor sigma optimistic at 300 s after the noise "
-                                 "retune: warm-up case fails the chi-square verdict", strict=False)]),
+        pytest.mark.xfail(reason="hidden-effect study criteria are seed-fragile (see comment); "
+                                 "issue 6 item 7 open", strict=False)]),
 ])
 def test_study(script):
     out = subprocess.run([sys.executable, str(STUDIES / script)], capture_output=True, text=True,

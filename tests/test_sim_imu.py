@@ -225,18 +225,19 @@ def test_table_jitter_is_seen_by_gyros_and_encoder_alike():
 
 @pytest.mark.parametrize("rate_dps", [-40.0, 40.0])
 def test_pulse_quantization_locks_without_jitter_and_is_white_with_it(rate_dps):
-    """RLG pulses of 0.5 arcsec, nothing else random. Without table jitter the counters'
-    remainders follow the table angle: at -40 deg/s (gyro 3 counts 332.2497 pulses per
-    sample, next to a quarter) the heading error is a bias of tens of arcsec. With the
+    """RLG pulses of 0.5 arcsec (a readout without interpolation), nothing else random.
+    Without table jitter the counters' remainders follow the table angle: at -40 deg/s
+    (gyro 3 counts 332.2497 pulses per sample, next to a quarter) the heading error is a bias
+    of tens of arcsec. With the
     default 0.5 arcsec jitter the remainders are dithered and the error is white: its scatter
     over seeds is the random walk q |Omega| sqrt(dt/12) of hse_opt.sim.align.quantization_arw
     through the gyrocompass, N / (w_ie cos L sqrt(T)) (formula written out here)."""
     from hse_opt.sim.campaign import default_align_config, simulate_alignment
     base = TruthConfig.default().updated({"mount": {"warmup_xi_z_arcsec": 0.0},
                                           "gyro": {"bias_warmup_dph": [0.0, 0.0, 0.0]}})
-    pulses = base.updated({"gyro": {"arw_dph_rthz": 0.0}, "accel": {"vrw_ug_rthz": 0.0, "pulse_mps": 0.0},
-                           "encoder": {"resolution_arcsec": 0.0}})
-    cfg = default_align_config(base)
+    pulses = base.updated({"gyro": {"arw_dph_rthz": 0.0, "pulse_arcsec": 0.5},
+                           "accel": {"vrw_ug_rthz": 0.0, "pulse_mps": 0.0}, "encoder": {"resolution_arcsec": 0.0}})
+    cfg = default_align_config(base.updated({"gyro": {"pulse_arcsec": 0.5}}))
     T, rate = 300.0, rate_dps * math.pi / 180
     run = RunSpec(rate=rate, azimuth=0.0, duration=T, t_start=1500.0, alpha0=0.4)
     ref = simulate_alignment(base.noise_free(), run, None, cfg)[0].heading

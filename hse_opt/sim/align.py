@@ -101,9 +101,9 @@ class AlignConfig:
     C_s_b_cal: tuple = _mat(np.eye(3))
     A_acc_cal: tuple = _mat(np.eye(3))
     latitude: float | None = None
-    arw: float = 0.0111 * units.DEG_PER_H
+    arw: float = 0.0120 * units.DEG_PER_H
     vrw: float = 1.0 * units.MICRO_G
-    gyro_pulse: float = 0.5 * units.ARCSEC
+    gyro_pulse: float = 0.1 * units.ARCSEC
     accel_pulse: float = 1e-4
     filter_rate: float = 1.0
     smoothing_revolutions: int = 1

@@ -88,13 +88,15 @@ Chosen to resemble the paper's prototype and Table 1 (``paper_table1.csv``):
   gives N = 0.0124 deg/h/sqrt(Hz) for 7.90 arcsec. The accelerometer noise adds to it
   (it limits how well the filter sees the tilt drift: 10 ug/sqrt(Hz) would add 50 %), so
   the default accelerometer is quiet, 1 ug/sqrt(Hz), with 1e-4 m/s velocity pulses.
-  The 0.5 arcsec RLG pulses add a random walk of their own, ``q |Omega| sqrt(dt / 12)``
-  (0.0045 deg/h/sqrt(Hz) at 40 deg/s; :func:`hse_opt.sim.align.quantization_arw`), once the
-  table jitter dithers the counters (without it, at rates where a gyro's pulses per sample
-  sit close to a simple fraction, -40 deg/s here, the counter's remainder locks to the
-  table angle and biases the heading by tens of arcseconds). With those the processor's
-  Kalman filter gives a 1-sigma of 7.88 arcsec for ``arw_dph_rthz = 0.0111``
-  (1.85e-4 deg/sqrt(h)) at 40 deg/s, and 200 seeds scatter by the same
+  RLG pulses add a random walk of their own, ``q |Omega| sqrt(dt / 12)``
+  (:func:`hse_opt.sim.align.quantization_arw`), once the table jitter dithers the counters;
+  without it, at rates where a gyro's pulses per sample sit close to a simple fraction, the
+  counter's remainder locks to the table angle and biases the heading (tens of arcsec at
+  -40 deg/s for 0.5 arcsec pulses, ``tests/test_sim_imu.py``). The default readout
+  resolves 0.1 arcsec (an interpolating fringe counter): 0.0009 deg/h/sqrt(Hz) at 40 deg/s,
+  0.0014 at 60 deg/s, so the heading noise is the gyros' own. With those the processor's
+  Kalman filter gives a 1-sigma of 7.92 arcsec for ``arw_dph_rthz = 0.0120``
+  (2.0e-4 deg/sqrt(h)) at 40 deg/s, and 200 seeds scatter by the same
   (``studies/simulator_noise.py``). That is a very quiet gyro: the paper's repeat scatter
   is small.
 * Realistic residuals that do not reach heading at first order: gyro biases of a few
@@ -250,9 +252,9 @@ class GyroConfig:
                          doc="scale-factor error")
     sf_nonlinearity: tuple = _p("sf_nonlinearity_ppm_per_dps", "ppm/(deg/s)", (0.0, 0.0, 0.0),
                                 n=3, lo=-1e3, hi=1e3, doc="scale-factor error per deg/s of input")
-    arw: float = _p("arw_dph_rthz", "deg/h/rtHz", 0.0111, lo=0.0, hi=100.0,
+    arw: float = _p("arw_dph_rthz", "deg/h/rtHz", 0.0120, lo=0.0, hi=100.0,
                     doc="angle random walk")
-    pulse: float = _p("pulse_arcsec", "arcsec", 0.5, lo=0.0, hi=100.0,
+    pulse: float = _p("pulse_arcsec", "arcsec", 0.1, lo=0.0, hi=100.0,
                       doc="RLG pulse quantum (0: no quantization)")
     lockin: float = _p("lockin_dps", "deg/s", 1.0, lo=0.0, hi=100.0,
                        doc="lock-in threshold on a gyro's input rate")
