@@ -481,10 +481,13 @@ _CHI2_NOISE = 1e-6
 
 
 # -- Gauss-Newton with QR on the active set ------------------------------------------------------
-def _gauss_newton(prob, w, z, C, d, max_iter=50, mask=None, tol=1e-6):
+def _gauss_newton(prob, w, z, C, d, max_iter=50, mask=None, tol=1e-6, box=False):
     """Minimise ``|w r(z)|^2 + |L z - Lmu|^2`` subject to ``C z = d`` by Gauss-Newton, each step
     by QR in the null space of ``C``. ``mask`` (k,) bool: only those parameters move.
-    Converged when a step is below ``tol`` of every parameter's sigma.
+    Converged when a step is below ``tol`` of every parameter's sigma. ``box``: a step that
+    leaves the parameters' bounds ends the iteration unconverged (the polish of an IPOPT
+    solution whose active set misses a bound; outside the bounds a nonlinear model may not even
+    be defined - a negative time constant).
 
     Returns ``(z, converged)``.
     """
@@ -511,6 +514,8 @@ def _gauss_newton(prob, w, z, C, d, max_iter=50, mask=None, tol=1e-6):
         std = np.linalg.norm(Z @ solve_triangular(R, np.eye(m)), axis=1)
         if np.all(np.abs(step) <= tol * std + 1e-14 * np.abs(z)):
             return z + step, True
+        if box and not _feasible(prob, z + step):
+            return z, False
         t = 1.0
         while True:  # step halving keeps the objective from rising on a nonlinear model
             z_new = z + t * step
@@ -648,7 +653,7 @@ def _solve(prob, w, z, use_ipopt, notes):
         return z, prob.A_eq, np.zeros(0, int), np.zeros(0, int), "qr", "converged"
     z_ip, lam_x, lam_g, status, D = _ipopt(prob, w, z)
     C, d, binding, bound_val, act = _active_set(prob, z_ip, lam_x, lam_g, D)
-    z_pol, ok = _gauss_newton(prob, w, z_ip, C, d)
+    z_pol, ok = _gauss_newton(prob, w, z_ip, C, d, box=True)
     z_pol[binding] = bound_val
     if ok and _feasible(prob, z_pol) and prob.objective(z_pol, w) <= prob.objective(z_ip, w) + _CHI2_NOISE:
         return z_pol, C, binding, act, "ipopt", status

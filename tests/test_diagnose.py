@@ -27,6 +27,9 @@ from hse_opt.fit import as_model, fit
 from hse_opt.information import UnidentifiableError
 from hse_opt.model import Effect, Param
 
+# a RuntimeWarning (overflow, invalid value) is a numerical defect here, not noise
+pytestmark = pytest.mark.filterwarnings("error::RuntimeWarning")
+
 BASE = {"offset": 3.0, "lambda2": 4.2}
 BASE_TILT = (-120 * units.ARCSEC, -55 * units.ARCSEC)
 
