@@ -683,13 +683,17 @@ def _fit(runs, model, fix, tilt_known, start=None):
         start = objective(res.x if res.fun <= values[i] else grid[i])[1]
     held = {n: start[n] for n in nonlinear}
     f_held = fit(runs, model, fix={**fix, **held}, tilt_known=tk, start=start)
-    try:
-        f = fit(runs, model, fix=fix, tilt_known=tk, start=start)
-    except (UnidentifiableError, RuntimeError, np.linalg.LinAlgError, ValueError):
-        # the held fit validated the inputs: failing here means the data cannot estimate the
-        # nonlinear parameters jointly with the rest (or the iteration diverged)
-        f = None
-    if f is not None and all(_inside(mm, n, f.value(n)[0]) for n in nonlinear) \
+    f = None
+    # a profile optimum at a bound is set by the bound, not the data: no joint fit from there
+    # (IPOPT would spend its iterations on a direction the data do not see)
+    if all(_inside(mm, n, start[n], margin=1e-3) for n in nonlinear):
+        try:
+            f = fit(runs, model, fix=fix, tilt_known=tk, start=start)
+        except (UnidentifiableError, RuntimeError, np.linalg.LinAlgError, ValueError):
+            # the held fit validated the inputs: failing here means the data cannot estimate
+            # the nonlinear parameters jointly with the rest (or the iteration diverged)
+            pass
+    if f is not None and all(_inside(mm, n, f.value(n)[0], margin=1e-3) for n in nonlinear) \
             and f.chi2 <= f_held.chi2 * (1 + 1e-9):
         return f
     dof = f_held.dof - len(held)
