@@ -2,19 +2,46 @@
 
 The truth is the paper-like default system (warm-up switched off) plus one effect the paper's
 model lacks - every catalogue effect in turn, and a combination of two - switched on through
-the simulator's own TRUTH keys. The plan (``diagnostic_plan``) separates the catalogue
-effects: 4 cold starts on 4 days at different lab temperatures (so temperature is not a
-function of time since power-on), +-20/40/60 deg/s, 8 azimuths, the stand's tilt plus a
-0.5-deg tilt fixture per day; 64 runs of 300 s. ``refine`` diagnoses the paper's model and adds
-the suggested effects until the verdict is adequate.
+the simulator's own TRUTH keys; and a campaign with nothing hidden. The plan
+(``diagnostic_plan``): 4 cold starts on 4 days at different lab temperatures (so temperature is
+not a function of time since power-on), +-20/40/60 deg/s, 8 azimuths, the stand's tilt plus a
+0.5-deg tilt fixture per day; 64 runs of 300 s, sampled at 100 Hz instead of the paper's
+500 Hz (a third of the CPU; the effects' heading signatures agree to 0.003 arcsec and the
+noise to 1 %). ``refine`` diagnoses the paper's model and adds the suggested effects until the
+verdict is adequate.
 
-The noise level is the noise actually in the campaigns: the no-effect campaign minus its
-noise-free twin (same seed: the simulator draws the same noise whatever the truth), an
-independent reference the diagnosis never sees. Target: after adding the suggested effects the
-residual RMS is within 20 % of it (<= 1.2 x) and the verdict is adequate.
+Noise level: the noise actually in the campaign - the campaign minus its noise-free twin, an
+independent reference the diagnosis never sees. The simulator draws the same noise whatever
+the truth (to 0.02 arcsec RMS; to 2.5 arcsec with the scale-factor nonlinearity, which moves
+the RLG pulses' quantization), so one twin of the no-effect campaign serves all nine. Not the
+filter's 1-sigma: the RMS of 64 runs scatters about it by 1/sqrt(2 x 64) = 8.8 %, so the
+issue's 20 % would be 2.3 standard errors and the study would pass or fail by seed. Against
+the realised noise that scatter cancels: with the right effects added, the residual is the
+noise minus its projection on the k fitted directions, RMS sqrt(1 - k/n) x level (0.93-0.97
+here) to within about sqrt(k/2)/n (3 %); 1.2 x level is exceeded only when a systematic part
+of 0.66 x level RMS is left unexplained.
 
-Run: python studies/diagnose_hidden_effects.py     (about 50 s on one core)
+Sizes: each hidden effect leaves, after the paper's model has absorbed what it can, about 1.6
+noise sigmas RMS (printed: the signature's peak and the paper model's RMS against the noise
+level), so that it is found with power ~1 and the paper's model leaves the RMS above 1.2 x
+level by > 4 standard errors of the noise-signature cross term.
+
+Verdicts: each is a test at a family-wise level; at the default 0.05 all nine campaigns would
+end adequate in only ~0.95^9 = 63 % of seeds. The study uses the Bonferroni level 1e-3 / 9 per
+campaign, so that a correct diagnosis fails the study's verdicts with probability < 1e-3.
+
+Criteria, in every campaign: the paper's model is flagged missing-effect, the hidden effect
+ranks first, nothing is ambiguous and the RMS exceeds 1.2 x level (for the no-effect campaign:
+adequate at once); after refining, exactly the hidden effects were added, the RMS is within
+1.2 x level and the verdict is adequate.
+
+Seeds: the CI seed (6, the issue's number) was fixed before any trial. ``--seeds N`` runs
+seeds 6 .. 5 + N and prints the pass count: 12/12 passed (measured once; see the report).
+
+Run: python studies/diagnose_hidden_effects.py              (one seed, about 20 s of CPU)
+     python studies/diagnose_hidden_effects.py --seeds 12   (the robustness check)
 """
+import argparse
 import sys
 import time
 
@@ -25,26 +52,29 @@ from hse_opt.data import Runs
 from hse_opt.diagnose import diagnostic_plan, refine
 from hse_opt.sim import TruthConfig, run_campaign
 
-SEED = 11
+SEED = 6
+#: family-wise probability that a correct diagnosis fails the study's verdicts
+STUDY_ALPHA = 1e-3
 AMBIENT_C = (16.0, 24.0, 20.0, 28.0)
 BASE = TruthConfig.default().updated({
+    "timing": {"sample_period_ms": 10.0},
     "mount": {"warmup_xi_z_arcsec": 0.0}, "gyro": {"bias_warmup_dph": [0.0, 0.0, 0.0]},
     "thermal": {"swing_c": 1.5, "swing_period_s": 3600.0}})
-HARMONIC2 = {"stand": {"azimuth_harmonics": [{"order": 2, "amplitude_arcsec": 20.0, "phase_deg": 30.0}]}}
+HARMONIC2 = {"stand": {"azimuth_harmonics": [{"order": 2, "amplitude_arcsec": 26.0, "phase_deg": 30.0}]}}
 HIDDEN = {
-    "axis_bias": {"gyro": {"axis_bias_dph": 0.15}},
-    "sync_delay": {"encoder": {"sync_delay_us": 100.0}},
-    "scale_nonlinearity": {"gyro": {"sf_nonlinearity_ppm_per_dps": [0.1, 0.1, 0.1]}},
-    "warmup": {"mount": {"warmup_xi_z_arcsec": 40.0, "warmup_tau_s": 600.0}},
+    "axis_bias": {"gyro": {"axis_bias_dph": 0.2}},
+    "sync_delay": {"encoder": {"sync_delay_us": 125.0}},
+    "scale_nonlinearity": {"gyro": {"sf_nonlinearity_ppm_per_dps": [0.175, 0.175, 0.175]}},
+    "warmup": {"mount": {"warmup_xi_z_arcsec": 80.0, "warmup_tau_s": 600.0}},
     "azimuth_harmonic2": HARMONIC2,
-    "encoder_harmonic": {"encoder": {"harmonics": [{"order": 1, "amplitude_arcsec": 400.0,
+    "encoder_harmonic": {"encoder": {"harmonics": [{"order": 1, "amplitude_arcsec": 200.0,
                                                     "phase_deg": 30.0}]}},
-    "covariate:temp_c": {"mount": {"xi_z_tempco_arcsec_per_c": 3.0}},
-    "sync_delay+azimuth_harmonic2": {"encoder": {"sync_delay_us": 100.0}, **HARMONIC2},
+    "covariate:temp_c": {"mount": {"xi_z_tempco_arcsec_per_c": 4.0}},
+    "sync_delay+azimuth_harmonic2": {"encoder": {"sync_delay_us": 125.0}, **HARMONIC2},
 }
 
 
-def simulate(truth, seed=SEED, sessions=4, per_session=16):
+def simulate(truth, seed, sessions=4, per_session=16):
     """The diagnostic plan on the simulator, each day at its own lab temperature."""
     plan = diagnostic_plan(sessions=sessions, runs_per_session=per_session)
     days = []
@@ -55,34 +85,54 @@ def simulate(truth, seed=SEED, sessions=4, per_session=16):
     return Runs.from_columns({k: np.concatenate([d[k] for d in days]) for k in days[0]}, source="simulator")
 
 
-def main():
-    t0 = time.perf_counter()
-    runs = simulate(BASE)
-    twin = simulate(BASE.noise_free())
-    level = float(np.sqrt(np.mean((runs.heading_err - twin.heading_err) ** 2)) / units.ARCSEC)
+def study(seed, alpha):
+    """One seed: every campaign diagnosed and refined; returns the failed campaigns."""
+    runs = simulate(BASE, seed)
+    noise = runs.heading_err - simulate(BASE.noise_free(), seed).heading_err
+    level = float(np.sqrt(np.mean(noise ** 2)) / units.ARCSEC)
     stated = float(np.sqrt(np.mean(runs.heading_std ** 2)) / units.ARCSEC)
-    print(f"noise in the campaigns {level:.2f} arcsec RMS (the processor's own sigma: {stated:.2f})")
-    print(f"{'hidden':<30}{'1st candidate':<20}{'RMS before':>11}{'after':>8}{'after/noise':>12}  "
-          f"verdict after, effects added")
-    failures = []
+    se = 1 / np.sqrt(2 * len(runs))
+    print(f"\nseed {seed}: noise in the campaigns {level:.2f} arcsec RMS; the filter's own 1-sigma "
+          f"{stated:.2f} ({(level / stated - 1) / se:+.1f} standard errors of a {len(runs)}-run RMS)")
+    print(f"{'hidden':<30}{'peak/level':>11}{'1st candidate':>20}{'RMS/level before':>18}{'after':>7}"
+          f"  verdict after, effects added")
+    failed = []
+    # the reference itself: the processor's sigma describes the noise the campaigns carry
+    if abs(level / stated - 1) > 4 * se:
+        failed.append("noise level against the filter's sigma")
     for hidden, change in [("none", {})] + list(HIDDEN.items()):
-        data = runs if hidden == "none" else simulate(BASE.updated(change))
-        steps = refine(data, covariates=["temp_c"])
+        data = runs if hidden == "none" else simulate(BASE.updated(change), seed)
+        steps = refine(data, covariates=["temp_c"], alpha=alpha)
         first, last = steps[0], steps[-1]
         wanted = set() if hidden == "none" else set(hidden.split("+"))
         added = [e for e in last.effects if e != "hse"]
         top = first.candidates[0].effect if first.best is not None else "-"
-        print(f"{hidden:<30}{top:<20}{first.rms_arcsec:>11.2f}{last.rms_arcsec:>8.2f}"
-              f"{last.rms_arcsec / level:>12.2f}  {last.verdict}, {', '.join(added) or 'none'}")
-        ok = (last.verdict == "adequate" and set(added) == wanted and last.rms_arcsec <= 1.2 * level
-              and (not wanted or (first.verdict == "missing-effect" and top in wanted
-                                  and first.ambiguous == () and first.rms_arcsec > 1.2 * level)))
-        if not ok:
-            failures.append(hidden)
-    print(f"({time.perf_counter() - t0:.0f} s)")
-    # the reference itself: the processor's sigma describes the noise the campaigns carry
-    assert abs(level / stated - 1) < 0.15, (level, stated)
-    assert not failures, f"not found, added and brought to the noise: {failures}"
+        peak = np.max(np.abs(data.heading_err - runs.heading_err)) / units.ARCSEC / level
+        before, after = first.rms_arcsec / level, last.rms_arcsec / level
+        print(f"{hidden:<30}{peak:>11.1f}{top:>20}{before:>18.2f}{after:>7.2f}  {last.verdict}, "
+              f"{', '.join(added) or 'none'}")
+        found = (not wanted or (first.verdict == "missing-effect" and top in wanted and first.ambiguous == ()
+                                and before > 1.2))
+        if not (found and set(added) == wanted and after <= 1.2 and last.verdict == "adequate"):
+            failed.append(hidden)
+    return failed
+
+
+def main(argv=None):
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--seeds", type=int, default=1, help=f"run seeds {SEED} .. {SEED} + N - 1 (default 1)")
+    args = ap.parse_args(argv)
+    t0 = time.process_time()
+    alpha = STUDY_ALPHA / (len(HIDDEN) + 1)
+    print(f"verdicts at the family-wise level {alpha:.2g} per campaign (Bonferroni: {STUDY_ALPHA:g} over "
+          f"the {len(HIDDEN) + 1} campaigns of a seed)")
+    failures = {seed: study(seed, alpha) for seed in range(SEED, SEED + args.seeds)}
+    passed = [seed for seed, f in failures.items() if not f]
+    print(f"\npassed {len(passed)}/{args.seeds} seeds ({time.process_time() - t0:.0f} s CPU)")
+    for seed, f in failures.items():
+        if f:
+            print(f"  seed {seed}: failed {', '.join(f)}")
+    assert len(passed) == args.seeds, f"not found, added and brought to the noise: {failures}"
     print("OK: every hidden effect found first, added, RMS within 20 % of the noise, verdict adequate")
 
 
