@@ -16,17 +16,30 @@ Measured, for the stated family-wise significance level alpha = 0.05 (Bonferroni
 diagnosis' tests):
 
 * false alarms: the fraction of no-effect campaigns whose verdict is ``missing-effect``
-  (target <= 10 %);
+  (target <= 10 %); the verdict rests on the score tests alone, so these campaigns are
+  diagnosed without refits;
 * for each hidden effect: the fraction of seeds in which it ranks first among the candidates
-  (target >= 90 %), the fraction with verdict ``missing-effect``, and after ``refine`` (adding
-  the suggested effects until adequate) the fraction ending ``adequate`` with the hidden
-  effect(s) in the model.
+  (target >= 90 %), the fraction with verdict ``missing-effect``, and (``--full``) after
+  ``refine`` (adding the suggested effects until adequate) the fraction ending ``adequate``
+  with the hidden effect(s) in the model.
 
 Sizes are stated as the parameter value and as the effect's signature on the plan: its peak
 in arcsec and noise sigmas, and the RMS (in sigmas) of the part the paper's model cannot
 absorb (what the data can see: noncentrality = n x RMS^2).
 
-Run:  python studies/diagnose_error_rates.py            (CI size: 40 null, 10 seeds each)
+Checks. At any size, one-sided binomial tests at the family-wise level 1e-3 (Bonferroni over
+the 9 rates): the false-alarm count is consistent with a rate <= alpha, and each rank-first
+count with a rate >= 90 %; a diagnosis meeting its targets fails them with probability < 1e-3.
+At the CI size they catch a broken diagnosis (16 false alarms in 100 campaigns - a rate
+of 20 % is caught 87 % of the time - or an effect ranked first in at most 1 of 6 seeds), not
+a small shortfall; ``--full`` measures the rates and asserts
+the issue's targets on them. Measured with ``--full`` (220 s CPU):
+
+    false alarms 2/200 = 1.0 % (95 % CI 0.1-3.6 %)
+    every hidden effect (and the pair) ranks first in 100/100 seeds, verdict missing-effect in
+    100 %, refined to adequate with the effect(s) in the model in 96-100 %
+
+Run:  python studies/diagnose_error_rates.py            (CI size: 100 null, 6 seeds each; ~9 s CPU)
       python studies/diagnose_error_rates.py --full     (200 null campaigns, 100 seeds each)
 """
 import argparse
@@ -35,6 +48,7 @@ import time
 
 import numpy as np
 from scipy import stats
+from threadpoolctl import threadpool_limits
 
 from hse_opt import units
 from hse_opt.diagnose import ALPHA, diagnose, diagnostic_plan, model_runs, refine
@@ -106,7 +120,7 @@ def clopper_pearson(k, n, conf=0.95):
 def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--null", type=int, default=100, help="no-effect campaigns (default 100)")
-    ap.add_argument("--seeds", type=int, default=8, help="seeds per hidden effect (default 8)")
+    ap.add_argument("--seeds", type=int, default=6, help="seeds per hidden effect (default 6)")
     ap.add_argument("--full", action="store_true",
                     help="200 no-effect campaigns, 100 seeds per effect, refine every hidden-effect campaign")
     ap.add_argument("--alpha", type=float, default=ALPHA)
@@ -188,4 +202,5 @@ def main(argv=None):
 
 
 if __name__ == "__main__":
-    sys.exit(main())
+    with threadpool_limits(limits=1, user_api="blas"):  # small matrices: threads would only spin
+        sys.exit(main())
