@@ -60,7 +60,7 @@ from scipy.linalg import solve_triangular
 
 from . import units
 from .information import (Prior, UnidentifiableError, analyse, blind_out, heading_sigma, invisible,
-                          null_space, separation_advice)
+                          null_space, propagated_std, separation_advice)
 from .model.effects import effect as make_effect
 from .model.measurement import BatchEvaluator, Model, paper_model
 from .model.symbolic import Geometry
@@ -937,7 +937,13 @@ def compensation(runs, fit_result, parameters=None):
     correction, std : numpy.ndarray, shape (n,)
         Heading error (estimated - true) predicted from those parameters, rad, and its
         1-sigma from the fit's covariance, rad (the calibration's uncertainty, not the
-        run's own noise).
+        run's own noise; :func:`~hse_opt.information.propagated_std`).
+
+    Raises
+    ------
+    ValueError
+        The runs lack what the fit needs, or the fit's covariance is not positive
+        semidefinite (a damaged FIT.json): the message names the parameters.
     """
     mm = fit_result.measurement
     if fit_result.tilt_known and runs.pitch is None:
@@ -953,8 +959,7 @@ def compensation(runs, fit_result, parameters=None):
     correction = mm.predict(p, X)
     Jd = mm.jacobian(p, X)[:, use] * mm.scale[use][None, :]
     C = np.asarray(fit_result.covariance)[np.ix_(use, use)]
-    var = np.einsum("ij,jk,ik->i", Jd, C, Jd)
-    return correction, np.sqrt(np.clip(var, 0.0, None))
+    return correction, propagated_std(Jd, C, np.array(mm.names)[use])
 
 
 def compensate(runs, fit_result, parameters=None):

@@ -1,6 +1,7 @@
 """The calibration fit (issue 4, items 3-7), each against an independent reference: the truth
 of twin experiments, scipy's optimisers on the same objective, the paper's closed forms,
 fits with the constraint substituted by hand."""
+import dataclasses
 import importlib
 import json
 
@@ -12,8 +13,9 @@ from hse_opt import units
 from hse_opt.data import Runs
 from hse_opt.datasets import paper_table1
 from hse_opt.fit import (COMPENSATED_COLUMN, COMPENSATION_STD_COLUMN, Constraint, FitResult, Prior,
-                         SolverError, compensate, compensated_parameters, fit, load_fit, save_fit)
-from hse_opt.information import UnidentifiableError, separating_runs
+                         SolverError, compensate, compensated_parameters, compensation, fit, load_fit,
+                         save_fit)
+from hse_opt.information import UnidentifiableError, propagated_std, separating_runs
 from hse_opt.model import Model, closed_form
 from hse_opt.paper_procedure import compensate_eq14, paper_procedure
 
@@ -386,6 +388,45 @@ def test_compensation_symbolic_equals_eq14_and_removes_the_hse(rng):
     assert np.abs(a.covariates[COMPENSATED_COLUMN]).max() < 2e-3
     assert np.ptp(later.heading_err) / units.ARCSEC > 5
     assert compensated_parameters(f) == ("lambda2",)
+
+
+def test_compensation_sigma_equals_monte_carlo_over_the_covariance(rng):
+    # three compensated parameters (lambda2, bias_z, delay), strongly correlated by runs of one
+    # sense at three azimuths; with the equality the covariance is singular (rank 2) and the
+    # propagation must stay real and honest
+    runs = twin(LINEAR, design(azimuths_deg=(10, 100, 200), per=36), TRUTH_LINEAR, rng)
+    runs = runs.subset(np.flatnonzero(runs.rate > 0))
+    later = twin(LINEAR, design(per=16, rates_dps=(10, 25, 50, 70)), TRUTH_LINEAR, rng)
+    mm = LINEAR.measurement(True)
+    X = mm.inputs_from_runs(later)
+    for f in (fit(runs, LINEAR), fit(runs, LINEAR, constraints=[Constraint.equal({"lambda2": 1.0,
+                                                                                 "delay": -0.1}, 0.0)])):
+        corr, std = compensation(later, f)
+        use = np.isin(mm.names, compensated_parameters(f))
+        assert use.sum() == 3 and np.abs(np.triu(f.correlation[np.ix_(use, use)], 1)).max() > 0.9
+        draws = rng.multivariate_normal(f.values[use], f.covariance[np.ix_(use, use)], 4000,
+                                        method="eigh")
+        p = np.tile(mm.nominal, (draws.shape[0], 1))
+        p[:, use] = draws * mm.scale[use]
+        mc = np.array([mm.predict(q, X) for q in p])
+        np.testing.assert_allclose(std, mc.std(axis=0), rtol=0.06)  # 1/sqrt(2 * 4000) = 1.1 %
+        assert np.all(np.abs(mc.mean(axis=0) - corr) < 5 * std / np.sqrt(draws.shape[0]) + 1e-15)
+        assert np.ptp(std) > 0.1 * std.max()  # the runs differ: the test sees the correlations
+    # a covariance that is no covariance (a damaged FIT.json) is refused, not clipped
+    bad = f.covariance.copy()
+    i, j = f.names.index("lambda2"), f.names.index("bias_z")
+    bad[i, j] = bad[j, i] = 2 * np.sqrt(bad[i, i] * bad[j, j])
+    with pytest.raises(ValueError, match="not positive semidefinite .*lambda2, bias_z"):
+        compensation(later, dataclasses.replace(f, covariance=bad))
+
+
+def test_propagated_std_of_a_rank_one_covariance_is_the_closed_form(rng):
+    # C = v v' (perfectly correlated parameters, eigenvalues 0 up to rounding): J C J' = (J v)^2
+    v = rng.normal(size=5) * np.logspace(-3, 3, 5)
+    J = rng.normal(size=(7, 5)) / np.logspace(-3, 3, 5)
+    np.testing.assert_allclose(propagated_std(J, np.outer(v, v)), np.abs(J @ v), rtol=1e-7)
+    with pytest.raises(ValueError, match="negative variance"):
+        propagated_std(J, -np.outer(v, v), list("abcde"))
 
 
 def test_compensate_refuses_to_overwrite_and_needs_tilt(rng):
