@@ -6,18 +6,21 @@ term when one is given, subject to bounds and linear constraints.
 
 Solvers (``FitResult.method``)
 ------------------------------
-``qr``
-    Models linear in their free parameters, with at most equality constraints: Gauss-Newton
-    steps, each solved by QR on the weighted, column-scaled Jacobian in the null space of the
-    equalities (the atan2 of the gyrocompass makes "linear" models very slightly nonlinear;
-    two or three steps converge).
+``qr``, ``gauss-newton``
+    No inequality constraints: Gauss-Newton steps, each solved by QR on the weighted,
+    column-scaled Jacobian in the null space of the equalities, with step halving; one batch
+    call of the model gives the residuals and the Jacobian of a step. Models linear in their
+    free parameters (``qr``; the atan2 of the gyrocompass makes them very slightly nonlinear:
+    two or three steps converge) and nonlinear ones (``gauss-newton``, e.g. ``warmup_tau``).
+    Bounds (nonlinear parameters get their declared range, :class:`~hse_opt.model.Param`
+    ``lower``/``upper``, by default) are kept when every step stays strictly inside them: a
+    minimum inside the bounds is the bounded problem's, and no bound binds.
 ``ipopt``
-    Nonlinear free parameters (e.g. ``warmup_tau``), bounds or inequalities: CasADi
-    ``nlpsol``/IPOPT with a Gauss-Newton Hessian ``J'J`` (built once per model, run count
-    and constraint shape, then reused), followed by the same Gauss-Newton/QR polish on the
-    active set IPOPT finds, so bounds that bind hold exactly and a fit whose bounds do not
-    bind equals the unconstrained one. Nonlinear parameters get their declared range
-    (:class:`~hse_opt.model.Param` ``lower``/``upper``) as default bounds.
+    Inequality constraints, a bound that binds, or Gauss-Newton stepping out of the bounds:
+    CasADi ``nlpsol``/IPOPT with a Gauss-Newton Hessian ``J'J`` (built once per model, run
+    count and constraint shape, then reused), followed by the same Gauss-Newton/QR polish
+    on the active set IPOPT finds, so bounds that bind hold exactly and a fit whose bounds
+    do not bind equals the unconstrained one.
 
 Weights (``FitResult.weighting``)
 ---------------------------------
