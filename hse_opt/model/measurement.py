@@ -222,8 +222,9 @@ class MeasurementModel:
 
         Parameters
         ----------
-        rate : array_like, shape (n,)
-            Signed bias rate Omega, rad/s.
+        rate : array_like, shape (n,) or float
+            Signed bias rate Omega, rad/s. Every argument is an array of the runs or a scalar
+            shared by them (numpy broadcasting); the run count is the broadcast size.
         azimuth, latitude : array_like, shape (n,)
             Stand azimuth (taken as the heading of b0) and latitude, rad.
         duration : array_like or float
@@ -236,8 +237,20 @@ class MeasurementModel:
         covariates : mapping name -> array_like, optional
             The columns this model's covariate effects use.
         """
-        rate = np.atleast_1d(np.asarray(rate, dtype=float))
-        n = rate.size
+        covariates = dict(covariates or {})
+        given = [rate, azimuth, latitude, duration, t_start, pitch, roll,
+                 *(covariates.get(c) for c in self.covariates)]
+        names = ("rate", "azimuth", "latitude", "duration", "t_start", "pitch", "roll", *self.covariates)
+        shapes = {k: np.shape(v) for k, v in zip(names, given) if v is not None}
+        try:
+            shape = np.broadcast_shapes(*shapes.values())
+        except ValueError:
+            shape = None
+        if shape is None or len(shape) > 1:
+            raise ValueError("run inputs must be 1-D arrays of one length (or scalars); got shapes "
+                             + ", ".join(f"{k} {v}" for k, v in shapes.items()))
+        n = shape[0] if shape else 1
+        rate = np.broadcast_to(np.asarray(rate, dtype=float), (n,))
         cols = {"rate": rate}
         for name, v in (("azimuth", azimuth), ("latitude", latitude), ("duration", duration)):
             cols[name] = np.broadcast_to(np.asarray(v, dtype=float), (n,))
@@ -252,7 +265,6 @@ class MeasurementModel:
             cols["roll"] = np.broadcast_to(np.asarray(roll, dtype=float), (n,))
         else:
             cols["pitch"] = cols["roll"] = np.zeros(n)
-        covariates = dict(covariates or {})
         missing = [c for c in self.covariates if c not in covariates]
         if missing:
             raise ValueError(f"covariate columns {missing} are required by the model's effects; "
