@@ -385,7 +385,7 @@ class _Problem:
         """Residuals (n,) and dh/dz (n, k) at ``z`` from one batch call, the last kept: a
         Gauss-Newton step needs both at every accepted point."""
         z = np.asarray(z, dtype=float)
-        if self._last[0] is None or not np.array_equal(self._last[0], z):
+        if not np.array_equal(self._last[0], z):
             hJ = _residual_jacobian(self.mm)(self.p(z), self.X, self.jit)
             self._last = (z.copy(), self.y - hJ[:, 0], hJ[:, 1:][:, self.free] * self.scale[None, :])
         return self._last[1], self._last[2]
@@ -408,27 +408,6 @@ class _Problem:
         return float(r @ r + e @ e)
 
 
-class _ExactBatch(BatchEvaluator):
-    """A :class:`BatchEvaluator` that maps exactly the ``n`` runs of a call (no padding to a
-    power of two: a third less work at 100 runs) unless the call compiles (jit), where one
-    compiled chunk serves many run counts. Mapped Functions cost ~0.4 ms to build; a fit
-    reuses its run count many times."""
-
-    _MAX_SIZES = 64
-
-    def __call__(self, p, X, jit=None):
-        self._exact = not (X.shape[1] >= self.jit_above if jit is None else jit)
-        return super().__call__(p, X, jit)
-
-    def _chunk(self, n):
-        if getattr(self, "_exact", False) and 0 < n <= self.max_chunk:
-            if (n, False) not in self._cache and len(self._cache) >= self._MAX_SIZES:
-                self._cache.clear()
-                self._functions.clear()
-            return n
-        return super()._chunk(n)
-
-
 @lru_cache(maxsize=64)
 def _residual_jacobian(mm):
     """Batch evaluator of ``[h, dh/dp]`` (n, 1 + n_p) for ``mm``: one Function whose Jacobian
@@ -436,8 +415,8 @@ def _residual_jacobian(mm):
     p = ca.SX.sym("p", len(mm.names))
     x = ca.SX.sym("x", mm.n_x)
     h = mm.h(p, x)
-    return _ExactBatch(ca.Function("hJ", [p, x], [ca.densify(ca.vertcat(h, ca.jacobian(h, p).T))],
-                                   ["p", "x"], ["h_dh_dp"]))
+    return BatchEvaluator(ca.Function("hJ", [p, x], [ca.densify(ca.vertcat(h, ca.jacobian(h, p).T))],
+                                      ["p", "x"], ["h_dh_dp"]), exact=True)
 
 
 def _setup(mm, runs, fix, bounds, constraints, prior, notes, start=None):

@@ -123,6 +123,23 @@ def test_nonlinear_fit_matches_scipy_by_both_solvers(rng):
     assert np.all(np.abs(b.values - ref_b.x) < 2e-4 * f.std)
 
 
+def test_residual_jacobian_evaluator_equals_the_models_functions(rng):
+    # the fit's one-call [h, dh/dp] (exact-size map) against MeasurementModel.predict/jacobian
+    # (separate Functions, padded power-of-two maps), for several run counts
+    fitmod = importlib.import_module("hse_opt.fit")
+    mm = Model(["hse", "axis_bias", "warmup"]).measurement(True)
+    ev = fitmod._residual_jacobian(mm)
+    for n in (1, 7, 100):
+        d = design(per=n)
+        X = mm.inputs(d["rate"], d["azimuth"], d["latitude"], d["duration"], d["t_start"], d["pitch"],
+                      d["roll"])
+        p = mm.vector(offset=2.0, lambda2=4.2, bias_z=0.1, warmup_amp=30.0, warmup_tau=900.0)
+        hJ = ev(p, X)
+        np.testing.assert_allclose(hJ[:, 0], mm.predict(p, X), rtol=0, atol=1e-15)
+        np.testing.assert_allclose(hJ[:, 1:], mm.jacobian(p, X), rtol=1e-12, atol=1e-15)
+        assert (n, False) in ev._cache  # mapped exactly, not padded
+
+
 # -- constraints --------------------------------------------------------------------------------
 def test_bounds_that_do_not_bind_change_nothing(rng):
     runs = twin(LINEAR, design(), TRUTH_LINEAR, rng)
