@@ -34,7 +34,6 @@ def main():
     with tempfile.TemporaryDirectory() as tmp:
         buf = io.StringIO()
         t0 = time.perf_counter()
-        c0 = time.process_time()
         with contextlib.redirect_stdout(buf):
             status = cli(["demo", "--seed", str(args.seed), "--out", tmp, "--json", "--no-progress"])
         wall = time.perf_counter() - T_PROCESS

@@ -53,6 +53,11 @@ _API = {
 }
 
 
+__all__ = ["Constraint", "FitResult", "SolverError", "compensate", "compensation", "fit", "load_fit",
+           "save_fit", "Prior", "UnidentifiableError", "heading_sigma", "PaperCalibration",
+           "compensate_eq14", "paper_procedure", *_API]
+
+
 def __getattr__(name):
     import importlib
 

@@ -6,18 +6,21 @@ term when one is given, subject to bounds and linear constraints.
 
 Solvers (``FitResult.method``)
 ------------------------------
-``qr``
-    Models linear in their free parameters, with at most equality constraints: Gauss-Newton
-    steps, each solved by QR on the weighted, column-scaled Jacobian in the null space of the
-    equalities (the atan2 of the gyrocompass makes "linear" models very slightly nonlinear;
-    two or three steps converge).
+``qr``, ``gauss-newton``
+    No inequality constraints: Gauss-Newton steps, each solved by QR on the weighted,
+    column-scaled Jacobian in the null space of the equalities, with step halving; one batch
+    call of the model gives the residuals and the Jacobian of a step. Models linear in their
+    free parameters (``qr``; the atan2 of the gyrocompass makes them very slightly nonlinear:
+    two or three steps converge) and nonlinear ones (``gauss-newton``, e.g. ``warmup_tau``).
+    Bounds (nonlinear parameters get their declared range, :class:`~hse_opt.model.Param`
+    ``lower``/``upper``, by default) are kept when every step stays strictly inside them: a
+    minimum inside the bounds is the bounded problem's, and no bound binds.
 ``ipopt``
-    Nonlinear free parameters (e.g. ``warmup_tau``), bounds or inequalities: CasADi
-    ``nlpsol``/IPOPT with a Gauss-Newton Hessian ``J'J`` (built once per model, run count
-    and constraint shape, then reused), followed by the same Gauss-Newton/QR polish on the
-    active set IPOPT finds, so bounds that bind hold exactly and a fit whose bounds do not
-    bind equals the unconstrained one. Nonlinear parameters get their declared range
-    (:class:`~hse_opt.model.Param` ``lower``/``upper``) as default bounds.
+    Inequality constraints, a bound that binds, or Gauss-Newton stepping out of the bounds:
+    CasADi ``nlpsol``/IPOPT with a Gauss-Newton Hessian ``J'J`` (built once per model, run
+    count and constraint shape, then reused), followed by the same Gauss-Newton/QR polish
+    on the active set IPOPT finds, so bounds that bind hold exactly and a fit whose bounds
+    do not bind equals the unconstrained one.
 
 Weights (``FitResult.weighting``)
 ---------------------------------
@@ -60,9 +63,9 @@ from scipy.linalg import solve_triangular
 
 from . import units
 from .information import (Prior, UnidentifiableError, analyse, blind_out, heading_sigma, invisible,
-                          null_space, separation_advice)
+                          null_space, propagated_std, separation_advice)
 from .model.effects import effect as make_effect
-from .model.measurement import Model, paper_model
+from .model.measurement import BatchEvaluator, Model, paper_model
 from .model.symbolic import Geometry
 
 __all__ = ["FitResult", "Constraint", "Prior", "SolverError", "UnidentifiableError", "fit",
@@ -371,24 +374,49 @@ class _Problem:
         self.names = tuple(str(nm) for nm in names)
         self.nonlinear = np.array([nm in mm.nonlinear for nm in names], dtype=bool)
         self.ranges = np.array([q.upper - q.lower for q, f in zip(mm.params, free) if f])
+        self._last = (None, None, None)
 
     def p(self, z):
         p = self.p_base.copy()
         p[self.free] = z * self.scale
         return p
 
+    def _evaluate(self, z):
+        """Residuals (n,) and dh/dz (n, k) at ``z`` from one batch call, the last kept: a
+        Gauss-Newton step needs both at every accepted point."""
+        z = np.asarray(z, dtype=float)
+        if not np.array_equal(self._last[0], z):
+            hJ = _residual_jacobian(self.mm)(self.p(z), self.X, self.jit)
+            self._last = (z.copy(), self.y - hJ[:, 0], hJ[:, 1:][:, self.free] * self.scale[None, :])
+        return self._last[1], self._last[2]
+
     def residual(self, z):
-        return self.y - self.mm.predict(self.p(z), self.X, self.jit)
+        return self._evaluate(z)[0]
 
     def jacobian(self, z):
         """dh/dz (n, k), rad per display unit."""
-        return self.mm.jacobian(self.p(z), self.X, self.jit)[:, self.free] * self.scale[None, :]
+        return self._evaluate(z)[1]
+
+    def inside(self, z):
+        """Whether ``z`` lies strictly within the bounds (no bound can bind there)."""
+        return bool(np.all(z > self.lb) and np.all(z < self.ub))
 
     def objective(self, z, w, r=None):
         """chi2 (data and prior) at ``z``; ``r``: the residuals there, when known."""
         r = w * (self.residual(z) if r is None else r)
         e = self.L @ z - self.Lmu
         return float(r @ r + e @ e)
+
+
+@lru_cache(maxsize=64)
+def _residual_jacobian(mm):
+    """Batch evaluator of ``[h, dh/dp]`` (n, 1 + n_p) for ``mm``: one Function whose Jacobian
+    shares the heading's expression graph, so both cost about what the Jacobian alone does."""
+    p = ca.SX.sym("p", len(mm.names))
+    x = ca.SX.sym("x", mm.n_x)
+    h = mm.h(p, x)
+    return BatchEvaluator(ca.Function("hJ", [p, x], [ca.densify(ca.vertcat(h, ca.jacobian(h, p).T))],
+                                      ["p", "x"], ["h_dh_dp"]), exact=True)
 
 
 def _setup(mm, runs, fix, bounds, constraints, prior, notes, start=None):
@@ -484,10 +512,9 @@ _CHI2_NOISE = 1e-6
 def _gauss_newton(prob, w, z, C, d, max_iter=50, mask=None, tol=1e-6, box=False):
     """Minimise ``|w r(z)|^2 + |L z - Lmu|^2`` subject to ``C z = d`` by Gauss-Newton, each step
     by QR in the null space of ``C``. ``mask`` (k,) bool: only those parameters move.
-    Converged when a step is below ``tol`` of every parameter's sigma. ``box``: a step that
-    leaves the parameters' bounds ends the iteration unconverged (the polish of an IPOPT
-    solution whose active set misses a bound; outside the bounds a nonlinear model may not even
-    be defined - a negative time constant).
+    Converged when a step is below ``tol`` of every parameter's sigma. ``box``: give up (not
+    converged) as soon as a step leaves the open box of the bounds, where the solution of
+    the bounded problem is another one (IPOPT's).
 
     Returns ``(z, converged)``.
     """
@@ -509,13 +536,14 @@ def _gauss_newton(prob, w, z, C, d, max_iter=50, mask=None, tol=1e-6, box=False)
         rhs = np.concatenate([w * r, prob.Lmu - prob.L @ z])
         R_aug = np.linalg.qr(np.column_stack([M, rhs]), mode="r")  # Q' rhs in the last column
         R = R_aug[:m, :m]
-        step = Z @ solve_triangular(R, R_aug[:m, m])
-        # converged when the step is a negligible fraction of each parameter's sigma
-        std = np.linalg.norm(Z @ solve_triangular(R, np.eye(m)), axis=1)
+        with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
+            step = Z @ solve_triangular(R, R_aug[:m, m], check_finite=False)
+            # converged when the step is a negligible fraction of each parameter's sigma
+            std = np.linalg.norm(Z @ solve_triangular(R, np.eye(m), check_finite=False), axis=1)
+        if not np.all(np.isfinite(step)) or (box and not prob.inside(z + step)):
+            return z, False
         if np.all(np.abs(step) <= tol * std + 1e-14 * np.abs(z)):
             return z + step, True
-        if box and not _feasible(prob, z + step):
-            return z, False
         t = 1.0
         while True:  # step halving keeps the objective from rising on a nonlinear model
             z_new = z + t * step
@@ -644,16 +672,24 @@ def _feasible(prob, z, eps=1e-9):
                 and np.all(g >= prob.l_in - tol(prob.l_in)) and np.all(g <= prob.u_in + tol(prob.u_in)))
 
 
-def _solve(prob, w, z, use_ipopt, notes):
-    """One weighted solve. Returns ``(z, C_active, binding, active, method, status)``."""
-    if not use_ipopt:
-        z, ok = _gauss_newton(prob, w, z, prob.A_eq, prob.b_eq)
-        if not ok:
+def _solve(prob, w, z, notes):
+    """One weighted solve. Returns ``(z, C_active, binding, active, method, status)``.
+
+    Without inequality constraints, Gauss-Newton first: when it converges strictly inside the
+    bounds (nonlinear parameters always have some), no bound binds and that is the bounded
+    problem's solution too. Otherwise (and with inequalities) IPOPT finds the active set.
+    """
+    bounded = bool(np.isfinite(prob.lb).any() or np.isfinite(prob.ub).any())
+    if not prob.A_in.shape[0]:
+        z_gn, ok = _gauss_newton(prob, w, z, prob.A_eq, prob.b_eq, box=bounded)
+        if ok:
+            method = "gauss-newton" if prob.nonlinear.any() else "qr"
+            return z_gn, prob.A_eq, np.zeros(0, int), np.zeros(0, int), method, "converged"
+        if not bounded and not prob.nonlinear.any():
             raise SolverError("Gauss-Newton did not converge in 50 steps", "max_iter")
-        return z, prob.A_eq, np.zeros(0, int), np.zeros(0, int), "qr", "converged"
     z_ip, lam_x, lam_g, status, D = _ipopt(prob, w, z)
     C, d, binding, bound_val, act = _active_set(prob, z_ip, lam_x, lam_g, D)
-    z_pol, ok = _gauss_newton(prob, w, z_ip, C, d, box=True)
+    z_pol, ok = _gauss_newton(prob, w, z_ip, C, d)
     z_pol[binding] = bound_val
     if ok and _feasible(prob, z_pol) and prob.objective(z_pol, w) <= prob.objective(z_ip, w) + _CHI2_NOISE:
         return z_pol, C, binding, act, "ipopt", status
@@ -769,8 +805,6 @@ def fit(runs, model=None, *, fix=None, tilt_known=None, bounds=None, constraints
         eq_rows = ~np.any(A_eq[:, ~lin] != 0, axis=1) if A_eq.size else np.zeros(0, bool)
         z, _ = _gauss_newton(prob, 1 / sigma, z, A_eq[eq_rows], b_eq[eq_rows], max_iter=1, mask=lin)
         z = np.clip(z, prob.lb, prob.ub)
-    use_ipopt = bool(prob.nonlinear.any() or np.isfinite(prob.lb).any() or np.isfinite(prob.ub).any()
-                     or A_in.shape[0])
 
     # solve; with robust weights or a sigma estimated from the residuals, re-solve until the
     # weights settle (the sigma matters to the solution only against a prior, and to IPOPT's
@@ -778,9 +812,8 @@ def fit(runs, model=None, *, fix=None, tilt_known=None, bounds=None, constraints
     hw = np.ones(n)
     if robust:
         notes.append(f"Huber loss, threshold {huber_c:g} sigma (iteratively reweighted)")
-    again = robust or (weighting == "residual" and (r_prior > 0 or use_ipopt))
     for _ in range(max_iter):
-        z, C, binding, act, method, status = _solve(prob, np.sqrt(hw) / sigma, z, use_ipopt, notes)
+        z, C, binding, act, method, status = _solve(prob, np.sqrt(hw) / sigma, z, notes)
         res = prob.residual(z)
         k_eff = null_space(C, k).shape[1]
         dof = n + r_prior - k_eff
@@ -798,7 +831,7 @@ def fit(runs, model=None, *, fix=None, tilt_known=None, bounds=None, constraints
         settled = (np.max(np.abs(new_hw - hw)) < 1e-7  # ~1e-7/n sigma on the estimates
                    and np.max(np.abs(new_sigma / sigma - 1)) < 1e-6)
         sigma, hw = new_sigma, new_hw
-        if settled or not again:
+        if settled or not (robust or (weighting == "residual" and (r_prior > 0 or method == "ipopt"))):
             break
     else:
         raise SolverError(f"the weights did not settle in {max_iter} re-solves", "max_iter")
@@ -886,7 +919,13 @@ def compensation(runs, fit_result, parameters=None):
     correction, std : numpy.ndarray, shape (n,)
         Heading error (estimated - true) predicted from those parameters, rad, and its
         1-sigma from the fit's covariance, rad (the calibration's uncertainty, not the
-        run's own noise).
+        run's own noise; :func:`~hse_opt.information.propagated_std`).
+
+    Raises
+    ------
+    ValueError
+        The runs lack what the fit needs, or the fit's covariance is not positive
+        semidefinite (a damaged FIT.json): the message names the parameters.
     """
     mm = fit_result.measurement
     if fit_result.tilt_known and runs.pitch is None:
@@ -902,8 +941,7 @@ def compensation(runs, fit_result, parameters=None):
     correction = mm.predict(p, X)
     Jd = mm.jacobian(p, X)[:, use] * mm.scale[use][None, :]
     C = np.asarray(fit_result.covariance)[np.ix_(use, use)]
-    var = np.einsum("ij,jk,ik->i", Jd, C, Jd)
-    return correction, np.sqrt(np.clip(var, 0.0, None))
+    return correction, propagated_std(Jd, C, np.array(mm.names)[use])
 
 
 def compensate(runs, fit_result, parameters=None):

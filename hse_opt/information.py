@@ -270,6 +270,56 @@ def analyse(F, names, units_, max_condition=MAX_CONDITION, advice=None, Z=None):
     return Information(tuple(names), tuple(units_), F, cov, corr, std, cond)
 
 
+def propagated_std(J, covariance, names=None, tol=1e-9):
+    """1-sigma of each row of ``J x`` for ``x`` with covariance ``C``: ``sqrt(diag(J C J'))``,
+    computed as the row norms of ``J L`` with ``C = L L'`` (from the eigen-decomposition of
+    C's correlation form), so it is real and >= 0 by construction - no clipping or ``abs()``
+    of a negative variance.
+
+    Parameters
+    ----------
+    J : array_like, shape (n, k)
+        Sensitivities of n quantities to k parameters (per display unit).
+    covariance : array_like, shape (k, k)
+        The parameters' covariance (display units); symmetric positive semidefinite.
+    names : sequence of str, optional
+        The parameters, for messages.
+    tol : float
+        Eigenvalues of the correlation matrix above ``-tol`` (rounding of a singular PSD
+        matrix, e.g. under equality constraints) count as zero; below, ``C`` is not a
+        covariance and ``ValueError`` says along which parameters.
+
+    Returns
+    -------
+    numpy.ndarray, shape (n,)
+    """
+    J = np.atleast_2d(np.asarray(J, dtype=float))
+    C = np.asarray(covariance, dtype=float)
+    k = J.shape[1]
+    names = tuple(names) if names is not None else tuple(f"parameter {i}" for i in range(k))
+    if C.shape != (k, k) or not np.all(np.isfinite(C)):
+        raise ValueError(f"the covariance of {', '.join(names)} must be a finite {k} x {k} matrix, got "
+                         f"shape {C.shape}")
+    var = np.diag(C)
+    if np.any(var < 0):
+        bad = [n for n, v in zip(names, var) if v < 0]
+        raise ValueError(f"the covariance gives {', '.join(bad)} a negative variance; allowed: a "
+                         "positive semidefinite covariance")
+    d = np.sqrt(var)
+    s = np.where(d > 0, d, 1.0)
+    R = C / np.outer(s, s)  # correlation form; rows of zero-variance parameters must be zero
+    if k and np.abs(R - R.T).max() > tol:
+        raise ValueError(f"the covariance of {', '.join(names)} is not symmetric")
+    lam, V = np.linalg.eigh(0.5 * (R + R.T))
+    if k and lam[0] < -tol * max(lam[-1], 1.0):
+        w = np.abs(V[:, 0])
+        bad = [n for n, c in zip(names, w) if c > 0.1 * w.max()]
+        raise ValueError(f"the covariance is not positive semidefinite (eigenvalue {lam[0]:.3g} of its "
+                         f"correlation form along {', '.join(bad)})")
+    L = (s[:, None] * V) * np.sqrt(np.maximum(lam, 0.0))[None, :]  # C = L L' (up to rounding)
+    return np.linalg.norm(J @ L, axis=1)
+
+
 def describe_runs(X, tilt_known=False):
     """Sentences on what every run in ``X`` (measurement-model inputs) shares: the factors the
     runs do not vary, which is usually why parameters cannot be separated."""

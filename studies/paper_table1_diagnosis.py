@@ -48,7 +48,7 @@ a600, s600 = d600.fit.value("warmup_amp")
 
 # which runs would tell the two models apart
 prop = discriminating_runs(runs, d0.fit, d1.fit, k=2)
-print(f"\nRuns that would tell hse from hse+warmup apart (best first):")
+print("\nRuns that would tell hse from hse+warmup apart (best first):")
 for p in prop:
     print(f"  {p['rate_dps']:+.0f} deg/s, azimuth {p['azimuth_deg']:.0f} deg, t_start {p['t_start_s']:.0f} s: "
           f"{p['pred_a_arcsec']:.1f} vs {p['pred_b_arcsec']:.1f} arcsec ({p['separation']:.2f} sigma apart)")

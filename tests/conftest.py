@@ -7,6 +7,12 @@ ALL_EFFECTS = ["hse", "axis_bias", "sync_delay", "scale_nonlinearity", "warmup",
                "azimuth_harmonic2", "encoder_harmonic", "covariate:temp_c"]
 
 
+def pytest_collection_modifyitems(items):
+    """Slow tests first, so that parallel workers (pytest-xdist, one file at a time) start the
+    long files early and finish together."""
+    items.sort(key=lambda item: item.get_closest_marker("slow") is None)
+
+
 @pytest.fixture
 def rng():
     return np.random.default_rng(20131204)

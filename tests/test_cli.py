@@ -1,8 +1,6 @@
 import subprocess
 import sys
 
-from hse_opt.cli import main
-
 
 def test_console_script_help():
     out = subprocess.run([sys.executable, "-m", "hse_opt.cli", "demo", "--help"], capture_output=True,

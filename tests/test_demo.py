@@ -27,6 +27,7 @@ def demo_run(tmp_path_factory):
     return data, out, summary_lines(result, "hse_opt_demo")
 
 
+@pytest.mark.slow
 def test_the_readme_shows_what_the_demo_prints(demo_run):
     readme = (Path(__file__).resolve().parents[1] / "README.md").read_text(encoding="utf-8")
     shown = re.search(r"```text\n(hse-opt demo, seed 0:.*?)```", readme, re.S).group(1)

@@ -1,6 +1,7 @@
 """The calibration fit (issue 4, items 3-7), each against an independent reference: the truth
 of twin experiments, scipy's optimisers on the same objective, the paper's closed forms,
 fits with the constraint substituted by hand."""
+import dataclasses
 import importlib
 import json
 
@@ -12,8 +13,9 @@ from hse_opt import units
 from hse_opt.data import Runs
 from hse_opt.datasets import paper_table1
 from hse_opt.fit import (COMPENSATED_COLUMN, COMPENSATION_STD_COLUMN, Constraint, FitResult, Prior,
-                         SolverError, compensate, compensated_parameters, fit, load_fit, save_fit)
-from hse_opt.information import UnidentifiableError, separating_runs
+                         SolverError, compensate, compensated_parameters, compensation, fit, load_fit,
+                         save_fit)
+from hse_opt.information import UnidentifiableError, propagated_std, separating_runs
 from hse_opt.model import Model, closed_form
 from hse_opt.paper_procedure import compensate_eq14, paper_procedure
 
@@ -87,21 +89,55 @@ def test_twin_nonlinear_warmup_sigmas_are_honest():
     assert chi2_red == pytest.approx(1.0, abs=0.05)
 
 
-def test_nonlinear_fit_uses_ipopt_and_matches_scipy(rng):
+def test_nonlinear_fit_matches_scipy_by_both_solvers(rng):
     runs = twin(NONLINEAR, design(n_sessions=4, per=12, rates_dps=(40,), sigma_arcsec=3.0),
                 TRUTH_NONLINEAR, rng)
-    f = fit(runs, NONLINEAR)
-    assert f.method == "ipopt" and f.binding == ()
+    f = fit(runs, NONLINEAR)  # warmup_tau's declared range does not bind: Gauss-Newton
+    assert f.method == "gauss-newton" and f.binding == ()
     # scipy's trust-region least squares on the same standardised residuals (its own
     # finite differences stall on the model's 1e-12 rounding: give it the Jacobian)
     mm = NONLINEAR.measurement(True)
     X = mm.inputs_from_runs(runs)
-    ref = least_squares(lambda v: (runs.heading_err - mm.predict(v * mm.scale, X)) / runs.heading_std,
-                        mm.vector(TRUTH_NONLINEAR) / mm.scale * 1.1, method="trf",
-                        jac=lambda v: -mm.jacobian(v * mm.scale, X) * mm.scale / runs.heading_std[:, None],
-                        xtol=1e-15, ftol=1e-15, gtol=1e-15)
+    resid = lambda v: (runs.heading_err - mm.predict(v * mm.scale, X)) / runs.heading_std  # noqa: E731
+    ref = least_squares(resid, mm.vector(TRUTH_NONLINEAR) / mm.scale * 1.1, method="trf",
+                        jac=_jac(mm, X, runs), xtol=1e-15, ftol=1e-15, gtol=1e-15)
     assert np.all(np.abs(f.values - ref.x) < 2e-4 * f.std)
     assert f.chi2 == pytest.approx(2 * ref.cost, abs=1e-5)
+    # IPOPT, brought in by an inequality that does not bind, finds the same point
+    g = fit(runs, NONLINEAR, constraints=[Constraint({"warmup_amp": 1.0, "lambda2": 1.0}, upper=500.0)])
+    assert g.method == "ipopt" and g.active == ()
+    assert np.all(np.abs(g.values - f.values) < 1e-5 * f.std)
+    np.testing.assert_allclose(g.std, f.std, rtol=1e-6)
+    # started next to the lower end of the range, Gauss-Newton steps out of it: IPOPT takes over
+    s = fit(runs, NONLINEAR, start={"warmup_tau": 31.0})
+    assert s.method == "ipopt" and s.binding == ()
+    assert np.all(np.abs(s.values - f.values) < 1e-5 * f.std)
+    # a bound on the time constant that binds: IPOPT, held exactly, as scipy's bounded solver
+    cap = float(f.value("warmup_tau")[0] - 2 * f.value("warmup_tau")[1])
+    b = fit(runs, NONLINEAR, bounds={"warmup_tau": (30.0, cap)})
+    assert b.method == "ipopt" and b.binding == ("warmup_tau",) and b.value("warmup_tau") == (cap, 0.0)
+    ub = np.full(4, np.inf)
+    ub[3] = cap
+    ref_b = least_squares(resid, np.r_[ref.x[:3], 0.9 * cap], jac=_jac(mm, X, runs), bounds=(-np.inf, ub),
+                          method="trf", xtol=1e-15, ftol=1e-15, gtol=1e-15)
+    assert np.all(np.abs(b.values - ref_b.x) < 2e-4 * f.std)
+
+
+def test_residual_jacobian_evaluator_equals_the_models_functions(rng):
+    # the fit's one-call [h, dh/dp] (exact-size map) against MeasurementModel.predict/jacobian
+    # (separate Functions, padded power-of-two maps), for several run counts
+    fitmod = importlib.import_module("hse_opt.fit")
+    mm = Model(["hse", "axis_bias", "warmup"]).measurement(True)
+    ev = fitmod._residual_jacobian(mm)
+    for n in (1, 7, 100):
+        d = design(per=n)
+        X = mm.inputs(d["rate"], d["azimuth"], d["latitude"], d["duration"], d["t_start"], d["pitch"],
+                      d["roll"])
+        p = mm.vector(offset=2.0, lambda2=4.2, bias_z=0.1, warmup_amp=30.0, warmup_tau=900.0)
+        hJ = ev(p, X)
+        np.testing.assert_allclose(hJ[:, 0], mm.predict(p, X), rtol=0, atol=1e-15)
+        np.testing.assert_allclose(hJ[:, 1:], mm.jacobian(p, X), rtol=1e-12, atol=1e-15)
+        assert (n, False) in ev._cache  # mapped exactly, not padded
 
 
 # -- constraints --------------------------------------------------------------------------------
@@ -215,13 +251,13 @@ def test_online_update_equals_batch(rng):
 
 
 def test_prior_from_fit_through_ipopt_equals_batch(rng):
-    # the same update with a (non-binding) bound: the IPOPT path carries the prior too
+    # the same update with an inequality that does not bind: the IPOPT path carries the prior too
     runs = twin(LINEAR, design(), TRUTH_LINEAR, rng)
     n = len(runs)
     batch = fit(runs, LINEAR)
     new = fit(subset(runs, range(1, n, 2)), LINEAR, prior=fit(subset(runs, range(0, n, 2)), LINEAR),
-              bounds={"delay": (-1e4, 1e4)})
-    assert new.method == "ipopt"
+              constraints=[Constraint({"delay": 1.0}, -1e4, 1e4)])
+    assert new.method == "ipopt" and new.active == ()
     assert np.all(np.abs(new.values - batch.values) < 1e-6 * batch.std)
 
 
@@ -371,6 +407,45 @@ def test_compensation_symbolic_equals_eq14_and_removes_the_hse(rng):
     assert compensated_parameters(f) == ("lambda2",)
 
 
+def test_compensation_sigma_equals_monte_carlo_over_the_covariance(rng):
+    # three compensated parameters (lambda2, bias_z, delay), strongly correlated by runs of one
+    # sense at three azimuths; with the equality the covariance is singular (rank 2) and the
+    # propagation must stay real and honest
+    runs = twin(LINEAR, design(azimuths_deg=(10, 100, 200), per=36), TRUTH_LINEAR, rng)
+    runs = runs.subset(np.flatnonzero(runs.rate > 0))
+    later = twin(LINEAR, design(per=16, rates_dps=(10, 25, 50, 70)), TRUTH_LINEAR, rng)
+    mm = LINEAR.measurement(True)
+    X = mm.inputs_from_runs(later)
+    for f in (fit(runs, LINEAR), fit(runs, LINEAR, constraints=[Constraint.equal({"lambda2": 1.0,
+                                                                                 "delay": -0.1}, 0.0)])):
+        corr, std = compensation(later, f)
+        use = np.isin(mm.names, compensated_parameters(f))
+        assert use.sum() == 3 and np.abs(np.triu(f.correlation[np.ix_(use, use)], 1)).max() > 0.9
+        draws = rng.multivariate_normal(f.values[use], f.covariance[np.ix_(use, use)], 4000,
+                                        method="eigh")
+        p = np.tile(mm.nominal, (draws.shape[0], 1))
+        p[:, use] = draws * mm.scale[use]
+        mc = np.array([mm.predict(q, X) for q in p])
+        np.testing.assert_allclose(std, mc.std(axis=0), rtol=0.06)  # 1/sqrt(2 * 4000) = 1.1 %
+        assert np.all(np.abs(mc.mean(axis=0) - corr) < 5 * std / np.sqrt(draws.shape[0]) + 1e-15)
+        assert np.ptp(std) > 0.1 * std.max()  # the runs differ: the test sees the correlations
+    # a covariance that is no covariance (a damaged FIT.json) is refused, not clipped
+    bad = f.covariance.copy()
+    i, j = f.names.index("lambda2"), f.names.index("bias_z")
+    bad[i, j] = bad[j, i] = 2 * np.sqrt(bad[i, i] * bad[j, j])
+    with pytest.raises(ValueError, match="not positive semidefinite .*lambda2, bias_z"):
+        compensation(later, dataclasses.replace(f, covariance=bad))
+
+
+def test_propagated_std_of_a_rank_one_covariance_is_the_closed_form(rng):
+    # C = v v' (perfectly correlated parameters, eigenvalues 0 up to rounding): J C J' = (J v)^2
+    v = rng.normal(size=5) * np.logspace(-3, 3, 5)
+    J = rng.normal(size=(7, 5)) / np.logspace(-3, 3, 5)
+    np.testing.assert_allclose(propagated_std(J, np.outer(v, v)), np.abs(J @ v), rtol=1e-7)
+    with pytest.raises(ValueError, match="negative variance"):
+        propagated_std(J, -np.outer(v, v), list("abcde"))
+
+
 def test_compensate_refuses_to_overwrite_and_needs_tilt(rng):
     runs = _single_position(rng)
     f = fit(runs)
@@ -409,7 +484,7 @@ def test_solver_failure_raises_with_status(rng, monkeypatch):
     fitmod._nlp_solver.cache_clear()
     try:
         with pytest.raises(SolverError, match="Maximum_Iterations_Exceeded") as err:
-            fit(runs, NONLINEAR)
+            fit(runs, NONLINEAR, constraints=[Constraint({"warmup_amp": 1.0}, upper=500.0)])
         assert err.value.status == "Maximum_Iterations_Exceeded"
     finally:
         fitmod._nlp_solver.cache_clear()
@@ -426,15 +501,17 @@ def test_paper_procedure_without_replicates_matches_numpy_polyfit(rng):
     assert cal.k_hse_std == pytest.approx(np.sqrt(cov[0, 0]), rel=1e-10)
 
 
-def test_sigma_from_residuals_through_ipopt(rng):
+@pytest.mark.parametrize("constraints, method", [
+    ((), "gauss-newton"), ((Constraint({"warmup_amp": 1.0}, upper=500.0),), "ipopt")])
+def test_sigma_from_residuals(rng, constraints, method):
     # no heading_std and no replicates: one sigma from the residuals; the estimate is the
-    # weighted fit's and the covariance scales by (s / sigma)^2
+    # weighted fit's and the covariance scales by (s / sigma)^2 - by both solvers
     d = design(n_sessions=4, per=12, rates_dps=(40,), sigma_arcsec=3.0)
     d["azimuth"] = d["azimuth"] + 1e-3 * np.arange(d["run"].size)  # no two runs alike
     runs = twin(NONLINEAR, d, TRUTH_NONLINEAR, rng)
-    known = fit(runs, NONLINEAR)
-    est = fit(runs.replace(heading_std=None), NONLINEAR)
-    assert est.weighting == "residual" and est.method == "ipopt"
+    known = fit(runs, NONLINEAR, constraints=constraints)
+    est = fit(runs.replace(heading_std=None), NONLINEAR, constraints=constraints)
+    assert est.weighting == "residual" and est.method == known.method == method
     assert np.all(np.abs(est.values - known.values) < 1e-4 * known.std)
     s = np.sqrt(np.sum(known.residuals ** 2) / known.dof)
     assert est.sigma[0] == pytest.approx(s, rel=1e-6)

@@ -116,3 +116,17 @@ def test_bad_names_and_geometry():
         Geometry(r_zb_s=[-0.5775, -0.5775, -0.5775 * 1.0015])
     with pytest.raises(ValueError, match="covariate columns \\['temp_c'\\] are required"):
         Model(["hse", "covariate:temp_c"]).measurement().inputs(0.7, 0.0, 0.49, pitch=0, roll=0)
+
+
+def test_inputs_broadcast_scalars_and_name_mismatched_lengths():
+    """A scalar shared by the runs (here the rate) broadcasts against arrays; lengths that do
+    not broadcast are an error naming each argument's shape."""
+    mm = Model(["hse"]).measurement(tilt_known=True)
+    az = np.array([0.0, 1.0, 2.0])
+    X = mm.inputs(0.5, az, 0.49, 600.0, 0.0, 1e-3, -1e-3)
+    assert X.shape[1] == 3
+    explicit = mm.inputs(np.full(3, 0.5), az, np.full(3, 0.49), np.full(3, 600.0), np.zeros(3),
+                         np.full(3, 1e-3), np.full(3, -1e-3))
+    assert np.array_equal(X, explicit)
+    with pytest.raises(ValueError, match=r"rate \(2,\), azimuth \(3,\)"):
+        mm.inputs(np.ones(2), az, 0.49, 600.0, 0.0, 0.0, 0.0)

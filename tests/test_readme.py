@@ -13,6 +13,8 @@ import subprocess
 import sys
 from pathlib import Path
 
+import pytest
+
 README = Path(__file__).resolve().parents[1] / "README.md"
 _BLOCK = re.compile(r"(<!-- [^>]*-->\s*)?```(python|bash)\n(.*?)```", flags=re.S)
 
@@ -27,6 +29,7 @@ def _blocks():
     return out
 
 
+@pytest.mark.slow
 def test_readme_blocks_run_top_to_bottom(tmp_path, monkeypatch):
     blocks = _blocks()
     assert sum(lang == "python" for lang, _ in blocks) >= 4

@@ -222,8 +222,9 @@ class MeasurementModel:
 
         Parameters
         ----------
-        rate : array_like, shape (n,)
-            Signed bias rate Omega, rad/s.
+        rate : array_like, shape (n,) or float
+            Signed bias rate Omega, rad/s. Every argument is an array of the runs or a scalar
+            shared by them (numpy broadcasting); the run count is the broadcast size.
         azimuth, latitude : array_like, shape (n,)
             Stand azimuth (taken as the heading of b0) and latitude, rad.
         duration : array_like or float
@@ -236,8 +237,20 @@ class MeasurementModel:
         covariates : mapping name -> array_like, optional
             The columns this model's covariate effects use.
         """
-        rate = np.atleast_1d(np.asarray(rate, dtype=float))
-        n = rate.size
+        covariates = dict(covariates or {})
+        given = [rate, azimuth, latitude, duration, t_start, pitch, roll,
+                 *(covariates.get(c) for c in self.covariates)]
+        names = ("rate", "azimuth", "latitude", "duration", "t_start", "pitch", "roll", *self.covariates)
+        shapes = {k: np.shape(v) for k, v in zip(names, given) if v is not None}
+        try:
+            shape = np.broadcast_shapes(*shapes.values())
+        except ValueError:
+            shape = None
+        if shape is None or len(shape) > 1:
+            raise ValueError("run inputs must be 1-D arrays of one length (or scalars); got shapes "
+                             + ", ".join(f"{k} {v}" for k, v in shapes.items()))
+        n = shape[0] if shape else 1
+        rate = np.broadcast_to(np.asarray(rate, dtype=float), (n,))
         cols = {"rate": rate}
         for name, v in (("azimuth", azimuth), ("latitude", latitude), ("duration", duration)):
             cols[name] = np.broadcast_to(np.asarray(v, dtype=float), (n,))
@@ -252,7 +265,6 @@ class MeasurementModel:
             cols["roll"] = np.broadcast_to(np.asarray(roll, dtype=float), (n,))
         else:
             cols["pitch"] = cols["roll"] = np.zeros(n)
-        covariates = dict(covariates or {})
         missing = [c for c in self.covariates if c not in covariates]
         if missing:
             raise ValueError(f"covariate columns {missing} are required by the model's effects; "
@@ -366,13 +378,20 @@ class BatchEvaluator:
     Function is compiled once with the C compiler (CasADi jit) for speed; if compiling
     fails, the virtual machine is used and a warning says why. ``jit=True/False`` on a call
     overrides the size rule (repeated small batches, e.g. on-line fits, gain from it too).
+    ``exact=True``: a call that is not compiled maps exactly its ``n`` runs (up to
+    ``max_chunk``) instead of padding to a power of two - a third less work at 100 runs, for
+    a mapped Function per run count (~0.4 ms to build; the last ``_MAX_EXACT`` kept): for
+    callers that evaluate one run count many times, such as a fit's iterations.
     """
 
-    def __init__(self, fun, max_chunk=4096, jit_above=5000):
+    _MAX_EXACT = 64
+
+    def __init__(self, fun, max_chunk=4096, jit_above=5000, exact=False):
         self.fun = fun
         self.n_out = fun.nnz_out(0)
         self.max_chunk = max_chunk
         self.jit_above = jit_above
+        self.exact = exact
         self._cache = {}
         self._functions = {}
 
@@ -414,8 +433,12 @@ class BatchEvaluator:
         out = np.empty((n, self.n_out))
         if n == 0:
             return out if self.n_out > 1 else out[:, 0]
-        chunk = self._chunk(n)
-        buf, trigger = self._mapped(chunk, n >= self.jit_above if jit is None else bool(jit))
+        jit = n >= self.jit_above if jit is None else bool(jit)
+        chunk = n if self.exact and not jit and n <= self.max_chunk else self._chunk(n)
+        if (chunk, jit) not in self._cache and len(self._cache) >= self._MAX_EXACT:
+            for key in [key for key in self._cache if not key[1]]:  # compiled ones stay
+                del self._cache[key], self._functions[key]
+        buf, trigger = self._mapped(chunk, jit)
         XT = np.ascontiguousarray(X.T)
         p = np.ascontiguousarray(p, dtype=float)
         buf.set_arg(0, memoryview(p))
