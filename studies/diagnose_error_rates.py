@@ -33,7 +33,7 @@ count with a rate >= 90 %; a diagnosis meeting its targets fails them with proba
 At the CI size they catch a broken diagnosis (16 false alarms in 100 campaigns - a rate
 of 20 % is caught 87 % of the time - or an effect ranked first in at most 1 of 6 seeds), not
 a small shortfall; ``--full`` measures the rates and asserts
-the issue's targets on them. Measured with ``--full`` (220 s CPU):
+the issue's targets on them. Measured with ``--full`` (150 s CPU):
 
     false alarms 2/200 = 1.0 % (95 % CI 0.1-3.6 %)
     every hidden effect (and the pair) ranks first in 100/100 seeds, verdict missing-effect in

@@ -37,7 +37,7 @@ adequate at once); after refining, exactly the hidden effects were added, the RM
 1.2 x level and the verdict is adequate.
 
 Seeds: the CI seed (6, the issue's number) was fixed before any trial. ``--seeds N`` runs
-seeds 6 .. 5 + N and prints the pass count: 12/12 seeds passed (``--seeds 12``, 220 s CPU).
+seeds 6 .. 5 + N and prints the pass count: 12/12 seeds passed (``--seeds 12``, 190 s CPU).
 
 Run: python studies/diagnose_hidden_effects.py              (one seed, ~18 s CPU)
      python studies/diagnose_hidden_effects.py --seeds 12   (the robustness check)
