@@ -56,6 +56,7 @@ __all__ = ["DemoResult", "HiddenEffect", "NextPlan", "run_demo", "demo_truth", "
 #: cannot absorb (over the demo plan)
 HIDDEN_SIGMAS = 2.0
 _FIXTURE_TILT_ARCSEC = 1800.0          # 0.5 deg
+_TIME_SLOTS = 4                         # time since power-on in four slots, for a warm-up
 _CADENCE_S = 700.0                      # 10-minute alignment + 100 s to change the setting
 
 
@@ -334,9 +335,11 @@ def design_next(model, values=None):
     nominal = {n: float(v) for n, v in (values or {}).items() if n in names}
     paper = paper_plan()
     kw = dict(budget=float(paper.t_start[-1] + paper.duration[-1]), nominal=nominal)
-    fixture = _design(model, {**kw, "space": DesignSpace(max_tilt=_FIXTURE_TILT_ARCSEC * units.ARCSEC)},
-                      notes, "with the tilt fixture")
-    level = _design(model, kw, notes, "without the tilt fixture")
+    # time since power-on is a factor of the plan when an effect changes with it
+    slots = _TIME_SLOTS if any(e.level == "thermal" for e in model.effects) else 1
+    fixture = _design(model, {**kw, "space": DesignSpace(max_tilt=_FIXTURE_TILT_ARCSEC * units.ARCSEC,
+                                                         time_slots=slots)}, notes, "with the tilt fixture")
+    level = _design(model, {**kw, "space": DesignSpace(time_slots=slots)}, notes, "without the tilt fixture")
     try:
         baseline = evaluate(paper, model, nominal=nominal)
     except UnidentifiableError as err:

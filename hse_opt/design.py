@@ -68,8 +68,8 @@ import numpy as np
 from . import units
 from .data import Plan
 from .fit import as_model
-from .information import (DEFAULT_ARW, Prior, UnidentifiableError, analyse, heading_sigma,
-                          separation_advice, weighted_jacobian)
+from .information import (DEFAULT_ARW, Prior, UnidentifiableError, analyse, check_identifiable,
+                          heading_sigma, separation_advice, weighted_jacobian)
 from .model.measurement import BatchEvaluator, Model
 
 __all__ = ["A", "ApproximateDesign", "C", "Candidates", "Costs", "Criterion", "D", "DesignError",
@@ -804,21 +804,82 @@ def _approximate(crit, rows, spec, guards, cand, cost, budget, max_runs, solver=
                                          cost[active], budget, max_runs, solver, slot[active])
         w = np.zeros(n)
         w[active] = w_a
-        loss = _mean_loss(crit, rows, spec, w)
-        h = _lagrangian_gradient(crit, rows, spec, guards, mus, w)
-        cert = _certificate(crit, spec.k, loss, h, w, mus, guards, cost, budget, max_runs, slot)
+        loss, h, cert = _certify(crit, rows, spec, guards, w, mus, cost, budget, max_runs, slot)
+        polished = _polish_weights(crit, rows, spec, guards, w, cost, budget, max_runs, slot)
+        if polished is not None:
+            trial = _certify(crit, rows, spec, guards, *polished, cost, budget, max_runs, slot)
+            if trial[2] > cert:
+                (w, mus), (loss, h, cert) = polished, trial
         if status != cp.OPTIMAL and not cert >= 0.999:
             raise DesignError(f"the approximate design's convex program ended {status} ({used}) with a "
                               f"certified efficiency of only {cert:.4g}")
         if active.size == n or cert >= 1 - 1e-7:
             break
-        value = h * np.minimum(budget / cost / (slot.max() + 1), np.inf if max_runs is None else max_runs)
-        order = np.argsort(-value)
-        new = order[(value[order] > h @ w * (1 + 1e-9)) & ~np.isin(order, active)][:batch]
+        # a candidate enters when spending its slot's share of the budget on it beats the slot's runs
+        n_slots = slot.max() + 1
+        value = h * np.minimum(budget / cost / n_slots, np.inf if max_runs is None else max_runs)
+        now = np.bincount(slot, h * w, minlength=n_slots)[slot]
+        order = np.argsort(-(value - now))
+        new = order[(value[order] > now[order] + 1e-9 * abs(now[order])) & ~np.isin(order, active)][:batch]
         if new.size == 0:
             break
         active = np.union1d(active, new)
     return ApproximateDesign(cand, w, loss, status, used, cert, time.perf_counter() - t0, it, int(active.size))
+
+
+def _certify(crit, rows, spec, guards, w, mus, cost, budget, max_runs, slot):
+    """Loss, Lagrangian gradient and certified efficiency of the weights ``w``."""
+    loss = _mean_loss(crit, rows, spec, w)
+    h = _lagrangian_gradient(crit, rows, spec, guards, mus, w)
+    return loss, h, _certificate(crit, spec.k, loss, h, w, mus, guards, cost, budget, max_runs, slot)
+
+
+def _polish_weights(crit, rows, spec, guards, w, cost, budget, max_runs, slot):
+    """The convex program re-solved by IPOPT (CasADi) on the conic solution's support.
+
+    Interior-point conic solvers stop at about 1e-8 in the objective; the loss is flat at the
+    optimum, so that leaves about 1e-4 in the weights and small weights spread over
+    near-optimal candidates, which then differ from one solver build to the next. The smooth
+    problem on the support (the same loss, time budget per slot, run limit and guards) is
+    solved to 1e-12. Returns ``(weights, guard multipliers)``, or None when the criterion
+    has no smooth form or IPOPT fails (the caller keeps whichever the certificate prefers)."""
+    sup = np.flatnonzero(w > 1e-6 * w.max())
+    m, n_slots = sup.size, int(slot.max()) + 1
+    u = ca.MX.sym("u", m)  # runs of each support candidate
+
+    def mean_loss(r, sp, fun):
+        total = 0
+        for s in range(r.shape[0]):
+            a = ca.DM(r[s][sup])
+            total = total + fun(ca.DM(sp.prior) + ca.mtimes(a.T, a * ca.repmat(u, 1, sp.k)))
+        return total / r.shape[0]
+
+    try:
+        f = mean_loss(rows, spec, lambda F: crit.loss(F, _CASADI, spec.names))
+    except _NotSmooth:
+        return None
+    loss0 = _mean_loss(crit, rows, spec, w)
+    scale = max(1.0, abs(loss0)) if crit.degree == 0 else abs(loss0)
+    if not (np.isfinite(loss0) and scale > 0):
+        return None
+    S = np.zeros((n_slots, m))
+    S[slot[sup], np.arange(m)] = cost[sup]
+    lin = [S] + ([np.ones((1, m))] if max_runs is not None else [])
+    ub = [np.full(n_slots, budget / n_slots)] + ([[max_runs]] if max_runs is not None else [])
+    g = [ca.mtimes(ca.DM(np.vstack(lin)), u)] + [mean_loss(gd.rows, gd.spec, _CASADI.log_det) for gd in guards]
+    solver = ca.nlpsol("weights", "ipopt", {"x": u, "f": (f - loss0) / scale, "g": ca.vertcat(*g)}, {
+        "ipopt.print_level": 0, "print_time": 0, "ipopt.sb": "yes", "ipopt.max_iter": 200,
+        "ipopt.tol": 1e-12, "ipopt.bound_push": 1e-12, "ipopt.bound_frac": 1e-12, "ipopt.mu_init": 1e-8})
+    n_lin = n_slots + len(lin) - 1
+    sol = solver(x0=w[sup], lbx=0.0, ubx=np.inf,
+                 lbg=np.concatenate([np.full(n_lin, -np.inf), [gd.bound for gd in guards]]),
+                 ubg=np.concatenate([np.concatenate(ub), np.full(len(guards), np.inf)]))
+    if not solver.stats()["success"]:
+        return None
+    out = np.zeros_like(w)
+    out[sup] = np.clip(np.array(sol["x"]).ravel(), 0.0, None)
+    lam = np.array(sol["lam_g"]).ravel()[n_lin:]
+    return out, [max(0.0, -float(v) * scale) for v in lam]
 
 
 def _initial_active(rows, guard_rows, cost, size=256):
@@ -1621,12 +1682,14 @@ def design(model=None, criterion="c:lambda2", *, budget, space=None, stand=None,
     if isinstance(crit, C):
         _unit_vector(spec.names, crit.name)
     rows = spec.numeric(X, sigma)
+    _check_candidates(rows, spec, space, model)
 
     guards = []
     for gm in guard_models:
         gmm = gm.measurement(tilt_known)
         gspec = _model_rows(gmm, samples, _prior(prior, gmm.names))
         g = _Guard(gm, gspec, gspec.numeric(X, sigma), -np.inf, 0.0)
+        _check_candidates(g.rows, gspec, space, gm)
         dopt = _approximate(D(), g.rows, gspec, [], cand, cost, B, max_runs, solver)
         guards.append(_Guard(gm, gspec, g.rows, -dopt.loss + gspec.k * np.log(identify_efficiency), dopt.loss))
 
@@ -1686,6 +1749,21 @@ def design(model=None, criterion="c:lambda2", *, budget, space=None, stand=None,
     return DesignResult(plan, evaluation, crit.label, efficiency, rounding_eff, budget_eff, approx,
                         float(costs.setups(s.rate, s.azimuth, s.tilt_x, s.tilt_y).sum()),
                         float(np.sum(s.duration + costs.run_overhead)), status, tuple(guard_out), tuple(notes))
+
+
+def _check_candidates(rows, spec, space, model):
+    """Raise :class:`~hse_opt.information.UnidentifiableError` when even every candidate run
+    together cannot identify the model: then no plan from this design space can."""
+    for r in rows:
+        try:
+            check_identifiable(spec.prior + np.einsum("ni,nj->ij", r, r) / r.shape[0], spec.names)
+        except UnidentifiableError as err:
+            timed = [e.name for e in model.effects if e.level == "thermal"]
+            hint = (f" Time since power-on is not a factor of this design space (time_slots=1), and "
+                    f"{', '.join(timed)} changes with it: allowed DesignSpace(time_slots >= 2)."
+                    if timed and space.time_slots == 1 else "")
+            raise UnidentifiableError(f"no plan from these candidate runs can identify the model: "
+                                      f"{str(err).rstrip('.')}.{hint}", err.names) from None
 
 
 def _guard_models(identify, model, crit):

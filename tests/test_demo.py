@@ -157,11 +157,7 @@ def test_the_demo_designs_a_better_next_plan(demo_run):
 
 
 @pytest.mark.parametrize("name", [
-    "axis_bias", "sync_delay", "scale_nonlinearity", "azimuth_harmonic2", "covariate:temp_c",
-    pytest.param("warmup", marks=pytest.mark.xfail(
-        strict=True, raises=AssertionError,
-        reason="hse_opt.design fails for hse+warmup: the approximate design's convex program "
-               "ends optimal_inaccurate (CLARABEL), certified efficiency ~0.6 (design issue)")),
+    "axis_bias", "sync_delay", "scale_nonlinearity", "azimuth_harmonic2", "covariate:temp_c", "warmup",
 ])
 def test_the_next_plan_is_designed_for_every_drawable_effect(name):
     """The design step of the chain for the model each seed can end with, linearised at the

@@ -84,12 +84,12 @@ def summary_lines(result, out_dir):
         if n.baseline is None:
             lines.append("            the paper's plan cannot identify this model")
         else:
-            lines.append(f"            {n.baseline.std_of('lambda2'):.3g} arcsec with the paper's plan")
+            lines.append(f"            {n.baseline.std_of('lambda2'):#.3g} arcsec with the paper's plan")
         for d, which, label in ((n.level, "level", "the paper's limits"),
                                 (n.design, "design", "a 0.5-deg tilt fixture")):
             if d is not None:
                 gain = n.gain(which)
-                lines.append(f"            {d.std_of('lambda2'):.3g} arcsec optimised, {label}"
+                lines.append(f"            {d.std_of('lambda2'):#.3g} arcsec optimised, {label}"
                              + ("" if gain is None else f" ({gain:.1f}x smaller)"))
     data = "RUNS.csv, PLAN.csv, " + ("" if n.design is None else "NEXT_PLAN.csv, ")
     lines.append(f"  report    {Path(out_dir) / 'report.html'} (data: {data}TRUTH.toml, summary.json)")
