@@ -1760,8 +1760,15 @@ def _check_candidates(rows, spec, space, model):
         except UnidentifiableError as err:
             timed = [e.name for e in model.effects if e.level == "thermal"]
             hint = (f" Time since power-on is not a factor of this design space (time_slots=1), and "
-                    f"{', '.join(timed)} changes with it: allowed DesignSpace(time_slots >= 2)."
+                    f"{', '.join(timed)} changes with it: allowed time_slots >= 2 (DesignSpace(time_slots=N); "
+                    f"hse-opt design --time-slots N)."
                     if timed and space.time_slots == 1 else "")
+            curved = [n for e in model.effects for n in e.nonlinear if n in err.names]
+            if curved:
+                hint += (f" {', '.join(curved)} {'enters' if len(curved) == 1 else 'enter'} the model nonlinearly "
+                         f"and the design linearises at the nominal values, where the heading may not depend on "
+                         f"{'it' if len(curved) == 1 else 'them'}: give values where it does "
+                         f"(nominal={{...}}; hse-opt design --nominal NAME=VALUE, e.g. a warm-up amplitude).")
             raise UnidentifiableError(f"no plan from these candidate runs can identify the model: "
                                       f"{str(err).rstrip('.')}.{hint}", err.names) from None
 

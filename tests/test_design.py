@@ -499,3 +499,10 @@ def test_approximate_weights_are_accurate_beyond_the_conic_solver():
     a = approximate_design(np.column_stack([np.ones_like(X), X]), "D", cost=cost, budget=6.0)
     assert a.runs[0] == pytest.approx(3.0, abs=1e-5) and a.runs[-1] == pytest.approx(1.0, abs=1e-5)
     assert np.sum(a.runs[1:-1]) < 1e-5
+
+
+def test_a_nonlinear_parameter_without_information_at_its_nominal_value_is_named():
+    # warmup_amp = 0 (nominal): the heading does not depend on warmup_tau at all
+    with pytest.raises(UnidentifiableError, match=r"--nominal NAME=VALUE") as err:
+        design("hse,warmup", "c:lambda2", budget=18000.0, space=DesignSpace(time_slots=4))
+    assert err.value.names == ("warmup_tau",)
