@@ -25,7 +25,9 @@ Hidden effect (:func:`hidden_effect`)
     has an RMS of :data:`HIDDEN_SIGMAS` noise sigmas (computed with the symbolic measurement
     model). Effects that need more than their parameter's physical bounds (``Param.lower``
     / ``upper``) to reach that size cannot be shown by this plan and are not drawn: the
-    encoder's periodic error, which a triad system averages out (no heading signature).
+    encoder's periodic error, which a triad system averages out to first order (its 1st
+    harmonic reaches heading only as a product with lambda2, about 0.04 arcsec per arcsec
+    at lambda2 = 4.2 arcsec; its 2nd harmonic not at all).
 
 Steps (:func:`run_demo`): simulate the campaign with the numeric simulator, fit the paper's
 model, diagnose, add the effect the diagnosis names and refit, design an optimised next

@@ -63,7 +63,7 @@ from scipy import optimize, stats
 
 from . import units
 from .data import Plan, Runs
-from .fit import FitResult, as_model, fit
+from .fit import FitResult, as_model, fit, replicate_groups
 from .information import (MAX_CONDITION, UnidentifiableError, check_identifiable, heading_sigma,
                           weighted_jacobian)
 from .model import CATALOGUE, effect as make_effect
@@ -975,7 +975,7 @@ def _untested_factors(runs, tilt_known, cols):
 
 def _lack_of_fit(null, runs):
     """Pure-error lack-of-fit F test: the model against one mean per replicate group."""
-    labels, g = _settings_groups(runs, null.f.tilt_known)
+    labels, g = replicate_groups(runs, null.f.measurement)
     if g == null.n:
         return None
     D = np.zeros((null.n, g))
@@ -987,18 +987,6 @@ def _lack_of_fit(null, runs):
                     "not enough replicate groups beyond the model's parameters")
     return Test("lack of fit", f"model against {g} replicate-group means (pure error from "
                 f"{dof[1]} degrees of freedom)", F, dof, p, logp)
-
-
-def _settings_groups(runs, tilt_known, tilt_tol=10 * units.ARCSEC):
-    """Replicate groups: runs with the same rate, azimuth, duration and latitude (and, when
-    the tilt is known, pitch and roll within ``tilt_tol``: measured tilts carry noise)."""
-    cols = [np.round(np.asarray(a, float) / 1e-9) for a in (runs.rate, np.mod(runs.azimuth, 2 * np.pi),
-                                                            runs.duration, runs.latitude)]
-    if tilt_known and runs.pitch is not None:
-        cols += [np.round(np.asarray(runs.pitch) / tilt_tol), np.round(np.asarray(runs.roll) / tilt_tol)]
-    _, labels = np.unique(np.column_stack(cols), axis=0, return_inverse=True)
-    labels = labels.ravel()
-    return labels, int(labels.max()) + 1
 
 
 # -- candidates ----------------------------------------------------------------------------------

@@ -53,7 +53,7 @@ updating a fit with new runs this way gives the batch fit of all the runs.
 import json
 import math
 import os
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, fields
 from functools import lru_cache
 from typing import Mapping
 
@@ -65,7 +65,7 @@ from . import units
 from .information import (Prior, UnidentifiableError, analyse, blind_out, heading_sigma, invisible,
                           null_space, propagated_std, separation_advice)
 from .model.effects import effect as make_effect
-from .model.measurement import BatchEvaluator, Model, paper_model
+from .model.measurement import RUN_FIELDS, BatchEvaluator, Model, paper_model
 from .model.symbolic import Geometry
 
 __all__ = ["FitResult", "Constraint", "Prior", "SolverError", "UnidentifiableError", "fit",
@@ -258,6 +258,14 @@ class FitResult:
     weights: np.ndarray = None
     chi2_prior: float = 0.0
 
+    def __post_init__(self):
+        for f in fields(self):  # frozen all the way down: read-only copies of the arrays
+            v = getattr(self, f.name)
+            if isinstance(v, np.ndarray):
+                v = v.copy()
+                v.setflags(write=False)
+                object.__setattr__(self, f.name, v)
+
     @property
     def n_runs(self):
         return int(self.run.size)
@@ -316,21 +324,41 @@ class FitResult:
 
 
 # -- weights ------------------------------------------------------------------------------------
-def replicate_groups(runs):
-    """Group label per run: runs with the same settings (rate, azimuth, tilt, duration,
-    latitude) share a label. Returns ``(labels, n_groups)``."""
-    cols = [runs.rate, runs.azimuth, runs.duration, runs.latitude]
-    if runs.pitch is not None:
-        cols += [runs.pitch, runs.roll]
-    key = np.round(np.column_stack(cols) / 1e-9).astype(np.int64)
-    _, labels = np.unique(key, axis=0, return_inverse=True)
+def replicate_groups(runs, mm=None, tilt_tol=10 * units.ARCSEC):
+    """Replicate groups: runs with the same settings share a label. Returns ``(labels, n_groups)``.
+
+    Settings are the rate, azimuth, duration and latitude, the tilt (pitch and roll within
+    ``tilt_tol``: measured tilts carry noise) and -- for a measurement model ``mm`` whose
+    heading depends on them (a warm-up, a covariate effect) -- time since power-on and the
+    covariate columns: runs the model tells apart are not replicates, or their modelled
+    differences would count as noise. Without ``mm`` the tilt counts when the runs have it."""
+    cols = [np.round(np.asarray(a, float) / 1e-9)
+            for a in (runs.rate, np.mod(runs.azimuth, 2 * np.pi), runs.duration, runs.latitude)]
+    if runs.pitch is not None and (mm is None or mm.tilt_known):
+        cols += [np.round(np.asarray(runs.pitch) / tilt_tol), np.round(np.asarray(runs.roll) / tilt_tol)]
+    if mm is not None:
+        X = mm.inputs_from_runs(runs)
+        used = _inputs_used(mm)
+        extra = [i for i, f in enumerate(RUN_FIELDS) if f == "t_start"] + list(range(len(RUN_FIELDS), mm.n_x))
+        cols += [X[i] for i in extra if used[i]]
+    _, labels = np.unique(np.column_stack(cols), axis=0, return_inverse=True)
     labels = labels.ravel()
     return labels, int(labels.max()) + 1 if labels.size else 0
 
 
-def pure_error(runs):
+@lru_cache(maxsize=64)
+def _inputs_used(mm):
+    """Whether the model's heading depends on each run input (from the expression graph)."""
+    p, x = ca.SX.sym("p", len(mm.names)), ca.SX.sym("x", mm.n_x)
+    sp = ca.jacobian(mm.h(p, x), x).sparsity()
+    used = np.zeros(mm.n_x, dtype=bool)
+    used[np.asarray(sp.get_col(), dtype=int)] = True
+    return used
+
+
+def pure_error(runs, mm=None):
     """``(sigma, dof)`` from the scatter within replicate groups (rad), or ``(None, dof)``."""
-    labels, g = replicate_groups(runs)
+    labels, g = replicate_groups(runs, mm)
     dof = runs.rate.size - g
     if dof < 2:
         return None, dof
@@ -339,9 +367,10 @@ def pure_error(runs):
     return float(np.sqrt(np.sum((y - mean[labels]) ** 2) / dof)), dof
 
 
-def run_sigma(runs, robust=False):
-    """``(sigma (n,) rad, weighting, notes)`` by the rules of the module docstring; where sigma
-    is estimated later from the residuals, the default noise model's (:func:`heading_sigma`)."""
+def run_sigma(runs, robust=False, mm=None):
+    """``(sigma (n,) rad, weighting, notes)`` by the rules of the module docstring (replicates
+    as :func:`replicate_groups` of the measurement model ``mm``); where sigma is estimated
+    later from the residuals, the default noise model's (:func:`heading_sigma`)."""
     n = len(runs)
     if runs.heading_std is not None:
         return np.asarray(runs.heading_std, dtype=float), "heading_std", []
@@ -349,7 +378,7 @@ def run_sigma(runs, robust=False):
     guess = np.full(n, float(np.sqrt(np.mean(heading_sigma(runs.duration, runs.latitude) ** 2))))
     if robust:
         return guess, "robust-scale", []
-    s_pe, dof_pe = pure_error(runs)
+    s_pe, dof_pe = pure_error(runs, mm)
     if s_pe is not None and s_pe > 0:
         return np.full(n, s_pe), "pure-error", [
             f"sigma {s_pe / units.ARCSEC:.3g} arcsec from {dof_pe} replicate degrees of freedom "
@@ -780,7 +809,7 @@ def fit(runs, model=None, *, fix=None, tilt_known=None, bounds=None, constraints
         raise ValueError(f"{runs.source}: {n} runs cannot fit {k - k_eq} free parameters "
                          f"({', '.join(prob.names)}); need more runs than parameters")
 
-    sigma, weighting, more = run_sigma(runs, robust)
+    sigma, weighting, more = run_sigma(runs, robust, mm)
     notes += more
     units_free = [q.unit for q, f in zip(mm.params, free) if f]
 
@@ -795,12 +824,21 @@ def fit(runs, model=None, *, fix=None, tilt_known=None, bounds=None, constraints
     # identifiability of the linear part before solving (nonlinear parameters held)
     z = np.clip(p_base[free] / prob.scale, prob.lb, prob.ub)
     lin = ~prob.nonlinear
-    J0 = prob.jacobian(z)
-    A0 = J0[:, lin] / sigma[:, None]
     eq_lin = A_eq[:, lin][~np.any(A_eq[:, ~lin] != 0, axis=1)] if A_eq.size else np.zeros((0, int(lin.sum())))
-    analyse(blind_out(A0.T @ A0, invisible(J0, prob.ranges)[lin]) + L[:, lin].T @ L[:, lin],
-            np.array(prob.names)[lin], np.array(units_free)[lin],
-            advice=advice_for(lin), Z=null_space(eq_lin, int(lin.sum())))
+
+    def check_start(z):
+        J0 = prob.jacobian(z)
+        A0 = J0[:, lin] / sigma[:, None]
+        analyse(blind_out(A0.T @ A0, invisible(J0, prob.ranges)[lin]) + L[:, lin].T @ L[:, lin],
+                np.array(prob.names)[lin], np.array(units_free)[lin],
+                advice=advice_for(lin), Z=null_space(eq_lin, int(lin.sum())))
+
+    # a bilinear effect (the encoder harmonics act through lambda2) has no heading signature
+    # where the parameters it multiplies start at 0: solve the others first
+    blind = lin & invisible(prob.jacobian(z), prob.ranges)
+    if blind.any() and (lin & ~blind).any() and not A_eq.size:
+        z, _ = _gauss_newton(prob, 1 / sigma, z, np.zeros((0, k)), np.zeros(0), mask=lin & ~blind)
+    check_start(z)
     if prob.nonlinear.any():  # start: the linear parameters solved with the nonlinear ones held
         eq_rows = ~np.any(A_eq[:, ~lin] != 0, axis=1) if A_eq.size else np.zeros(0, bool)
         z, _ = _gauss_newton(prob, 1 / sigma, z, A_eq[eq_rows], b_eq[eq_rows], max_iter=1, mask=lin)

@@ -79,3 +79,22 @@ def test_help_has_examples():
         out = subprocess.run([sys.executable, "-m", "hse_opt.cli", cmd, "--help"], capture_output=True,
                              text=True)
         assert out.returncode == 0 and f"hse-opt {cmd}" in out.stdout.split("example")[-1]
+
+
+@pytest.mark.parametrize("command", [["fit"], ["diagnose", "--covariates", "none"]])
+def test_input_checks_are_options(tmp_path, capsys, command):
+    # a fine azimuth sweep in degrees (0-4.5 deg) looks like radians, and 4 deg/s is inside
+    # the default lock-in limit: each an error (exit 2) until the user says otherwise
+    src = load_runs(TABLE1)
+    rows = ["run,rate_dps,azimuth_deg,heading_err_arcsec,latitude_deg,duration_s"]
+    rows += [f"{i + 1},{4.0 if i == 0 else 40.0},{1.5 * (i % 4)},{h:.2f},28.07,600"
+             for i, h in enumerate(src.heading_err / 4.8481368110953599e-6)]
+    path = tmp_path / "SWEEP.csv"
+    path.write_text("\n".join(rows) + "\n")
+    base = [command[0], str(path), "--fix", FIX, *command[1:], "--json"]
+    assert main(base) == 2
+    assert "--min-rate-dps" in capsys.readouterr().err
+    assert main(base + ["--min-rate-dps", "3"]) == 2
+    assert "--allow-small-azimuths" in capsys.readouterr().err
+    assert main(base + ["--min-rate-dps", "3", "--allow-small-azimuths"]) == 0
+    assert json.loads(capsys.readouterr().out)["n_runs"] == 12

@@ -73,6 +73,21 @@ def test_dask_local_cluster_gives_identical_results(serial_runs):
     assert done[-1] == (6, 6) and [d for d, _ in done] == sorted(d for d, _ in done)
 
 
+@pytest.mark.slow
+def test_cli_simulate_on_a_dask_scheduler_address(tmp_path, serial_runs, capsys):
+    """The cluster path as a user takes it: a scheduler with worker processes, reached by
+    its address (``--dask tcp://...``); the work is pickled to the workers and back."""
+    distributed = pytest.importorskip("distributed")
+    plan, out = tmp_path / "PLAN.csv", tmp_path / "RUNS.csv"
+    _write_plan(plan, _plan())
+    with distributed.LocalCluster(n_workers=2, processes=True, threads_per_worker=1,
+                                  dashboard_address=None) as cluster:
+        assert cluster.scheduler_address.startswith("tcp://")
+        assert main(["simulate", str(plan), "-o", str(out), "--seed", "42", "--no-progress",
+                     "--dask", cluster.scheduler_address]) == 0
+    _same(load_runs(out), serial_runs.replace(source=str(out)))
+
+
 def test_progress_callback_reports_every_run():
     calls = []
     run_campaign(_plan(3), TruthConfig.default(), seed=1, progress=lambda d, n: calls.append((d, n)))

@@ -19,6 +19,20 @@ def message(text):
     print(text, file=sys.stderr)
 
 
+def add_input_checks(parser):
+    """The options of the RUNS/PLAN input checks (:mod:`hse_opt.data`)."""
+    from ..data import DEFAULT_MIN_RATE_DPS
+    parser.add_argument("--min-rate-dps", type=float, default=DEFAULT_MIN_RATE_DPS, metavar="R",
+                        help=f"lock-in limit: smaller |rate_dps| is an error (default {DEFAULT_MIN_RATE_DPS:g})")
+    parser.add_argument("--allow-small-azimuths", action="store_true",
+                        help="accept azimuths that look like radians (a fine sweep in degrees)")
+
+
+def input_checks(args):
+    """Keyword arguments of :func:`hse_opt.data.load_runs` / ``load_plan`` from the options."""
+    return dict(min_rate_dps=args.min_rate_dps, allow_small_azimuths=args.allow_small_azimuths)
+
+
 def add_report_argument(parser):
     """The ``--report DIR`` option: an HTML report (``DIR/report.html``) of what the command did."""
     parser.add_argument("--report", metavar="DIR",

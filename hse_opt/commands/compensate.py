@@ -3,7 +3,7 @@ import os
 
 import numpy as np
 
-from . import message, print_json
+from . import add_input_checks, input_checks, message, print_json
 
 NAME = "compensate"
 HELP = "compensate alignments with a calibration (FIT.json from hse-opt fit -o)"
@@ -21,6 +21,7 @@ example:
 
 def add_arguments(parser):
     parser.add_argument("runs", metavar="RUNS.csv", help="alignment results to compensate")
+    add_input_checks(parser)
     parser.add_argument("--fit", required=True, metavar="FIT.json", help="calibration from hse-opt fit -o")
     parser.add_argument("-o", "--output", required=True, metavar="OUT.csv", help="compensated runs")
     parser.add_argument("--json", action="store_true", help="print one JSON object on stdout")
@@ -39,7 +40,7 @@ def run(args):
     if os.path.exists(args.output) and os.path.samefile(args.output, args.runs):
         raise ValueError(f"-o {args.output}: is the input file; allowed: another path")
     calibration = load_fit(args.fit)
-    runs = load_runs(args.runs)
+    runs = load_runs(args.runs, **input_checks(args))
     out = compensate(runs, calibration)
     save_runs(out, args.output)
     message(f"hse-opt compensate: wrote {args.output}")

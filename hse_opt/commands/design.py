@@ -3,7 +3,7 @@ import os
 
 import numpy as np
 
-from . import add_report_argument, message, print_json, write_report
+from . import add_input_checks, add_report_argument, input_checks, message, print_json, write_report
 
 NAME = "design"
 HELP = "optimise a calibration test plan (PLAN.csv), or evaluate one (--evaluate)"
@@ -28,6 +28,7 @@ examples:
 
 def add_arguments(parser):
     parser.add_argument("--evaluate", metavar="PLAN.csv", help="score this plan instead of designing one")
+    add_input_checks(parser)
     parser.add_argument("-o", "--output", metavar="PLAN.csv", help="write the optimised plan here")
     parser.add_argument("--budget-h", type=float, default=5.0, metavar="H",
                         help="test time from power-on to the end of the last run, hours (default 5)")
@@ -145,7 +146,7 @@ def run(args):
     if args.evaluate:
         if args.output:
             raise ValueError("-o with --evaluate: an evaluation writes nothing; allowed: one of them")
-        plan = load_plan(args.evaluate)
+        plan = load_plan(args.evaluate, **input_checks(args))
         try:
             ev = evaluate(plan, model, stand=stand, tilt_known=tilt_known, criterion=args.criterion,
                           nominal=_nominal(args.nominal), prior=prior)

@@ -1,5 +1,5 @@
 """``hse-opt diagnose``: compare a model with measured runs and find the missing effect."""
-from . import message, print_json
+from . import add_input_checks, input_checks, message, print_json
 
 NAME = "diagnose"
 HELP = "compare a model with measured runs: where it fails, which effect is missing"
@@ -19,6 +19,7 @@ EXAMPLE = """examples:
 
 def add_arguments(parser):
     parser.add_argument("runs", metavar="RUNS.csv", help="alignment results (DESIGN.md format)")
+    add_input_checks(parser)
     parser.add_argument("--effects", default="hse", help="effects of the model (default: hse, the paper's)")
     parser.add_argument("--fix", action="append", default=[], metavar="NAME=VALUE",
                         help="hold a parameter at a value in its display unit (repeatable)")
@@ -53,7 +54,7 @@ def run(args):
     from ..fit import as_model
 
     try:
-        runs = load_runs(args.runs)
+        runs = load_runs(args.runs, **input_checks(args))
     except OSError as err:
         raise ValueError(f"{args.runs}: cannot read the file ({err.strerror or err})") from None
     covariates = None

@@ -3,7 +3,7 @@ import os
 
 import numpy as np
 
-from . import add_report_argument, message, print_json, write_report
+from . import add_input_checks, add_report_argument, input_checks, message, print_json, write_report
 
 NAME = "fit"
 HELP = "calibrate a model on alignment results (RUNS.csv) by weighted least squares"
@@ -26,6 +26,7 @@ examples:
 
 def add_arguments(parser):
     parser.add_argument("runs", metavar="RUNS.csv", help="alignment results (DESIGN.md format)")
+    add_input_checks(parser)
     parser.add_argument("--effects", metavar="a,b", default="",
                         help="catalogue effects to add to 'hse' (e.g. sync_delay,warmup,covariate:temp_c)")
     parser.add_argument("--bound", action="append", default=[], metavar="NAME=LO:HI",
@@ -127,7 +128,7 @@ def run(args):
 
     if args.output and os.path.exists(args.output) and os.path.samefile(args.output, args.runs):
         raise ValueError(f"-o {args.output}: is the input file; allowed: another path")
-    runs = load_runs(args.runs)
+    runs = load_runs(args.runs, **input_checks(args))
     model = as_model(args.effects or None)
     prior = load_fit(args.prior) if args.prior else None
     try:
