@@ -600,25 +600,25 @@ def write_text_atomic(path, text):
     _atomic(path, lambda fh: fh.write(text))
 
 
-def _atomic(path, write):
-    """Call ``write(fh)`` on a temporary file next to ``path``, fsync it and rename it over
-    ``path``; on any error ``path`` is untouched and the temporary file is removed."""
+@contextlib.contextmanager
+def atomic_path(path):
+    """Yield a temporary path next to ``path`` (same suffix) to write; on success it is fsynced
+    and renamed over ``path``, on any error removed, ``path`` untouched. The file gets the
+    mode of the file it replaces, else the usual one (0666 less the umask)."""
     target = os.path.abspath(os.fspath(path))
     directory, name = os.path.split(target)
-    tmp = os.path.join(directory, f".{name}.{secrets.token_hex(6)}.tmp")
-    fd = os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o666)
+    if not os.path.isdir(directory):
+        raise FileNotFoundError(f"{os.fspath(path)}: cannot write: the folder {directory} does not exist")
+    tmp = os.path.join(directory, f".{name}.{secrets.token_hex(6)}.tmp{os.path.splitext(name)[1]}")
+    os.close(os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o666))
     try:
         with contextlib.suppress(FileNotFoundError):
             os.chmod(tmp, os.stat(target).st_mode & 0o7777)
-        with os.fdopen(fd, "w", newline="", encoding="utf-8") as fh:
-            fd = None
-            write(fh)
-            fh.flush()
+        yield tmp
+        with open(tmp, "rb+") as fh:
             os.fsync(fh.fileno())
         os.replace(tmp, target)
     except BaseException:
-        if fd is not None:
-            os.close(fd)
         with contextlib.suppress(FileNotFoundError):
             os.unlink(tmp)
         raise
@@ -628,6 +628,12 @@ def _atomic(path, write):
             os.fsync(dir_fd)
         finally:
             os.close(dir_fd)
+
+
+def _atomic(path, write):
+    """Call ``write(fh)`` on a text file written through :func:`atomic_path`."""
+    with atomic_path(path) as tmp, open(tmp, "w", newline="", encoding="utf-8") as fh:
+        write(fh)
 
 
 def save_runs(runs: Runs, path) -> None:

@@ -44,7 +44,7 @@ from pathlib import Path
 import numpy as np
 
 from . import units
-from .data import Plan, Runs
+from .data import Plan, Runs, write_text_atomic
 from .fit import fit as fit_runs
 from .information import heading_sigma
 from .model.effects import CATALOGUE
@@ -267,6 +267,12 @@ class NextPlan:
     baseline: object
     notes: tuple = ()
 
+    @property
+    def best(self):
+        """The plan to run next: the tilt-fixture design, else the one under the paper's
+        limits (None when both failed)."""
+        return self.design if self.design is not None else self.level
+
     def gain(self, which="design"):
         """sigma(lambda2) of the paper's plan over that of ``design`` or ``level`` (None when
         either is missing)."""
@@ -282,7 +288,7 @@ class NextPlan:
             return {"n_runs": d.n_runs, "total_time_h": d.total_time / units.HOUR,
                     "efficiency": float(d.efficiency), "sigma_lambda2_arcsec": d.std_of("lambda2"),
                     "gain": self.gain(which)}
-        d = self.design
+        d = self.best
         return {"failed": d is None, "criterion": None if d is None else d.criterion,
                 "effects": None if d is None else list(d.evaluation.effects),
                 "tilt_fixture": one(d, "design"), "paper_limits": one(self.level, "level"),
@@ -511,8 +517,8 @@ def report_sections(result):
                                                title=f"Adding {r.named}: before and after"),
                      report.fit_section(r.fit_after, r.runs, f"The model with {r.named}")]
     n = r.next_plan
-    if n.design is not None:
-        sections.append(report.design_section(n.design, n.baseline, "The next plan",
+    if n.best is not None:
+        sections.append(report.design_section(n.best, n.baseline, "The next plan",
                                               " ".join(n.notes) or None))
     else:
         sections.append(report.text_section("The next plan", n.notes))
@@ -539,26 +545,28 @@ def summary_text(result):
 def next_plan_text(next_plan):
     """The next plan's gain over the paper's plan, in words."""
     n = next_plan
-    if n.design is None:
+    d = n.best
+    if d is None:
         return "; ".join(n.notes)
-    d = n.design
+    which = "with the 0.5-deg tilt fixture" if d is n.design else "under the paper's own limits (no fixture)"
     text = (f"The optimised next plan ({d.n_runs} alignments in the paper plan's "
-            f"{d.total_time / units.HOUR:.2f} h, with the 0.5-deg tilt fixture) gives "
-            f"sigma(lambda2) = {d.std_of('lambda2'):.3g} arcsec")
+            f"{d.total_time / units.HOUR:.2f} h, {which}) gives sigma(lambda2) = {d.std_of('lambda2'):.3g} arcsec")
     if n.baseline is None:
         return text + f"; the paper's plan cannot identify {' + '.join(d.evaluation.effects)}."
     text += (f" against {n.baseline.std_of('lambda2'):.3g} arcsec with the paper's plan: "
-             f"{n.gain():.0f} times smaller")
-    if n.level is not None:
+             f"{n.gain('design' if d is n.design else 'level'):.1f} times smaller")
+    if d is n.design and n.level is not None:
         text += (f"; under the paper's own limits (no fixture) {n.level.std_of('lambda2'):.3g} "
                  f"arcsec, {n.gain('level'):.1f} times smaller")
+    if n.design is None:
+        text += "; the design with the tilt fixture failed: " + "; ".join(n.notes)
     return text + "."
 
 
 def write_outputs(result, directory):
     """Write the report and the data of a demo run into ``directory`` (created when missing;
-    each file whole or not at all): :data:`OUTPUT_FILES` (``NEXT_PLAN.csv`` only when the
-    design succeeded).
+    each file whole or not at all): :data:`OUTPUT_FILES` (``NEXT_PLAN.csv``, the
+    :attr:`NextPlan.best` plan, only when a design succeeded).
 
     Returns
     -------
@@ -574,9 +582,9 @@ def write_outputs(result, directory):
                                f"hse-opt demo, seed {result.seed}", summary_text(result))
     save_runs(result.runs, directory / "RUNS.csv")
     save_plan(result.plan, directory / "PLAN.csv")
-    if result.next_plan.design is not None:
-        save_plan(result.next_plan.design.plan, directory / "NEXT_PLAN.csv")
-    report.write_text_atomic(directory / "TRUTH.toml", result.truth.to_toml())
+    if result.next_plan.best is not None:
+        save_plan(result.next_plan.best.plan, directory / "NEXT_PLAN.csv")
+    write_text_atomic(directory / "TRUTH.toml", result.truth.to_toml())
     data = {**result.to_dict(), "report": str(path)}
-    report.write_text_atomic(directory / "summary.json", json.dumps(data, indent=2, allow_nan=False) + "\n")
+    write_text_atomic(directory / "summary.json", json.dumps(data, indent=2, allow_nan=False) + "\n")
     return data

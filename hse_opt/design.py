@@ -810,9 +810,6 @@ def _approximate(crit, rows, spec, guards, cand, cost, budget, max_runs, solver=
             trial = _certify(crit, rows, spec, guards, *polished, cost, budget, max_runs, slot)
             if trial[2] > cert:
                 (w, mus), (loss, h, cert) = polished, trial
-        if status != cp.OPTIMAL and not cert >= 0.999:
-            raise DesignError(f"the approximate design's convex program ended {status} ({used}) with a "
-                              f"certified efficiency of only {cert:.4g}")
         if active.size == n or cert >= 1 - 1e-7:
             break
         # a candidate enters when spending its slot's share of the budget on it beats the slot's runs
@@ -824,6 +821,9 @@ def _approximate(crit, rows, spec, guards, cand, cost, budget, max_runs, solver=
         if new.size == 0:
             break
         active = np.union1d(active, new)
+    if status != cp.OPTIMAL and not cert >= 0.999:  # an inaccurate solve is judged by its certificate
+        raise DesignError(f"the approximate design's convex program ended {status} ({used}) with a "
+                          f"certified efficiency of only {cert:.4g}")
     return ApproximateDesign(cand, w, loss, status, used, cert, time.perf_counter() - t0, it, int(active.size))
 
 

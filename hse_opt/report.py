@@ -47,11 +47,11 @@ from pathlib import Path
 import numpy as np
 
 from . import __version__, units
-from .data import Runs
+from .data import Runs, write_text_atomic
 
 __all__ = ["Section", "Figure", "REPORT_NAME", "SETUP_TOL",
            "fit_section", "comparison_section", "diagnosis_section", "design_section",
-           "evaluation_section", "plan_section", "text_section", "render_html", "write_report", "write_text_atomic",
+           "evaluation_section", "plan_section", "text_section", "render_html", "write_report",
            "plot_calibration_line", "plot_azimuth", "plot_residuals", "plot_before_after",
            "plot_candidates", "plot_factor_tests", "plot_plan", "plot_sigmas", "factors",
            "tilt_setups"]
@@ -1038,16 +1038,6 @@ def render_html(sections, title="hse_opt report", summary=None):
             f"</body></html>\n")
 
 
-def write_text_atomic(path, text):
-    """Write ``text`` (UTF-8) to ``path`` whole or not at all (a temporary file next to it,
-    fsynced, then renamed over it: :func:`hse_opt.sim._io.atomic_path`)."""
-    from .sim._io import atomic_path
-    with atomic_path(path) as tmp:
-        with open(tmp, "w", encoding="utf-8", newline="\n") as fh:
-            fh.write(text)
-    return Path(path)
-
-
 def write_report(directory, sections, title="hse_opt report", summary=None):
     """Render ``sections`` into ``directory/report.html`` (the directory is created when
     missing; the file is written whole or not at all).
@@ -1062,4 +1052,6 @@ def write_report(directory, sections, title="hse_opt report", summary=None):
         raise ValueError(f"report directory {str(directory)!r} is a file; allowed: a directory "
                          "(created when missing)")
     directory.mkdir(parents=True, exist_ok=True)
-    return write_text_atomic(directory / REPORT_NAME, render_html(sections, title, summary))
+    path = directory / REPORT_NAME
+    write_text_atomic(path, render_html(sections, title, summary))
+    return path

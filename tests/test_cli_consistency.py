@@ -56,3 +56,26 @@ def test_json_stdout_keeps_stray_output_off_stdout():
     assert out.returncode == 0
     assert out.stdout == '{\n  "a": 1\n}\nafter\n'
     assert "could not determine problem status" in out.stderr
+
+
+@pytest.mark.parametrize("args, names", [
+    (["fit", "no_such_file.csv"], "no_such_file.csv"),
+    (["diagnose", "no_such_file.csv"], "no_such_file.csv"),
+    (["compensate", "RUNS.csv", "--fit", "no_such_fit.json", "-o", "O.csv"], "no_such_fit.json"),
+    (["simulate", "no_such_plan.csv", "-o", "R.csv"], "no_such_plan.csv"),
+    (["design", "--evaluate", "no_such_plan.csv"], "no_such_plan.csv"),
+    (["fit", "RUNS.csv", "--effects", "no_such_effect"], "no_such_effect"),
+    (["fit", "RUNS.csv", "--bound", "lambda2=1"], "--bound"),
+    (["design", "--budget-h", "-1", "-o", "P.csv"], "--budget-h -1"),
+    (["design", "--max-tilt-arcsec", "-5", "-o", "P.csv"], "--max-tilt-arcsec -5"),
+    (["design", "--seed", "-1", "-o", "P.csv"], "--seed -1"),
+    (["demo", "--seed", "-1"], "--seed -1"),
+])
+def test_bad_input_is_one_line_naming_it_with_status_2(tmp_path, args, names):
+    from hse_opt.datasets import paper_table1_path
+    (tmp_path / "RUNS.csv").write_bytes(paper_table1_path().read_bytes())
+    out = subprocess.run([sys.executable, "-m", "hse_opt.cli", *args], capture_output=True, text=True,
+                         timeout=120, cwd=tmp_path)
+    lines = out.stderr.strip().splitlines()
+    assert out.returncode == 2 and out.stdout == "" and len(lines) == 1, out.stderr
+    assert lines[0].startswith(f"hse-opt {args[0]}: error: ") and names in lines[0], lines[0]

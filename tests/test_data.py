@@ -2,6 +2,7 @@
 import hashlib
 import os
 import pickle
+import stat
 
 import numpy as np
 import pytest
@@ -321,3 +322,19 @@ def test_paper_table1():
     assert list(runs.covariates["position"]) == [1.0] * 3 + [2.0] * 3 + [3.0] * 3 + [4.0] * 3
     assert len(runs.notes) == 3
     assert paper_table1_path().name == "paper_table1.csv" and paper_table1_path().is_file()
+
+
+def test_written_files_get_the_usual_mode_and_a_missing_folder_is_named(tmp_path):
+    from hse_opt.data import write_text_atomic
+    from hse_opt.sim.truth import TruthConfig
+    mask = os.umask(0)
+    os.umask(mask)
+    for name in ("report.html", "TRUTH.toml"):  # text through data, TOML through the simulator
+        path = tmp_path / name
+        if name.endswith(".toml"):
+            TruthConfig.default().to_toml(path)
+        else:
+            write_text_atomic(path, "x")
+        assert stat.S_IMODE(os.stat(path).st_mode) == 0o666 & ~mask  # readable by others, not 0600
+    with pytest.raises(FileNotFoundError, match="nowhere/x.json: cannot write: the folder"):
+        write_text_atomic(tmp_path / "nowhere" / "x.json", "x")

@@ -77,10 +77,10 @@ def summary_lines(result, out_dir):
                 v, sd = fa.value(name)
                 lines.append(f"            {name} = {v:.4g} +- {sd:.2g} {r.hidden.units[name]} "
                              f"(hidden {value:.4g})")
-    if n.design is None:
+    if n.best is None:
         lines.append(f"  next plan {'; '.join(n.notes)}")
     else:
-        lines.append(f"  next plan sigma(lambda2) in the paper plan's {n.design.total_time / 3600:.1f} h:")
+        lines.append(f"  next plan sigma(lambda2) in the paper plan's {n.best.total_time / 3600:.1f} h:")
         if n.baseline is None:
             lines.append("            the paper's plan cannot identify this model")
         else:
@@ -91,7 +91,9 @@ def summary_lines(result, out_dir):
                 gain = n.gain(which)
                 lines.append(f"            {d.std_of('lambda2'):#.3g} arcsec optimised, {label}"
                              + ("" if gain is None else f" ({gain:.1f}x smaller)"))
-    data = "RUNS.csv, PLAN.csv, " + ("" if n.design is None else "NEXT_PLAN.csv, ")
+            else:
+                lines.append(f"            no design with {label} (the report says why)")
+    data = "RUNS.csv, PLAN.csv, " + ("" if n.best is None else "NEXT_PLAN.csv, ")
     lines.append(f"  report    {Path(out_dir) / 'report.html'} (data: {data}TRUTH.toml, summary.json)")
     return lines
 
@@ -116,7 +118,7 @@ def run(args):
         print_json(data)
     else:
         print("\n".join(summary_lines(result, out)))
-    if result.next_plan.design is None:
+    if result.next_plan.best is None:
         message("hse-opt demo: error: the design step failed (see the summary); the other "
                 f"results are in {out}")
         return 1

@@ -166,6 +166,12 @@ def run(args):
 
     if not args.output:
         raise ValueError("-o PLAN.csv is required to design a plan (or use --evaluate PLAN.csv)")
+    for opt, value, low, unit in (("--budget-h", args.budget_h, 0.0, "h"),
+                                  ("--max-tilt-arcsec", args.max_tilt_arcsec, None, "arcsec"),
+                                  ("--seed", args.seed, None, "")):
+        if not np.isfinite(value) or value < 0 or (low is not None and value <= low):
+            allowed = "> 0" if low is not None else ">= 0"
+            raise ValueError(f"{opt} {value:g} is not allowed; allowed: {allowed}{' ' + unit if unit else ''}")
     lo, hi = _pair(args.rates, "--rates", sep=":")
     if not 0 < lo <= hi:
         raise ValueError(f"--rates {args.rates}: allowed LO:HI in deg/s with 0 < LO <= HI")
