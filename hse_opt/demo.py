@@ -511,7 +511,8 @@ def report_sections(result):
         report.fit_section(r.fit_before, r.runs, "The paper's model"),
     ]
     from .diagnose import compare
-    sections.append(report.diagnosis_section(r.diagnosis, "Diagnosis of the paper's model"))
+    sections.append(report.diagnosis_section(r.diagnosis, "Diagnosis of the paper's model",
+                                             residuals=False))  # the fit's section shows them
     if r.fit_after is not None:
         sections += [report.comparison_section(compare(r.diagnosis, r.diagnosis_after),
                                                title=f"Adding {r.named}: before and after"),

@@ -73,7 +73,7 @@ from .information import (DEFAULT_ARW, Prior, UnidentifiableError, analyse, chec
 from .model.measurement import BatchEvaluator, Model
 
 __all__ = ["A", "ApproximateDesign", "C", "Candidates", "Costs", "Criterion", "D", "DesignError",
-           "DesignResult", "DesignSpace", "Discrimination", "E", "Evaluation", "MonteCarloResult",
+           "DesignResult", "DesignSpace", "Discrimination", "E", "Evaluation", "LackOfFit", "MonteCarloResult",
            "Stand", "apportion", "approximate_design", "as_criterion", "design", "evaluate", "monte_carlo",
            "paper_plan", "plan_lines"]
 
@@ -343,7 +343,24 @@ class C(Criterion):
         return (self.name,)
 
 
-class Discrimination(Criterion):
+class LackOfFit(Criterion):
+    """T-optimality on given rows: the last column is the difference of two models'
+    predictions, the others the rival's Jacobian (all over the run sigma). The loss is minus
+    the noncentrality of the rival's lack of fit, the Schur complement of the last column:
+    how badly the rival, refitted, fits data from the other model (Atkinson & Fedorov 1975).
+    For :func:`approximate_design` on rows built by the caller (e.g. two fitted models in
+    :func:`hse_opt.diagnose.discriminating_runs`)."""
+
+    label, degree, needs_guard = "T", 1, True
+
+    def loss(self, F, ops, names):
+        return -ops.schur(F)
+
+    def interest(self, names):
+        return ()
+
+
+class Discrimination(LackOfFit):
     """T-optimal discrimination (Atkinson & Fedorov 1975): maximise how badly the ``rival``
     model fits data from the design model with the parameter values ``truth``.
 
@@ -371,9 +388,6 @@ class Discrimination(Criterion):
             raise ValueError("discrimination needs the size of the effect to detect: truth={name: value}")
         self.label = f"T:{'+'.join(self.rival.effect_names)}"
 
-    def loss(self, F, ops, names):
-        return -ops.schur(F)
-
     def features(self, model, tilt_known):
         ma, mb = model.measurement(tilt_known), self.rival.measurement(tilt_known)
         ma.vector(self.truth)  # names and values checked here
@@ -383,9 +397,6 @@ class Discrimination(Criterion):
         row = ca.horzcat(mb.J(q0, x) * ca.DM(mb.scale).T, ma.h(p, x) - mb.h(q0, x))
         names = mb.names + ("(lack of fit)",)
         return names, ca.Function("discrimination_rows", [p, x], [row]), self.truth
-
-    def interest(self, names):
-        return ()
 
 
 def as_criterion(criterion):

@@ -20,7 +20,8 @@ Which effect is missing
     column), ranked: score (Lagrange-multiplier) test at the fit (no refit), Delta-BIC and
     residual RMS after refitting. Candidates that these runs cannot test (no heading signature,
     or confounded with the model) are named with the reason; candidates that explain the data
-    equally well are reported as ambiguous, with runs that would tell them apart.
+    equally well are reported as ambiguous, with the runs that would tell them apart (a
+    T-optimal discrimination design by :mod:`hse_opt.design`, :func:`discriminating_runs`).
 Structure in words
     a sparse (forward-stepwise) regression of the residuals over a library of factor
     functions, each selected term as a sentence a user can act on, with the catalogue effects
@@ -1182,11 +1183,12 @@ def _structure(null, library, bases, alpha):
 
 # -- runs that tell two candidates apart ---------------------------------------------------------
 def discriminating_runs(runs, fit_a, fit_b, k=3):
-    """Runs that would best tell two fitted models apart: candidate runs (both senses at the
-    smallest and largest |rate|, azimuths every 45 deg, a cold start, mid and late times since
-    power-on, the observed tilts and the extremes of each covariate), ranked by the difference
-    of the two models' predictions in units of its standard deviation (run noise and both fits'
-    prediction uncertainty).
+    """The runs that would best tell two fitted models apart: a T-optimal discrimination
+    design (:class:`hse_opt.design.LackOfFit`, :func:`hse_opt.design.approximate_design`)
+    over candidate runs (both senses at the smallest and largest |rate|, azimuths every
+    45 deg, a cold start, mid and late times since power-on, the observed tilts and the
+    extremes of each covariate), added to the runs already made: the runs, in proportions,
+    on which model ``b`` -- refitted to everything -- would fit data from model ``a`` worst.
 
     Parameters
     ----------
@@ -1194,33 +1196,40 @@ def discriminating_runs(runs, fit_a, fit_b, k=3):
         The runs both models were fitted to.
     fit_a, fit_b : FitResult
     k : int
-        How many runs to return.
+        At most this many runs (the design's support, largest share first).
 
     Returns
     -------
     list of dict
         ``rate_dps, azimuth_deg, t_start_s, duration_s`` (``pitch_arcsec, roll_arcsec`` when the
-        tilt is known; covariates by name), ``pred_a_arcsec``, ``pred_b_arcsec`` and
-        ``separation`` (sigmas), best first.
-
-    Notes
-    -----
-    This is the seam for the experiment-design module's discrimination criterion: when
-    :mod:`hse_opt.design` provides one, this function is where to delegate to it.
+        tilt is known; covariates by name), ``pred_a_arcsec``, ``pred_b_arcsec``, ``share``
+        (the design's fraction of new runs there) and ``separation`` (the difference of the
+        predictions in sigmas of run noise and both fits' prediction uncertainty).
     """
+    from .design import LackOfFit, approximate_design
+
     grid = _candidate_grid(runs, fit_a, fit_b)
     sigma_run = float(np.median(fit_a.sigma))
-    preds, var = [], np.zeros(len(grid))
-    for f in (fit_a, fit_b):
-        mm = f.measurement
-        X = mm.inputs_from_runs(grid)
-        preds.append(mm.predict(f.p, X))
-        G = mm.jacobian(f.p, X) * mm.scale  # per display unit
-        var += np.einsum("ij,jk,ik->i", G, f.covariance, G)
-    diff = preds[0] - preds[1]
-    sep = np.abs(diff) / np.sqrt(sigma_run ** 2 + var)
+
+    def rows(r):  # [J_b, h_a - h_b] / sigma over the runs r, and the variance of h_a - h_b
+        preds, var = [], np.zeros(len(r))
+        for f in (fit_a, fit_b):
+            mm = f.measurement
+            X = mm.inputs_from_runs(r)
+            preds.append(mm.predict(f.p, X))
+            G = mm.jacobian(f.p, X) * mm.scale  # per display unit
+            var += np.einsum("ij,jk,ik->i", G, f.covariance, G)
+        mm = fit_b.measurement
+        Jb = (mm.jacobian(fit_b.p, mm.inputs_from_runs(r)) * mm.scale)[:, np.asarray(fit_b.free, bool)]
+        return np.column_stack([Jb, preds[0] - preds[1]]) / sigma_run, preds, var
+
+    A, preds, var = rows(grid)
+    A0 = rows(runs)[0]
+    design = approximate_design(A, LackOfFit(), prior=A0.T @ A0)
+    sep = np.abs(preds[0] - preds[1]) / np.sqrt(sigma_run ** 2 + var)
+    support = design.support[np.argsort(-design.runs[design.support], kind="stable")]
     out = []
-    for i in np.argsort(-sep)[:k]:
+    for i in support[:k]:
         row = {"rate_dps": float(grid.rate[i] / units.DEG_PER_S),
                "azimuth_deg": float(np.mod(grid.azimuth[i] / units.DEG, 360.0)),
                "t_start_s": float(grid.t_start[i]), "duration_s": float(grid.duration[i])}
@@ -1229,7 +1238,8 @@ def discriminating_runs(runs, fit_a, fit_b, k=3):
             row["roll_arcsec"] = float(grid.roll[i] / units.ARCSEC)
         row.update({c: float(v[i]) for c, v in grid.covariates.items()})
         row.update(pred_a_arcsec=float(preds[0][i] / units.ARCSEC),
-                   pred_b_arcsec=float(preds[1][i] / units.ARCSEC), separation=float(sep[i]))
+                   pred_b_arcsec=float(preds[1][i] / units.ARCSEC),
+                   share=float(design.runs[i] / design.runs.sum()), separation=float(sep[i]))
         out.append(row)
     return out
 

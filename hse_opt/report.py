@@ -138,7 +138,8 @@ def _svg(fig):
 
 
 def _embed(fig, caption, alt):
-    return Figure(_svg(fig), caption, alt)
+    """The figure for the page; None (a plot with nothing to show) gives no block."""
+    return None if fig is None else Figure(_svg(fig), caption, alt)
 
 
 def _plotting(fn):
@@ -331,9 +332,12 @@ def plot_calibration_line(fit, runs):
 
     Returns
     -------
-    matplotlib.figure.Figure
+    matplotlib.figure.Figure or None
+        None when the runs share one bias rate (no line to draw).
     """
     rate_dps = runs.rate / units.DEG_PER_S
+    if np.unique(np.round(rate_dps, 6)).size < 2:
+        return None
     y, s = _arcsec(runs.heading_err), _arcsec(fit.sigma)
     setups = tilt_setups(runs)
     if len(setups) > _MAX_SETUPS:
@@ -344,9 +348,11 @@ def plot_calibration_line(fit, runs):
     lo, hi = rate_dps.min(), rate_dps.max()
     pad = 0.05 * max(hi - lo, 1.0)
     grid = np.linspace(lo - pad, hi + pad, 61)
+    lines = False
     for ax, (setup, title) in zip(axes, setups):
         present = [g for g in range(centres.size) if np.any(setup & (labels == g))]
         if len(present) <= _MAX_LINES:
+            lines = True
             for g in present:
                 col = _COLORS[g % len(_COLORS)]
                 m = setup & (labels == g)
@@ -355,7 +361,6 @@ def plot_calibration_line(fit, runs):
                 h, _ = _curve(fit, runs, m, rate=grid * units.DEG_PER_S,
                               azimuth=np.full(grid.size, centres[g]))
                 ax.plot(grid, _arcsec(h), "-", color=col, lw=1.2)
-            ax.legend(loc="best", frameon=False, title="stand azimuth", ncols=2)
         else:
             sc = ax.scatter(rate_dps[setup], y[setup], s=16, cmap="twilight", vmin=0, vmax=360,
                             c=np.mod(runs.azimuth[setup] / units.DEG, 360), label="measured")
@@ -365,6 +370,14 @@ def plot_calibration_line(fit, runs):
             ax.legend(loc="best", frameon=False)
         ax.set_title(title)
         ax.set_xlabel("bias rate Omega [deg/s]")
+    if lines:  # one legend for the figure, outside the panels: it hides no data
+        handles, names = [], []
+        for ax in axes:
+            for hd, nm in zip(*ax.get_legend_handles_labels()):
+                if nm not in names:
+                    handles.append(hd)
+                    names.append(nm)
+        fig.legend(handles, names, loc="outside right upper", frameon=False, title="stand azimuth")
     axes[0].set_ylabel("heading error [arcsec]")
     fig.suptitle("Calibration line: heading error against bias rate")
     return fig
@@ -630,8 +643,9 @@ def plot_sigmas(evaluation, baseline=None, labels=("optimised plan", "paper's pl
         ax.barh(y - h / 2, base, height=h, color="#7f7f7f", label=labels[1])
         for yi, a, b in zip(y, evaluation.std, base):
             if np.isfinite(b) and a > 0:
-                ax.annotate(f"x{a / b:.2f}", (max(a, b), yi), xytext=(4, -3),
-                            textcoords="offset points", fontsize=8)
+                ax.annotate(f"{b / a:.3g}x smaller" if a < b else f"{a / b:.3g}x larger", (max(a, b), yi),
+                            xytext=(4, -3), textcoords="offset points", fontsize=8)
+        ax.margins(x=0.25)  # room for the labels
     ax.set_xscale("log")
     ax.set_yticks(y, [f"{n} [{u}]" for n, u in zip(names, evaluation.units)])
     ax.set_xlabel("predicted 1-sigma (display unit of each parameter)")
@@ -797,7 +811,7 @@ def _p_text(p):
     return "&ndash;" if p is None else (f"{p:.2g}" if p >= 1e-300 else "&lt;1e-300")
 
 
-def diagnosis_section(diagnosis, title=None):
+def diagnosis_section(diagnosis, title=None, residuals=True):
     """The report section of a diagnosis: verdict and goodness of fit, the ranking of
     candidate effects, residual structure against each factor and in words, ambiguities
     with the runs that would resolve them, influential runs and outliers.
@@ -806,6 +820,9 @@ def diagnosis_section(diagnosis, title=None):
     ----------
     diagnosis : hse_opt.diagnose.Diagnosis
     title : str, optional
+    residuals : bool
+        Also plot the residuals against every factor (False when the page already shows
+        them in the fit's section).
 
     Returns
     -------
@@ -864,7 +881,7 @@ def diagnosis_section(diagnosis, title=None):
         + _table(["factor", "test", "p", "best function / note"], factor_rows) + "</details>",
         ("<h3>In words</h3>" + _notes(words)) if words else "",
         _embed(plot_residuals(d.fit, d.runs), "Residuals against every factor.",
-               "residuals against every factor"),
+               "residuals against every factor") if residuals else "",
         _notes(list(d.notes)),
     ]
     return Section(title, tuple(b for b in blocks if b), {"diagnosis": _jsonable(d.to_dict())})

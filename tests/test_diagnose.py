@@ -166,6 +166,8 @@ def test_ambiguous_effects_are_named_and_the_proposed_runs_resolve_them():
     assert d.verdict == "missing-effect"
     assert set(d.ambiguous) == {"warmup", "covariate:temp_c"}
     assert d.proposals and all(p["separation"] > 1.0 for p in d.proposals)
+    shares = [p["share"] for p in d.proposals]  # a T-optimal design's support, largest share first
+    assert all(x > 0 for x in shares) and sum(shares) <= 1 + 1e-9 and shares == sorted(shares, reverse=True)
     # run the proposed runs (with the truth: the warm-up), 3 repeats each, and diagnose again
     props = d.proposals
     extra = Runs(run=np.arange(len(props) * 3) + 1000,

@@ -77,6 +77,16 @@ def test_calibration_line_slope_is_k_hse():
         assert slope == pytest.approx(k_hse, rel=2e-3, abs=1e-4 * units.ARCSEC)
 
 
+def test_no_calibration_line_from_one_bias_rate():
+    # Table 1: every run at 40 deg/s; a line over a 0.1 deg/s axis would be meaningless
+    from hse_opt.datasets import paper_table1
+    runs = paper_table1()
+    f = fit(runs, fix={"lambda2*tilt_const": 0.0})
+    assert report.plot_calibration_line(f, runs) is None
+    alts = [fg.alt for fg in report.fit_section(f, runs).figures]
+    assert "heading error against bias rate" not in alts and len(alts) == 2
+
+
 def test_residual_panels_cover_every_varying_factor():
     runs = eq14_runs(noise_arcsec=1.0)
     keys = [k for k, _, _ in report.factors(runs)]
