@@ -327,10 +327,12 @@ def design_next(model, values=None):
         Where to linearise (e.g. the fitted values); default the parameters' nominal values.
 
     Covariate effects are left out of the design model (a covariate is recorded, not
-    planned). When the IPOPT refinement fails the rounded design on the candidate grid is
+    planned). A model with a warm-up (an effect that changes with time since power-on) is
+    designed over four time slots from power-on (no warm-up wait: the transient is
+    calibrated while it lasts). When the IPOPT refinement fails the rounded design on the candidate grid is
     kept, and said; when a design fails it is None and the notes give the solver's status.
     """
-    from .design import DesignSpace, evaluate, paper_plan
+    from .design import Costs, DesignSpace, evaluate, paper_plan
     from .information import UnidentifiableError
 
     effects = [e for e in model.effect_names if not e.startswith("covariate:")]
@@ -343,8 +345,13 @@ def design_next(model, values=None):
     nominal = {n: float(v) for n, v in (values or {}).items() if n in names}
     paper = paper_plan()
     kw = dict(budget=float(paper.t_start[-1] + paper.duration[-1]), nominal=nominal)
-    # time since power-on is a factor of the plan when an effect changes with it
-    slots = _TIME_SLOTS if any(e.level == "thermal" for e in model.effects) else 1
+    # time since power-on is a factor of the plan when an effect changes with it, and then the
+    # plan may start at power-on: a warm-up is calibrated while it lasts
+    if any(e.level == "thermal" for e in model.effects):
+        kw.update(costs=Costs(warmup=0.0))
+        slots = _TIME_SLOTS
+    else:
+        slots = 1
     fixture = _design(model, {**kw, "space": DesignSpace(max_tilt=_FIXTURE_TILT_ARCSEC * units.ARCSEC,
                                                          time_slots=slots)}, notes, "with the tilt fixture")
     level = _design(model, {**kw, "space": DesignSpace(time_slots=slots)}, notes, "without the tilt fixture")

@@ -166,3 +166,13 @@ def test_the_next_plan_is_designed_for_every_drawable_effect(name):
     nxt = demo.design_next(Model(["hse", name]), h.values)
     assert nxt.design is not None and nxt.level is not None, nxt.notes
     assert nxt.design.std_of("lambda2") < 0.2
+
+
+@pytest.mark.slow
+def test_a_short_warm_up_gets_a_next_plan_too():
+    """The shortest warm-up the demo draws (10 min): the plan starts at power-on, in four time
+    slots, and beats the paper's plan with and without the fixture."""
+    nxt = demo.design_next(Model(["hse", "warmup"]), {"warmup_amp": -90.0, "warmup_tau": 600.0})
+    assert nxt.design is not None and nxt.level is not None, nxt.notes
+    assert nxt.design.plan.t_start[0] < 600.0                # during the transient
+    assert nxt.gain("level") > 1.0 and nxt.gain("design") > 5.0
