@@ -820,7 +820,7 @@ def _approximate(crit, rows, spec, guards, cand, cost, budget, max_runs, solver=
         w = np.zeros(n)
         w[active] = w_a
         loss, h, cert = _certify(crit, rows, spec, guards, w, mus, cost, budget, max_runs, slot)
-        polished = _polish_weights(crit, rows, spec, guards, w, cost, budget, max_runs, slot) if polish else None
+        polished = _polish_weights(crit, rows, spec, guards, w, loss, cost, budget, max_runs, slot) if polish else None
         if polished is not None:
             trial = _certify(crit, rows, spec, guards, *polished, cost, budget, max_runs, slot)
             if trial[2] > cert:
@@ -849,15 +849,16 @@ def _certify(crit, rows, spec, guards, w, mus, cost, budget, max_runs, slot):
     return loss, h, _certificate(crit, spec.k, loss, h, w, mus, guards, cost, budget, max_runs, slot)
 
 
-def _polish_weights(crit, rows, spec, guards, w, cost, budget, max_runs, slot):
+def _polish_weights(crit, rows, spec, guards, w, loss0, cost, budget, max_runs, slot):
     """The convex program re-solved by IPOPT (CasADi) on the conic solution's support.
 
     Interior-point conic solvers stop at about 1e-8 in the objective; the loss is flat at the
     optimum, so that leaves about 1e-4 in the weights and small weights spread over
     near-optimal candidates, which then differ from one solver build to the next. The smooth
     problem on the support (the same loss, time budget per slot, run limit and guards) is
-    solved to 1e-12. Returns ``(weights, guard multipliers)``, or None when the criterion
-    has no smooth form or IPOPT fails (the caller keeps whichever the certificate prefers)."""
+    solved to 1e-12 (``loss0``: the loss at ``w``, the objective's scale). Returns
+    ``(weights, guard multipliers)``, or None when the criterion has no smooth form or IPOPT
+    fails (the caller keeps whichever the certificate prefers)."""
     sup = np.flatnonzero(w > 1e-6 * w.max())
     m, n_slots = sup.size, int(slot.max()) + 1
     u = ca.MX.sym("u", m)  # runs of each support candidate
@@ -873,7 +874,6 @@ def _polish_weights(crit, rows, spec, guards, w, cost, budget, max_runs, slot):
         f = mean_loss(rows, spec, lambda F: crit.loss(F, _CASADI, spec.names))
     except _NotSmooth:
         return None
-    loss0 = _mean_loss(crit, rows, spec, w)
     scale = max(1.0, abs(loss0)) if crit.degree == 0 else abs(loss0)
     if not (np.isfinite(loss0) and scale > 0):
         return None

@@ -339,7 +339,7 @@ def replicate_groups(runs, mm=None, tilt_tol=10 * units.ARCSEC):
     if mm is not None:
         X = mm.inputs_from_runs(runs)
         used = _inputs_used(mm)
-        extra = [i for i, f in enumerate(RUN_FIELDS) if f == "t_start"] + list(range(len(RUN_FIELDS), mm.n_x))
+        extra = [RUN_FIELDS.index("t_start"), *range(len(RUN_FIELDS), mm.n_x)]  # time, covariates
         cols += [X[i] for i in extra if used[i]]
     _, labels = np.unique(np.column_stack(cols), axis=0, return_inverse=True)
     labels = labels.ravel()

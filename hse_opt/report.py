@@ -907,7 +907,7 @@ def _evaluation_blocks(ev, plan, baseline, baseline_note, label):
                "start to its end.", "the plan's runs over time"),
         _embed(plot_sigmas(ev, baseline, (label.lower(), "paper's plan")),
                "Predicted 1-sigma of each parameter (log scale)"
-               + (" against the paper's plan in the same model; x: the ratio."
+               + (" against the paper's plan in the same model; the labels: how many times smaller."
                   if baseline is not None else "."), "predicted sigmas"),
         _table(["parameter", "unit", "predicted sigma", "paper's plan", "ratio",
                 "bias per arcsec/h of drift"], rows, keys=keys, cls="sigmas"),

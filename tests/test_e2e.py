@@ -90,3 +90,17 @@ def test_fresh_install_runs_the_demo_and_the_report_agrees_with_json(tmp_path):
         assert float(rms[-1][-1]) == pytest.approx(data["after"]["rms_arcsec"], rel=5e-4)
     assert f"{data['before']['rms_arcsec']:.1f} arcsec" in html       # the summary at the top
     assert data["hidden_effect"] in html
+    # the diagnosis: every candidate's score p, Delta-BIC and RMS after, best first
+    cands = data["diagnosis"]["candidates"]
+    for c in cands:
+        row = _cells(html, f"candidate:{c['effect']}")[0]
+        if c["p_value"] is not None:
+            assert float(row[1]) == pytest.approx(c["p_value"], rel=0.06)
+            assert c["delta_bic"] is None or float(row[2]) == pytest.approx(c["delta_bic"], abs=0.06)
+    # the next plan (the best one designed) against the paper's plan: sigma(lambda2) and ratio
+    nxt = data["next_plan"]
+    best = nxt["tilt_fixture"] or nxt["paper_limits"]
+    sd, paper, ratio = (float(x) for x in _cells(html, "sigma:lambda2")[0][1:4])
+    assert sd == pytest.approx(best["sigma_lambda2_arcsec"], rel=5e-3)
+    assert paper == pytest.approx(nxt["paper_sigma_lambda2_arcsec"], rel=5e-3)
+    assert 1 / ratio == pytest.approx(best["gain"], rel=5e-3)
