@@ -601,11 +601,12 @@ def plot_plan(plan, title="The plan's runs over time"):
     axes = fig.subplots(len(panels), 1, sharex=True, squeeze=False)[:, 0]
     for ax, (label, v) in zip(axes, panels):
         if v is None:
+            # pitch thin on top of roll: both show where they are equal
             ax.hlines(tilt_x / units.ARCSEC, t0 / units.HOUR, t1 / units.HOUR, color=_COLORS[0],
-                      lw=4, label="x (roll)")
+                      lw=6, label="x (roll)")
             ax.hlines(tilt_y / units.ARCSEC, t0 / units.HOUR, t1 / units.HOUR, color=_COLORS[1],
-                      lw=4, alpha=0.7, label="y (pitch)")
-            ax.legend(loc="best", frameon=False)
+                      lw=2, label="y (pitch)")
+            fig.legend(*ax.get_legend_handles_labels(), loc="outside right lower", frameon=False)
         else:
             ax.hlines(v, t0 / units.HOUR, t1 / units.HOUR, color=_COLORS[0], lw=4)
         ax.set_ylabel(label)
