@@ -338,11 +338,13 @@ class _Table:
             if abs(rate) < limit:
                 raise DataError(src, f"value {values['rate_dps'][i]!r} is inside the lock-in limit; "
                                      f"allowed: |rate_dps| >= {min_rate_dps:g} deg/s (min_rate_dps, or "
-                                     "--min-rate-dps, sets the limit; a rate in rad/s also lands here)", row=i + 1, column="rate_dps")
+                                     "--min-rate-dps, sets the limit; a rate in rad/s also lands here)",
+                                row=i + 1, column="rate_dps")
         if not allow_small_azimuths and _looks_like_radians(np.array(attrs["azimuth"]) / DEG):
             raise DataError(src, f"the values of rows 1-{n} look like radians (all within +-2 pi, spread "
                                  "over at least 1, not whole numbers); allowed: degrees, or "
-                                 "allow_small_azimuths=True (--allow-small-azimuths) for a fine azimuth sweep in degrees",
+                                 "allow_small_azimuths=True (--allow-small-azimuths) for a fine azimuth "
+                                 "sweep in degrees",
                             column="azimuth_deg")
         return cls(**attrs, covariates=covariates, source=src)
 

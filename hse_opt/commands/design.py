@@ -166,12 +166,11 @@ def run(args):
 
     if not args.output:
         raise ValueError("-o PLAN.csv is required to design a plan (or use --evaluate PLAN.csv)")
-    for opt, value, low, unit in (("--budget-h", args.budget_h, 0.0, "h"),
-                                  ("--max-tilt-arcsec", args.max_tilt_arcsec, None, "arcsec"),
-                                  ("--seed", args.seed, None, "")):
-        if not np.isfinite(value) or value < 0 or (low is not None and value <= low):
-            allowed = "> 0" if low is not None else ">= 0"
-            raise ValueError(f"{opt} {value:g} is not allowed; allowed: {allowed}{' ' + unit if unit else ''}")
+    for opt, value, allowed, ok in (("--budget-h", args.budget_h, "> 0 h", lambda v: v > 0),
+                                    ("--max-tilt-arcsec", args.max_tilt_arcsec, ">= 0 arcsec", lambda v: v >= 0),
+                                    ("--seed", args.seed, ">= 0", lambda v: v >= 0)):
+        if not (np.isfinite(value) and ok(value)):
+            raise ValueError(f"{opt} {value:g} is not allowed; allowed: {allowed}")
     lo, hi = _pair(args.rates, "--rates", sep=":")
     if not 0 < lo <= hi:
         raise ValueError(f"--rates {args.rates}: allowed LO:HI in deg/s with 0 < LO <= HI")
