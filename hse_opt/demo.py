@@ -453,7 +453,8 @@ def run_demo(seed=0, progress=None):
     seed : int
         Picks the hidden effect and seeds the simulated noise.
     progress : callable, optional
-        ``progress(step, done, total)`` as the simulation advances (``step`` a short name).
+        ``progress(step, done, total)`` as the simulation advances (``step`` a short name);
+        the later steps report ``(step, 0, 1)`` as they start.
 
     Returns
     -------
@@ -480,7 +481,12 @@ def run_demo(seed=0, progress=None):
     before = fit_runs(runs, "hse")
     seconds["fit"] = time.perf_counter() - t0
 
+    def starting(step):  # a step without sub-steps shows as one item, done when the next starts
+        if progress is not None:
+            progress(step, 0, 1)
+
     t0 = time.perf_counter()
+    starting("diagnose and refit")
     diagnosis = diagnose(runs, before)
     named = None if diagnosis.best is None else diagnosis.best.effect
     after_diagnosis = None if named is None else diagnosis.add(named)
@@ -488,6 +494,7 @@ def run_demo(seed=0, progress=None):
     seconds["diagnose"] = time.perf_counter() - t0
 
     t0 = time.perf_counter()
+    starting("design the next plan")
     final = after if after is not None else before
     next_plan = design_next(final.model, dict(zip(final.names, final.values)))
     seconds["design"] = time.perf_counter() - t0

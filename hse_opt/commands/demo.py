@@ -36,8 +36,11 @@ def _progress_bar(enabled):
     def progress(step, done, total):
         bar = bars.get(step)
         if bar is None:
-            bar = bars[step] = tqdm(total=total, desc=step, unit="run", file=sys.stderr,
-                                    leave=False, disable=None)
+            for old in bars.values():  # a new step: the earlier ones are done
+                old.update(old.total - old.n)
+                old.close()
+            bar = bars[step] = tqdm(total=total, desc=step, unit="run" if total > 1 else "step",
+                                    file=sys.stderr, leave=False, disable=None)
         bar.update(done - bar.n)
 
     def close():
