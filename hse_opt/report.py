@@ -348,11 +348,11 @@ def plot_calibration_line(fit, runs):
     lo, hi = rate_dps.min(), rate_dps.max()
     pad = 0.05 * max(hi - lo, 1.0)
     grid = np.linspace(lo - pad, hi + pad, 61)
-    lines = False
+    line_axes = []
     for ax, (setup, title) in zip(axes, setups):
         present = [g for g in range(centres.size) if np.any(setup & (labels == g))]
         if len(present) <= _MAX_LINES:
-            lines = True
+            line_axes.append(ax)
             for g in present:
                 col = _COLORS[g % len(_COLORS)]
                 m = setup & (labels == g)
@@ -370,14 +370,12 @@ def plot_calibration_line(fit, runs):
             ax.legend(loc="best", frameon=False)
         ax.set_title(title)
         ax.set_xlabel("bias rate Omega [deg/s]")
-    if lines:  # one legend for the figure, outside the panels: it hides no data
-        handles, names = [], []
-        for ax in axes:
-            for hd, nm in zip(*ax.get_legend_handles_labels()):
-                if nm not in names:
-                    handles.append(hd)
-                    names.append(nm)
-        fig.legend(handles, names, loc="outside right upper", frameon=False, title="stand azimuth")
+    if line_axes:  # one legend of the azimuths, outside the panels: it hides no data
+        legend = {}
+        for ax in line_axes:
+            legend.update({nm: hd for hd, nm in zip(*ax.get_legend_handles_labels()) if nm not in legend})
+        fig.legend(list(legend.values()), list(legend), loc="outside right upper", frameon=False,
+                   title="stand azimuth")
     axes[0].set_ylabel("heading error [arcsec]")
     fig.suptitle("Calibration line: heading error against bias rate")
     return fig

@@ -557,13 +557,14 @@ def test_information_criteria_and_condition_number_from_their_definitions(rng):
     runs = twin(LINEAR, design(), TRUTH_LINEAR, rng)
     f = fit(runs, LINEAR)
     n, k = len(runs), 4
-    chi2 = np.sum((f.residuals / runs.heading_std) ** 2)
-    assert f.chi2 == pytest.approx(chi2, rel=1e-12) and f.dof == n - k
-    assert f.aic == pytest.approx(chi2 + 2 * k, rel=1e-12)
-    assert f.bic == pytest.approx(chi2 + k * np.log(n), rel=1e-12)
-    # the condition number of the column-normalised weighted Jacobian (numpy's SVD)
     mm = LINEAR.measurement(True)
-    A = mm.jacobian(f.p, mm.inputs_from_runs(runs)) * mm.scale / runs.heading_std[:, None]
+    X = mm.inputs_from_runs(runs)
+    chi2 = np.sum(((runs.heading_err - mm.predict(f.p, X)) / runs.heading_std) ** 2)  # at the estimate
+    assert f.chi2 == pytest.approx(chi2, rel=1e-9) and f.dof == n - k
+    assert f.aic == pytest.approx(chi2 + 2 * k, rel=1e-9)
+    assert f.bic == pytest.approx(chi2 + k * np.log(n), rel=1e-9)
+    # the condition number of the column-normalised weighted Jacobian (numpy's SVD)
+    A = mm.jacobian(f.p, X) * mm.scale / runs.heading_std[:, None]
     assert f.condition == pytest.approx(np.linalg.cond(A / np.linalg.norm(A, axis=0)), rel=1e-6)
     with pytest.raises(ValueError, match="read-only"):
         f.values[0] = 0.0

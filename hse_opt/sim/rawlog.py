@@ -45,7 +45,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from hse_opt.sim._io import atomic_path
+from hse_opt.data import atomic_path
 
 __all__ = ["RawLog", "validate_rawlog", "load_rawlog", "save_rawlog", "CSV_COLUMNS"]
 

@@ -116,10 +116,10 @@ from decimal import Decimal
 import numpy as np
 
 from hse_opt import units
-# the exact decimal <-> SI conversions of the file formats (one implementation, in data.py)
-from hse_opt.data import _to_si, _to_text
+# the exact decimal <-> SI conversions and the atomic writer of the file formats (one
+# implementation each, in data.py)
+from hse_opt.data import _to_si, _to_text, atomic_path
 from hse_opt.frames import R_ZB_S_IDEAL, c_b_s, skew
-from hse_opt.sim._io import atomic_path
 
 if sys.version_info >= (3, 11):
     import tomllib
