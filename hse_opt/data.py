@@ -7,7 +7,55 @@ the file's own unit and under its own name (``temp_c``).
 
 ``RUNS.csv`` (:class:`Runs`): ``run, rate_dps, azimuth_deg, heading_err_arcsec,
 latitude_deg, duration_s`` and optionally ``t_start_s``, ``pitch_arcsec`` with
-``roll_arcsec``, ``heading_std_arcsec``.
+``roll_arcsec``, ``heading_std_arcsec``, ``heading_deg`` and ``position`` (field campaigns,
+below: then ``azimuth_deg`` and ``heading_err_arcsec`` may be empty or absent).
+
+Field campaigns (positions without a heading reference)
+-------------------------------------------------------
+In the field nobody knows the true heading of the stand: the system aligns at a position
+several times (rates, senses, repeats) and the calibration comes from the heading
+*differences* between those runs (the paper's on-line calibration). ``RUNS.csv`` then carries:
+
+``position``
+    Optional text label (any text: ``A``, ``pier 3``, ``1``). Rows with one label share one
+    stand position, i.e. one true heading. Kept as text (:attr:`Runs.position`), never a
+    covariate.
+``heading_deg``
+    The alignment's own heading estimate, deg. It replaces ``heading_err_arcsec`` where no
+    reference exists, and it is what the tools use for the heading in C23 at such a
+    position (an arcminute is plenty there: see below).
+``azimuth_deg``, ``heading_err_arcsec``
+    Required only where a reference exists. With ``heading_deg`` present, a row whose
+    ``azimuth_deg`` cell is empty (or a file without that column) belongs to an
+    *unsurveyed* position; its ``heading_err_arcsec`` cell must be empty too. A surveyed
+    row with ``heading_deg`` and an empty ``heading_err_arcsec`` gets ``heading_deg -
+    azimuth_deg`` (exact decimals). Mixed campaigns -- some positions surveyed, some not --
+    are allowed; a position is surveyed in all its rows or in none.
+
+Without a ``position`` column, all unsurveyed rows are one position (the paper's
+single-position procedure; :attr:`Runs.notes` says so), and a heading more than
+:data:`MAX_POSITION_SPREAD_DEG` from its position's mean heading is an error (one position
+is one stand heading: it catches a forgotten ``position`` column).
+
+In memory (:class:`Runs`) an unsurveyed row has ``surveyed = False``, ``azimuth`` = its own
+heading and ``heading_err`` = its heading minus the position's mean heading: the heading
+error up to one unknown constant per position. :meth:`Runs.reference_groups` tells which
+rows share which constant. What this data can estimate:
+
+* Surveyed rows share the one unknown constant of the stand reading (``offset``), as
+  before; each unsurveyed position adds one nuisance constant (its unknown true heading
+  plus the offset), which the fit eliminates exactly and never reports.
+* Within an unsurveyed position only *contrasts* count: everything that is constant at the
+  position (the offset, the stand's azimuth errors, a tilt-coupled term at a single rate) is
+  absorbed by its constant. lambda2 (K_HSE) is seen through the heading change with the
+  bias rate Omega, so a position must be visited at two or more different rates (or both
+  senses) to contribute; a position with one rate only carries no information on it.
+  Time-dependent effects (warm-up) are seen through the time between its runs.
+* Why the own heading is good enough in C23 = -gamma cos(psi) + theta sin(psi): an error
+  d psi in psi changes C23 by at most |tilt| d psi. With a tilt of 1e-3 rad (the paper's
+  worked example) and a heading off by 1 arcmin (an alignment is good to arcseconds, a
+  position's unknown heading error by the HSE itself to tens of arcseconds), C23 changes
+  by 3e-7 rad, a relative 3e-4 of C23 and ~0.01 arcsec of heading error at 40 deg/s.
 
 ``PLAN.csv`` (:class:`Plan`): ``run, rate_dps, azimuth_deg, t_start_s, duration_s`` and
 optionally ``tilt_x_arcsec`` with ``tilt_y_arcsec``.
@@ -69,6 +117,8 @@ __all__ = ["DataError", "Runs", "Plan", "load_runs", "load_plan", "save_runs", "
 
 #: default lock-in limit of the table rate, deg/s (see the module docstring)
 DEFAULT_MIN_RATE_DPS = 5.0
+#: largest distance of an unsurveyed row's heading from its position's mean heading, deg
+MAX_POSITION_SPREAD_DEG = 2.0
 
 _EXACT = decimal.Context(prec=80)  # wide enough that file-value * factor is exact
 
@@ -151,6 +201,34 @@ def _to_run_id(value):
     return int(d)
 
 
+def _missing(value):
+    """An empty cell: an empty or blank string, None or a float NaN (not the text 'nan')."""
+    if value is None:
+        return True
+    if isinstance(value, str):
+        return not value.strip()
+    return isinstance(value, float) and value != value
+
+
+def _heading_err_text(azimuth_deg, heading_deg):
+    """``heading_deg - azimuth_deg`` in arcsec, wrapped to [-180, 180) deg, as exact decimal text
+    (the values as the file writes them); a value that is not a number is returned as it is,
+    for the common parse to name."""
+    try:
+        d = _EXACT.subtract(_decimal(heading_deg), _decimal(azimuth_deg))
+    except (ValueError, decimal.InvalidOperation):
+        return heading_deg
+    if not d.is_finite():
+        return heading_deg
+    d = _EXACT.subtract(d, _EXACT.multiply(360, ((d + 180) / 360).to_integral_value(decimal.ROUND_FLOOR)))
+    return str(_EXACT.multiply(d, 3600))
+
+
+def _wrap(angle):
+    """Angle (rad) wrapped to [-pi, pi)."""
+    return (np.asarray(angle) + np.pi) % (2 * np.pi) - np.pi
+
+
 def _looks_like_radians(azimuth_deg):
     u = np.unique(azimuth_deg)
     return bool(u.size >= 2 and np.all(np.abs(u) <= 2 * np.pi + 1e-9) and np.ptp(u) >= 1.0
@@ -175,6 +253,8 @@ class _Table:
     _PAIRS: ClassVar[tuple[tuple[str, str], ...]]
     _RULES: ClassVar[tuple[tuple[str, object, str], ...]]
     _NOTES: ClassVar[dict[str, str]] = {}
+    _ROW_FIELDS: ClassVar[tuple[str, ...]] = ()   # row-wise attributes outside _COLUMNS
+    _TEXT: ClassVar[tuple[str, ...]] = ()         # contract columns that hold text
 
     # -- construction and structural checks -----------------------------------------------
     def __post_init__(self):
@@ -365,8 +445,8 @@ class _Table:
         if idx.ndim != 1 or idx.dtype.kind not in "biu" or (idx.dtype.kind == "b" and idx.size != len(self)):
             raise ValueError(f"index of shape {idx.shape} and dtype {idx.dtype}; allowed: a boolean mask "
                              f"of shape ({len(self)},) or 1-D integer indices")
-        take = {c.attr: getattr(self, c.attr)[idx] for c in self._COLUMNS
-                if getattr(self, c.attr) is not None}
+        take = {a: getattr(self, a)[idx] for a in (*(c.attr for c in self._COLUMNS), *self._ROW_FIELDS)
+                if getattr(self, a) is not None}
         return dataclasses.replace(self, **take, covariates={k: v[idx] for k, v in self.covariates.items()})
 
     def replace(self, **changes):
@@ -406,7 +486,8 @@ class _Table:
         ``from_columns(t.to_columns())`` may differ from ``t`` in the last bit; files round-trip
         exactly.
         """
-        return {name: np.array(col, np.int64 if name == "run" else np.float64)
+        return {name: (np.array(col) if name in self._TEXT else np.array(
+                       [v if v != "" else "nan" for v in col], np.int64 if name == "run" else np.float64))
                 for name, col in self._text_columns().items()}
 
 
@@ -441,6 +522,16 @@ class Runs(_Table):
         theta and gamma of b0 from the alignment's own leveling, rad (both or neither).
     heading_std : numpy.ndarray, shape (n,), or None
         The alignment's own 1-sigma heading uncertainty, rad.
+    heading : numpy.ndarray, shape (n,), or None
+        The alignment's own heading estimate, rad (``heading_deg``).
+    position : numpy.ndarray of str, shape (n,), or None
+        Stand-position labels (``position``); rows with one label share one true heading.
+    surveyed : numpy.ndarray of bool, shape (n,), or None
+        False for rows without a heading reference (an unsurveyed position: ``azimuth_deg``
+        empty or absent, ``heading_deg`` given). In those rows ``azimuth`` is the system's own
+        heading and ``heading_err`` is the heading minus the position's mean heading, known
+        up to the position's unknown constant (see "Field campaigns" in the module
+        docstring). None: every row is surveyed.
     covariates : dict[str, numpy.ndarray]
         Other numeric columns, shape (n,), in the file's unit, under the file's name.
     source : str
@@ -460,13 +551,19 @@ class Runs(_Table):
     pitch: np.ndarray | None = None
     roll: np.ndarray | None = None
     heading_std: np.ndarray | None = None
+    heading: np.ndarray | None = None
+    position: np.ndarray | None = None
+    surveyed: np.ndarray | None = None
     covariates: dict = field(default_factory=dict)
     source: str = "<memory>"
 
     _COLUMNS = (_RUN, _RATE, _AZIMUTH, _Col("heading_err_arcsec", "heading_err", ARCSEC, True),
                 _Col("latitude_deg", "latitude", DEG, True), _DURATION, _T_START._replace(required=False),
                 _Col("pitch_arcsec", "pitch", ARCSEC, False), _Col("roll_arcsec", "roll", ARCSEC, False),
-                _Col("heading_std_arcsec", "heading_std", ARCSEC, False))
+                _Col("heading_std_arcsec", "heading_std", ARCSEC, False),
+                _Col("heading_deg", "heading", DEG, False))
+    _ROW_FIELDS = ("position", "surveyed")
+    _TEXT = ("position",)
     _PAIRS = (("pitch", "roll"),)
     _RULES = (("latitude", lambda x: np.abs(x) <= 90 * DEG, "|latitude_deg| <= 90"), _POSITIVE_DURATION,
               _NONNEGATIVE_T_START, ("heading_std", lambda x: x > 0, "heading_std_arcsec > 0"))
@@ -476,6 +573,163 @@ class Runs(_Table):
                  "sinusoids with free coefficients",
         "heading_std": "no heading_std_arcsec column: all runs get equal weight",
     }
+
+    # -- field campaigns: positions without a heading reference ----------------------------
+    def __post_init__(self):
+        super().__post_init__()
+        n, src = len(self), self.source
+        if self.position is not None:
+            pos = np.array(self.position, dtype=object)
+            if pos.shape != (n,):
+                raise DataError(src, f"has shape {pos.shape}; allowed: ({n},) like 'run'", column="position")
+            for i, v in enumerate(pos.tolist()):
+                if not isinstance(v, str) or not v.strip() or v != v.strip():
+                    raise DataError(src, f"label {v!r} is not allowed; allowed: a non-empty text label "
+                                         "without surrounding spaces", row=i + 1, column="position")
+            pos = pos.astype(str)
+            pos.setflags(write=False)
+            object.__setattr__(self, "position", pos)
+        if self.surveyed is not None:
+            sv = np.array(self.surveyed)
+            if sv.shape != (n,) or sv.dtype != bool:
+                raise TypeError(f"surveyed must be a boolean array of shape ({n},)")
+            if sv.all():
+                sv = None
+            else:
+                sv.setflags(write=False)
+                if self.heading is None:
+                    raise DataError(src, "is required for rows without a heading reference; allowed: the "
+                                         "alignment's own heading in every row without azimuth_deg",
+                                    column="heading_deg")
+            object.__setattr__(self, "surveyed", sv)
+        if self.surveyed is not None and self.position is not None:
+            for label in np.unique(self.position):
+                rows = self.position == label
+                if self.surveyed[rows].any() and not self.surveyed[rows].all():
+                    first = self.surveyed[np.argmax(rows)]
+                    i = int(np.argmax(rows & (self.surveyed != first)))
+                    raise DataError(src, f"position {label!r} has rows with and without azimuth_deg; "
+                                         "allowed: a position is surveyed (azimuth_deg in every row) or "
+                                         "not (azimuth_deg empty in every row)", row=i + 1, column="azimuth_deg")
+
+    def reference_groups(self):
+        """Which rows share which unknown heading constant.
+
+        Returns
+        -------
+        index : numpy.ndarray of int64, shape (n,)
+            -1 for rows with a heading reference (``azimuth_deg``; they share the one unknown
+            constant of the stand reading), ``k >= 0`` for rows of the k-th position without
+            a reference (its true heading is unknown: one nuisance constant each).
+        labels : tuple of str
+            The label of each unsurveyed position, in order of first appearance (``'field'``
+            when there is no ``position`` column: all unsurveyed rows are one position).
+        """
+        index = np.full(len(self), -1, dtype=np.int64)
+        if self.surveyed is None:
+            return index, ()
+        free = ~self.surveyed
+        names = self.position[free] if self.position is not None else np.full(int(free.sum()), "field")
+        labels = tuple(dict.fromkeys(names.tolist()))
+        index[free] = [labels.index(v) for v in names.tolist()]
+        return index, labels
+
+    @property
+    def notes(self):
+        notes = super().notes
+        if self.surveyed is not None and self.position is None:
+            notes += (f"no position column: the {int((~self.surveyed).sum())} rows without azimuth_deg "
+                      "are taken as one stand position",)
+        return notes
+
+    def _text_columns(self):
+        cols = super()._text_columns()
+        if self.surveyed is not None:
+            out = {}
+            for name, col in cols.items():
+                if name in ("azimuth_deg", "heading_err_arcsec"):
+                    if not self.surveyed.any():
+                        continue
+                    col = [v if ok else "" for v, ok in zip(col, self.surveyed.tolist())]
+                out[name] = col
+            cols = out
+        if self.position is not None:
+            cols = {**{k: v for k, v in cols.items() if k not in self.covariates},
+                    "position": self.position.tolist(),
+                    **{k: v for k, v in cols.items() if k in self.covariates}}
+        return cols
+
+    @classmethod
+    def _parse(cls, columns, src, min_rate_dps, allow_small_azimuths, header_line):
+        """The field-campaign columns (``position``, ``heading_deg``, empty ``azimuth_deg``),
+        then the common parse (see the module docstring, "Field campaigns")."""
+        columns = dict(columns)
+        if "heading_deg" not in columns:
+            if "position" in columns:
+                columns["position"] = _sequence(columns["position"], src, "position")
+                position = columns.pop("position")
+                runs = super()._parse(columns, src, min_rate_dps, allow_small_azimuths, header_line)
+                return dataclasses.replace(runs, position=cls._labels(position, src))
+            return super()._parse(columns, src, min_rate_dps, allow_small_azimuths, header_line)
+        if "run" not in columns:  # the common parse names the missing column
+            return super()._parse(columns, src, min_rate_dps, allow_small_azimuths, header_line)
+        n = len(_sequence(columns["run"], src, "run"))
+        heading = _sequence(columns["heading_deg"], src, "heading_deg")
+        seqs = {}
+        for name in ("azimuth_deg", "heading_err_arcsec"):
+            seqs[name] = _sequence(columns[name], src, name) if name in columns else [None] * n
+            if len(seqs[name]) != n:
+                raise DataError(src, f"has {len(seqs[name])} values but 'run' has {n}; allowed: equal "
+                                     "lengths", column=name)
+        if len(heading) != n:
+            raise DataError(src, f"has {len(heading)} values but 'run' has {n}; allowed: equal lengths",
+                            column="heading_deg")
+        surveyed = np.array([not _missing(v) for v in seqs["azimuth_deg"]], dtype=bool)
+        err_missing = np.array([_missing(v) for v in seqs["heading_err_arcsec"]], dtype=bool)
+        for i in np.flatnonzero(~surveyed & ~err_missing):
+            raise DataError(src, "is given where azimuth_deg is empty; allowed: heading_err_arcsec only "
+                                 "with the stand azimuth it refers to", row=int(i) + 1, column="heading_err_arcsec")
+        position = columns.pop("position", None)
+        # the common parse on stand-ins: the own heading for a missing azimuth, 0 for a missing error
+        columns["azimuth_deg"] = [a if ok else h for a, h, ok in zip(seqs["azimuth_deg"], heading, surveyed)]
+        columns["heading_err_arcsec"] = [_heading_err_text(a, h) if ok else 0 if miss else e for a, h, e, ok, miss
+                                         in zip(seqs["azimuth_deg"], heading, seqs["heading_err_arcsec"],
+                                                surveyed, err_missing)]
+        runs = super()._parse(columns, src, min_rate_dps, True, header_line)
+        for name, x in (("azimuth_deg", runs.azimuth[surveyed]), ("heading_deg", runs.heading)):
+            if not allow_small_azimuths and _looks_like_radians(x / DEG):
+                raise DataError(src, "the values look like radians (all within +-2 pi, spread over at least "
+                                     "1, not whole numbers); allowed: degrees, or allow_small_azimuths=True "
+                                     "(--allow-small-azimuths) for a fine sweep in degrees", column=name)
+        heading_err = np.array(runs.heading_err)
+        labels = None if position is None else cls._labels(_sequence(position, src, "position"), src)
+        groups = labels if labels is not None else np.full(n, "field")
+        for label in np.unique(groups[~surveyed]):
+            rows = np.flatnonzero((groups == label) & ~surveyed)
+            h = runs.heading[rows]
+            ref = np.angle(np.mean(np.exp(1j * h)))
+            dev = _wrap(h - ref)
+            k = int(np.argmax(np.abs(dev)))
+            if abs(dev[k]) > MAX_POSITION_SPREAD_DEG * DEG:
+                what = f"position {label!r}" if labels is not None else "the rows without azimuth_deg (one position: no position column)"
+                raise DataError(src, f"heading {_to_text(runs.heading[rows[k]], DEG)} deg is "
+                                     f"{abs(dev[k]) / DEG:.3g} deg from the mean heading of {what}; allowed: "
+                                     f"within {MAX_POSITION_SPREAD_DEG:g} deg (one position is one stand heading: "
+                                     "a position column separates positions)", row=int(rows[k]) + 1,
+                                column="heading_deg")
+            heading_err[rows] = dev
+        return dataclasses.replace(runs, heading_err=heading_err, position=labels, surveyed=surveyed)
+
+    @staticmethod
+    def _labels(values, src):
+        out = []
+        for i, v in enumerate(values):
+            text = str(v).strip() if isinstance(v, (str, numbers.Integral)) and not isinstance(v, bool) else None
+            if not text:
+                raise DataError(src, f"label {v!r} is not allowed; allowed: a non-empty text label",
+                                row=i + 1, column="position")
+            out.append(text)
+        return np.array(out, dtype=str)
 
 
 @dataclass(frozen=True, eq=False)

@@ -783,6 +783,9 @@ def fit(runs, model=None, *, fix=None, tilt_known=None, bounds=None, constraints
         Bad arguments, infeasible constraints, too few runs.
     """
     model = as_model(model)
+    if runs.surveyed is not None:
+        raise ValueError(f"{runs.source}: rows without azimuth_deg (unsurveyed positions) are not "
+                         "supported by the fit yet; allowed: azimuth_deg in every row")
     if tilt_known is None:
         tilt_known = runs.pitch is not None
     if tilt_known and runs.pitch is None:

@@ -16,7 +16,7 @@ from hse_opt.fit import fit, pure_error
 from hse_opt.frames import EARTH_RATE
 
 runs = paper_table1()
-position = runs.covariates["position"].astype(int)
+position = runs.position.astype(int)
 BEFORE = runs.heading_err / units.ARCSEC
 AFTER = runs.covariates["heading_err_compensated_arcsec"]
 LAT = runs.latitude[0]

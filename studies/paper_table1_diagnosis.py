@@ -6,7 +6,7 @@ position right after a cold start. The table gives no start times (run order sta
 back-to-back 600-s runs, an assumption), no pitch/roll (the heading-sensitive error is fitted
 as a free azimuth sinusoid; its constant part cannot be told from the offset at one rate and is
 held at 0, by name) and no sigmas (one sigma from the scatter within the 4 positions: pure
-error, 8 degrees of freedom). The covariates ``position`` (a label of the azimuth group) and
+error, 8 degrees of freedom). The label ``position`` (the azimuth group) and the covariate
 ``heading_err_compensated_arcsec`` (the paper's own compensated output: using it would be
 circular) are left out.
 

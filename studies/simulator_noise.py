@@ -51,7 +51,7 @@ n_total = math.hypot(truth.gyro.arw, n_quant)
 arw = n_total / (EARTH_RATE * math.cos(truth.site.latitude) * math.sqrt(T)) / units.ARCSEC
 
 table = paper_table1()
-pos = table.covariates["position"]
+pos = table.position.astype(int)
 groups = [table.heading_err[pos == k] / units.ARCSEC for k in (2, 3, 4)]
 ss = sum(((g - g.mean()) ** 2).sum() for g in groups)
 paper = math.sqrt(ss / sum(len(g) - 1 for g in groups))

@@ -319,7 +319,7 @@ def test_paper_table1():
     # independent reference: the peak-to-peak values printed in the paper's Table 1
     assert np.ptp(runs.heading_err) / ARCSEC == pytest.approx(40.50, abs=1e-9)
     assert np.ptp(runs.covariates["heading_err_compensated_arcsec"]) == pytest.approx(28.50, abs=1e-9)
-    assert list(runs.covariates["position"]) == [1.0] * 3 + [2.0] * 3 + [3.0] * 3 + [4.0] * 3
+    assert list(runs.position) == ["1"] * 3 + ["2"] * 3 + ["3"] * 3 + ["4"] * 3  # a label column
     assert len(runs.notes) == 3
     assert paper_table1_path().name == "paper_table1.csv" and paper_table1_path().is_file()
 
