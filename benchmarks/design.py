@@ -1,45 +1,87 @@
-"""Experiment-design benchmark (issue 5, item 4): prints its figures.
+"""Experiment-design benchmark (issue 19, items 1-2): every criterion, model and design space.
 
-The approximate design over >= 10,000 candidate runs (8 rate levels x 2 senses x 72 azimuths x
-9 tilt-fixture settings = 10,368; and a 4x larger grid) for the model extended by axis_bias and
-sync_delay, each criterion: time of the convex programs (column generation with the
-equivalence-theorem certificate over every candidate), its certified efficiency, and the time
-of the whole design (candidate Jacobians, rounding, setup-aware pruning, IPOPT refinement,
-run order). Target: the approximate design of >= 10,000 candidates in < 10 s on one core.
+The matrix criteria {D, A, E, c:lambda2} x models {hse, hse+axis_bias, hse+axis_bias+sync_delay,
+hse+warmup} x spaces {the paper's limits (20-60 deg/s, one sense, no fixture), both senses, both
+senses with a 0.5-deg tilt fixture}, each at 10,368 candidate runs, budget 5 h. Each cell prints
+the time of the whole design (candidate Jacobians, approximate design with its certificate,
+rounding, setup-aware pruning, IPOPT refinement, run order), the time of the convex programs,
+the certified efficiency of the approximate design, the efficiency of the rounded plan (before
+and after refinement), the support of the approximate design and the runs of the plan; the worst
+cell is named at the end. Target: every cell < 10 s on one core.
 
     taskset -c 0 python benchmarks/design.py
-    taskset -c 0 python benchmarks/design.py --quick      (the 10,368-candidate grid only)
+    taskset -c 0 python benchmarks/design.py --criteria E --models hse,axis_bias --timeout 120
+
+The candidate grids (10,368 each): paper's limits 144 rates x 72 azimuths; both senses
+2 x 72 rates x 72 azimuths; tilt fixture 2 x 8 rates x 72 azimuths x 9 settings. For
+hse+warmup time since power-on is a factor (4 slots), so the rate levels are 4x fewer.
 """
 import argparse
+import signal
 import time
 
 from hse_opt import units
 from hse_opt.design import DesignSpace, design
 
+MODELS = ("hse", "hse,axis_bias", "hse,axis_bias,sync_delay", "hse,warmup")
+CRITERIA = ("D", "A", "E", "c:lambda2")
+SPACES = ("paper", "senses", "tilt")
+WARMUP = {"warmup_amp": -90.0, "warmup_tau": 1500.0}
+
+
+def space(kind, slots):
+    """The 10,368-candidate design space of one column of the matrix."""
+    n_rates = {"paper": 144, "senses": 72, "tilt": 8}[kind] // slots
+    return DesignSpace(n_rates=n_rates, reverse=kind != "paper", azimuth_step=5 * units.DEG,
+                       max_tilt=0.5 * units.DEG if kind == "tilt" else 0.0, time_slots=slots)
+
+
+class Timeout(Exception):
+    pass
+
+
+def _alarm(signum, frame):
+    raise Timeout
+
 
 def main():
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--quick", action="store_true", help="only the 10,368-candidate grid")
+    parser.add_argument("--criteria", default=",".join(CRITERIA), help="comma-separated (default all)")
+    parser.add_argument("--models", default=";".join(MODELS), help="';'-separated effect lists (default all)")
+    parser.add_argument("--spaces", default=",".join(SPACES), help="of paper,senses,tilt (default all)")
+    parser.add_argument("--timeout", type=int, default=0, help="give up a cell after this many s (0: never)")
     args = parser.parse_args()
-    grids = [("8 rates x 2 senses x 72 azimuths x 9 tilts", dict(n_rates=8, azimuth_step=5 * units.DEG))]
-    if not args.quick:
-        grids.append(("16 rates x 2 senses x 144 azimuths x 9 tilts",
-                      dict(n_rates=16, azimuth_step=2.5 * units.DEG)))
     design("hse", "D", budget=5 * 3600.0, space=DesignSpace(reverse=True))  # imports, CasADi, cvxpy warm-up
-    for label, kw in grids:
-        space = DesignSpace(reverse=True, max_tilt=0.5 * units.DEG, **kw)
-        n = len(space.candidates())
-        print(f"{n} candidates ({label}), model hse+axis_bias+sync_delay, budget 5 h:")
-        print(f"  {'criterion':<11}{'convex programs':>16}{'rounds':>8}{'active':>8}{'certified':>12}"
-              f"{'whole design':>14}{'runs':>6}{'efficiency':>12}")
-        for crit in ("D", "A", "E", "c:lambda2"):
-            t0 = time.perf_counter()
-            r = design("hse,axis_bias,sync_delay", crit, budget=5 * 3600.0, space=space)
-            total = time.perf_counter() - t0
-            a = r.approximate
-            print(f"  {crit:<11}{a.solve_time:>14.2f} s{a.iterations:>8}{a.n_active:>8}"
-                  f"{a.certified_efficiency:>12.6f}{total:>12.2f} s{r.n_runs:>6}{r.efficiency:>12.4f}")
-    print("target: the approximate design of >= 10,000 candidates in < 10 s on one core (taskset -c 0)")
+    signal.signal(signal.SIGALRM, _alarm)
+    print(f"{'model':<26}{'space':<8}{'criterion':<11}{'candidates':>11}{'time':>9}{'convex':>9}"
+          f"{'certified':>11}{'rounding':>10}{'final':>8}{'support':>9}{'runs':>6}")
+    worst = None
+    for model in args.models.split(";"):
+        slots = 4 if "warmup" in model else 1
+        nominal = WARMUP if "warmup" in model else None
+        for kind in args.spaces.split(","):
+            sp = space(kind, slots)
+            n = len(sp.candidates())
+            for crit in args.criteria.split(","):
+                signal.alarm(args.timeout)
+                t0 = time.perf_counter()
+                try:
+                    r = design(model, crit, budget=5 * 3600.0, space=sp, nominal=nominal)
+                except Timeout:
+                    print(f"{model:<26}{kind:<8}{crit:<11}{n:>11}  > {args.timeout} s (timed out)")
+                    cell = (float(args.timeout), f"{model} / {kind} / {crit} (timed out)")
+                    worst = max(worst or cell, cell)
+                    continue
+                finally:
+                    signal.alarm(0)
+                total = time.perf_counter() - t0
+                a = r.approximate
+                print(f"{model:<26}{kind:<8}{crit:<11}{n:>11}{total:>7.2f} s{a.solve_time:>7.2f} s"
+                      f"{a.certified_efficiency:>11.6f}{r.rounding_efficiency:>10.4f}{r.efficiency:>8.4f}"
+                      f"{a.support.size:>9}{r.n_runs:>6}")
+                worst = max(worst or (total, ""), (total, f"{model} / {kind} / {crit}"))
+    if worst:
+        print(f"worst cell: {worst[1]}, {worst[0]:.2f} s (target: every cell < 10 s on one core)")
 
 
 if __name__ == "__main__":

@@ -49,7 +49,7 @@ _API = {
     "Stand": ("design", "Stand"),
     "DesignResult": ("design", "DesignResult"),
     "Discrimination": ("design", "Discrimination"),
-    "monte_carlo": ("design", "monte_carlo"),
+    "monte_carlo": ("validation.monte_carlo", "monte_carlo"),
 }
 
 

@@ -42,10 +42,10 @@ import argparse
 import numpy as np
 
 from hse_opt import units
-from hse_opt.design import (Costs, DesignSpace, Stand, design, evaluate, monte_carlo, paper_plan,
-                             plan_lines)
+from hse_opt.design import Costs, DesignSpace, Stand, design, evaluate, paper_plan, plan_lines
 from hse_opt.information import UnidentifiableError
 from hse_opt.sim import TruthConfig
+from hse_opt.validation.monte_carlo import monte_carlo
 
 PAPER, EXT = "hse", "hse,axis_bias,sync_delay"
 TARGETS = {"a": 0.70, "b": 0.55, "c": 0.05}

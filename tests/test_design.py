@@ -10,11 +10,11 @@ import pytest
 from hse_opt import units
 from hse_opt.data import Plan
 from hse_opt.design import (A, C, Costs, Criterion, D, DesignError, DesignSpace, Discrimination, E, Stand,
-                            apportion, approximate_design, as_criterion, design, evaluate, monte_carlo,
-                            paper_plan)
+                            apportion, approximate_design, as_criterion, design, evaluate, paper_plan)
 from hse_opt.fit import fit
 from hse_opt.information import UnidentifiableError, heading_sigma
 from hse_opt.model import Model
+from hse_opt.validation.monte_carlo import monte_carlo
 
 EXT = "hse,axis_bias,sync_delay"
 X = np.linspace(-1.0, 1.0, 21)
@@ -112,14 +112,13 @@ def test_kiefer_wolfowitz_on_the_cvxpy_solution(hse_rows):
 
 
 def test_the_certificate_bounds_the_true_efficiency():
-    from hse_opt.design import _Rows, _certificate, _directional
+    from hse_opt.design.approximate import certificate
+    from hse_opt.design.problem import Problem, Rows
     line = np.column_stack([np.ones_like(X), X])[None]
-    spec = _Rows(("a", "b"), None, [])
+    prob = Problem(D(), Rows(("a", "b"), None, []), line)
     w = np.full(X.size, 1.0 / X.size)  # uniform: det M = E[x^2] = 0.4 < 1 (the optimum)
-    crit = D()
     loss = -math.log(np.linalg.det(line[0].T @ (w[:, None] * line[0])))
-    h = -_directional(crit, line, spec, w)
-    bound = _certificate(crit, 2, loss, h, w, [], [], np.ones(X.size), 1.0, None)
+    bound = certificate(prob, loss, prob.lagrangian_gradient(w, []), w, [])
     true_eff = math.exp((0.0 - loss) / 2)
     assert 0.0 < bound <= true_eff + 1e-12 and true_eff < 0.7
 
@@ -127,20 +126,20 @@ def test_the_certificate_bounds_the_true_efficiency():
 # ------------------------------------------------------------ the three back ends
 @pytest.mark.parametrize("crit", [D(), A(), E(), C("b"), T()])
 def test_cvxpy_casadi_and_numpy_losses_agree(crit, rng):
-    from hse_opt.design import _CASADI, _Cvx, _Scaled
+    from hse_opt.design.criteria import CASADI, CvxOps, Scaled
     G = rng.normal(size=(7, 3))
     F = G.T @ G
     names = ("a", "b", "c")
     ref = crit.value(F, names)
-    ops = _Cvx()
+    ops = CvxOps()
     d = np.sqrt(np.diag(F))
-    expr = crit.loss(_Scaled(cp.Constant(F / np.outer(d, d)), d), ops, names)
+    expr = crit.loss(Scaled(cp.Constant(F / np.outer(d, d)), d), ops, names)
     prob = cp.Problem(cp.Minimize(expr), ops.constraints)
     prob.solve(solver="CLARABEL")
     assert prob.status == "optimal" and prob.value == pytest.approx(ref, rel=1e-6, abs=1e-8)
     if not isinstance(crit, E):
         import casadi as ca
-        assert float(crit.loss(ca.DM(F), _CASADI, names)) == pytest.approx(ref, rel=1e-10)
+        assert float(crit.loss(ca.DM(F), CASADI, names)) == pytest.approx(ref, rel=1e-10)
 
 
 @pytest.mark.parametrize("crit", [D(), A(), E(), C("b"), T()])
@@ -159,16 +158,16 @@ def test_gradients_match_finite_differences(crit, rng):
 
 def test_directional_derivatives_in_the_run_numbers_match_finite_differences(rng):
     # the equivalence-theorem certificate and the exchange screening use d loss / d w_i
-    from hse_opt.design import _directional, _mean_loss, _Rows
+    from hse_opt.design.problem import Rows, directional, mean_loss
     rows = rng.normal(size=(2, 12, 3))  # two prior draws, 12 candidates, 3 parameters
-    spec = _Rows(("a", "b", "c"), None, [])
+    spec = Rows(("a", "b", "c"), None, [])
     w = rng.uniform(0.5, 2.0, 12)
     for crit in (D(), A(), C("c"), E()):
-        g = _directional(crit, rows, spec, w)
+        g = directional(crit, rows, spec, w)
         for i in range(0, 12, 5):
             e = np.zeros(12)
             e[i] = 1e-6
-            fd = (_mean_loss(crit, rows, spec, w + e) - _mean_loss(crit, rows, spec, w - e)) / 2e-6
+            fd = (mean_loss(crit, rows, spec, w + e) - mean_loss(crit, rows, spec, w - e)) / 2e-6
             assert g[i] == pytest.approx(fd, rel=1e-5, abs=1e-9)
 
 
@@ -288,7 +287,7 @@ def test_robust_design_averages_the_criterion_over_the_prior_sample():
 
 def test_prior_information_from_a_fit():
     from hse_opt.data import Runs
-    from hse_opt.design import _prior
+    from hse_opt.design.problem import prior_information
     prior_plan = paper_plan()
     stand = Stand()
     mm = Model(["hse"]).measurement(True)
@@ -299,7 +298,7 @@ def test_prior_information_from_a_fit():
                 latitude=X_[4], duration=prior_plan.duration, t_start=prior_plan.t_start, pitch=X_[2], roll=X_[3],
                 heading_std=sig)
     res = fit(runs, "hse")
-    F = _prior(res, ("offset", "lambda2", "bias_z"))  # the fit's information, marginalised
+    F = prior_information(res, ("offset", "lambda2", "bias_z"))  # the fit's information, marginalised
     assert F[:2, :2] == pytest.approx(np.linalg.inv(res.covariance), rel=1e-9)
     assert np.all(F[2] == 0)
     kw = dict(budget=3 * 3600.0, space=DesignSpace(reverse=True))

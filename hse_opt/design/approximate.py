@@ -1,0 +1,326 @@
+"""The approximate design: the optimal (fractional) number of runs of every candidate.
+
+A convex program (cvxpy) over the runs ``w_i >= 0`` of the candidates, the alignment time linear
+(``sum w_i cost_i <= budget``, each time slot its share), solved by column generation over a
+growing active set. The general equivalence theorem certifies the solution over every
+candidate: the Frank-Wolfe gap of the Lagrangian bounds the loss of optimality
+(:attr:`ApproximateDesign.certified_efficiency`). Each conic solution is re-solved on its
+support with IPOPT (:func:`polish_weights`; conic solvers leave ~1e-4 in the weights).
+"""
+from __future__ import annotations
+
+import time
+import warnings
+from dataclasses import dataclass
+
+import casadi as ca
+import cvxpy as cp
+import numpy as np
+
+from ..information import UnidentifiableError
+from .criteria import CASADI, CvxOps, NotSmooth, Scaled, as_criterion
+from .problem import Problem, Rows
+from .space import Candidates, positive
+
+#: approximate-design weights below this fraction of the largest are solver noise
+SUPPORT_TOL = 1e-4
+SOLVERS = ("CLARABEL", "SCS")
+
+
+class DesignError(RuntimeError):
+    """A solver failed; the message carries its status."""
+
+
+@dataclass(frozen=True)
+class ApproximateDesign:
+    """The optimal approximate design over the candidates.
+
+    Attributes
+    ----------
+    candidates : Candidates
+    runs : numpy.ndarray, shape (n_candidates,)
+        Optimal (fractional) number of runs of each candidate.
+    loss : float
+        Criterion loss (mean over the prior sample).
+    status, solver : str
+        cvxpy's ``problem.status`` and the solver that reached it.
+    certified_efficiency : float
+        Lower bound on this design's efficiency against the true optimum over all
+        candidates, from the equivalence theorem (duality gap of the Lagrangian).
+    solve_time : float
+        s, including building the problems.
+    iterations : int
+        Column-generation rounds (each a convex program over the active candidates).
+    n_active : int
+        Candidates in the last convex program.
+    """
+
+    candidates: Candidates
+    runs: np.ndarray
+    loss: float
+    status: str
+    solver: str
+    certified_efficiency: float
+    solve_time: float
+    iterations: int = 1
+    n_active: int = 0
+
+    @property
+    def support(self):
+        """Indices of the candidates that carry runs."""
+        return np.flatnonzero(self.runs > SUPPORT_TOL * self.runs.max())
+
+
+def solve_approximate(prob, batch=128, polish=True):
+    """The approximate design of ``prob`` by column generation: convex programs over a
+    growing active set until the equivalence theorem certifies the solution over every
+    candidate (``polish``: each solution re-solved on its support by :func:`polish_weights`)."""
+    t0 = time.perf_counter()
+    n, slot = prob.n, prob.slot
+    active = _initial_active(prob)
+    for it in range(1, 100):
+        w_a, mus, status, used = _convex(prob.take(active))
+        w = np.zeros(n)
+        w[active] = w_a
+        loss, h, cert = certify(prob, w, mus)
+        polished = polish_weights(prob, w, loss) if polish else None
+        if polished is not None:
+            trial = certify(prob, *polished)
+            if trial[2] > cert:
+                (w, mus), (loss, h, cert) = polished, trial
+        if active.size == n or cert >= 1 - 1e-7:
+            break
+        # a candidate enters when spending its slot's share of the budget on it beats the slot's runs
+        value = h * np.minimum(prob.budget / prob.cost / prob.n_slots,
+                               np.inf if prob.max_runs is None else prob.max_runs)
+        now = np.bincount(slot, h * w, minlength=prob.n_slots)[slot]
+        order = np.argsort(-(value - now), kind="stable")
+        new = order[(value[order] > now[order] + 1e-9 * abs(now[order])) & ~np.isin(order, active)][:batch]
+        if new.size == 0:
+            break
+        active = np.union1d(active, new)
+    if status != cp.OPTIMAL and not cert >= 0.99:  # an inaccurate solve is judged by its certificate
+        raise DesignError(f"the approximate design's convex program ended {status} ({used}) with a "
+                          f"certified efficiency of only {cert:.4g}")
+    return ApproximateDesign(prob.candidates, w, loss, status, used, cert, time.perf_counter() - t0, it,
+                             int(active.size))
+
+
+def certify(prob, w, mus):
+    """Loss, Lagrangian gradient and certified efficiency of the weights ``w``."""
+    loss = prob.loss(w)
+    h = prob.lagrangian_gradient(w, mus)
+    return loss, h, certificate(prob, loss, h, w, mus)
+
+
+def polish_weights(prob, w, loss0):
+    """The convex program re-solved by IPOPT (CasADi) on the conic solution's support.
+
+    Interior-point conic solvers stop at about 1e-8 in the objective; the loss is flat at the
+    optimum, so that leaves about 1e-4 in the weights and small weights spread over
+    near-optimal candidates, which then differ from one solver build to the next. The smooth
+    problem on the support (the same loss, time budget per slot, run limit and guards) is
+    solved to 1e-12 (``loss0``: the loss at ``w``, the objective's scale). Returns
+    ``(weights, guard multipliers)``, or None when the criterion has no smooth form or IPOPT
+    fails (the caller keeps whichever the certificate prefers)."""
+    crit, spec, cost, slot, max_runs = prob.criterion, prob.spec, prob.cost, prob.slot, prob.max_runs
+    sup = np.flatnonzero(w > 1e-6 * w.max())
+    m, n_slots = sup.size, prob.n_slots
+    u = ca.MX.sym("u", m)  # runs of each support candidate
+
+    def mean_loss_of(r, sp, fun):
+        total = 0
+        for s in range(r.shape[0]):
+            a = ca.DM(r[s][sup])
+            total = total + fun(ca.DM(sp.prior) + ca.mtimes(a.T, a * ca.repmat(u, 1, sp.k)))
+        return total / r.shape[0]
+
+    try:
+        f = mean_loss_of(prob.rows, spec, lambda F: crit.loss(F, CASADI, spec.names))
+    except NotSmooth:
+        return None
+    scale = max(1.0, abs(loss0)) if crit.degree == 0 else abs(loss0)
+    if not (np.isfinite(loss0) and scale > 0):
+        return None
+    S = np.zeros((n_slots, m))
+    S[slot[sup], np.arange(m)] = cost[sup]
+    lin = [S] + ([np.ones((1, m))] if max_runs is not None else [])
+    ub = [np.full(n_slots, prob.budget / n_slots)] + ([[max_runs]] if max_runs is not None else [])
+    g = ([ca.mtimes(ca.DM(np.vstack(lin)), u)]
+         + [mean_loss_of(gd.rows, gd.spec, CASADI.log_det) for gd in prob.guards])
+    solver = ca.nlpsol("weights", "ipopt", {"x": u, "f": (f - loss0) / scale, "g": ca.vertcat(*g)}, {
+        "ipopt.print_level": 0, "print_time": 0, "ipopt.sb": "yes", "ipopt.max_iter": 200,
+        "ipopt.tol": 1e-12, "ipopt.bound_push": 1e-12, "ipopt.bound_frac": 1e-12, "ipopt.mu_init": 1e-8})
+    n_lin = n_slots + len(lin) - 1
+    sol = solver(x0=w[sup], lbx=0.0, ubx=np.inf,
+                 lbg=np.concatenate([np.full(n_lin, -np.inf), [gd.bound for gd in prob.guards]]),
+                 ubg=np.concatenate([np.concatenate(ub), np.full(len(prob.guards), np.inf)]))
+    if not solver.stats()["success"]:
+        return None
+    out = np.zeros_like(w)
+    out[sup] = np.clip(np.array(sol["x"]).ravel(), 0.0, None)
+    lam = np.array(sol["lam_g"]).ravel()[n_lin:]
+    return out, [max(0.0, -float(v) * scale) for v in lam]
+
+
+def _initial_active(prob, size=256):
+    """A strided subset of the candidates plus the extremes of every feature column."""
+    n = prob.n
+    if n <= 2 * size:
+        return np.arange(n)
+    picks = [np.linspace(0, n - 1, size).astype(int)]
+    for r in [prob.rows, *[g.rows for g in prob.guards]]:
+        z = r / np.sqrt(prob.cost)[None, :, None]
+        picks += [np.argmax(z, axis=1).ravel(), np.argmin(z, axis=1).ravel()]
+    return np.unique(np.concatenate(picks))
+
+
+def _convex(prob):
+    """One convex program (cvxpy): returns run numbers, guard duals, status, solver."""
+    n, slot, n_slots = prob.n, prob.slot, prob.n_slots
+    scale = prob.budget / prob.cost  # runs per unit budget fraction
+    u = cp.Variable(n, nonneg=True)  # fraction of the alignment-time budget per candidate
+    if n_slots == 1:
+        cons = [cp.sum(u) <= 1]
+    else:  # each time slot its share of the budget
+        S = np.zeros((n_slots, n))
+        S[slot, np.arange(n)] = 1.0
+        cons = [S @ u <= 1.0 / n_slots]
+    if prob.max_runs is not None:
+        cons.append(scale @ u <= prob.max_runs)
+
+    def info(r, sp):
+        out = []
+        for s in range(r.shape[0]):
+            # column scales: the information of spending the whole budget evenly
+            d = np.sqrt(np.mean(r[s] ** 2 * scale[:, None], axis=0) + np.diag(sp.prior) / n)
+            blind = [nm for nm, v in zip(sp.names, d) if not v > 0]
+            if blind:
+                raise UnidentifiableError(f"no candidate run carries information on {', '.join(blind)}", blind)
+            rs = r[s] / d[None, :]
+            Q = np.einsum("ni,nj->ijn", rs, rs).reshape(sp.k * sp.k, n) * scale[None, :]
+            F = cp.reshape(Q @ u, (sp.k, sp.k), order="C") + sp.prior / np.outer(d, d)
+            out.append(Scaled((F + F.T) / 2, d))
+        return out
+
+    ops, spec = CvxOps(), prob.spec
+    objective = sum(prob.criterion.loss(F, ops, spec.names) for F in info(prob.rows, spec)) / prob.rows.shape[0]
+    guard_cons = [sum(ops.log_det(F) for F in info(g.rows, g.spec)) / g.rows.shape[0] >= g.bound
+                  for g in prob.guards]
+    problem = cp.Problem(cp.Minimize(objective), cons + ops.constraints + guard_cons)
+    status, used = _solve(problem, prob.solver)
+    mus = [max(0.0, float(c.dual_value)) if c.dual_value is not None else 0.0 for c in guard_cons]
+    return np.clip(u.value, 0.0, None) * scale, mus, status, used
+
+
+def _solve(problem, solver):
+    """Solve with the first solver that reaches ``optimal``; else the first
+    ``optimal_inaccurate`` (its certificate decides, in :func:`solve_approximate`); else raise
+    with every status."""
+    tried, inaccurate = [], None
+    for name in ((solver,) if solver else SOLVERS):
+        try:
+            with warnings.catch_warnings():  # an inaccurate solution is judged by its certificate
+                warnings.simplefilter("ignore", UserWarning)
+                _run_solver(problem, name)
+        except cp.error.SolverError as err:
+            tried.append(f"{name}: solver error ({str(err).splitlines()[0]})")
+            continue
+        if problem.status == cp.OPTIMAL:
+            return problem.status, name
+        tried.append(f"{name}: status {problem.status}")
+        if problem.status == cp.OPTIMAL_INACCURATE and inaccurate is None:
+            inaccurate = (problem.status, name, [v.value for v in problem.variables()],
+                          [c.dual_value for c in problem.constraints])
+    if inaccurate is not None:  # put the first inaccurate solution back
+        for v, val in zip(problem.variables(), inaccurate[2]):
+            v.value = val
+        for c, val in zip(problem.constraints, inaccurate[3]):
+            if val is not None:
+                c.dual_variables[0].value = val
+        return inaccurate[0], inaccurate[1]
+    raise DesignError("the approximate design's convex program was not solved: " + "; ".join(tried))
+
+
+def _run_solver(problem, name):
+    if name == "SCS":
+        problem.solve(solver=name, eps_abs=1e-8, eps_rel=1e-8, max_iters=20000)  # a fallback: seconds, not minutes
+    elif name == "CLARABEL":  # the chordal split of the small dense cones costs accuracy
+        problem.solve(solver=name, chordal_decomposition_enable=False)
+    else:
+        problem.solve(solver=name)
+
+
+def certificate(prob, loss, h, w, mus):
+    """Efficiency lower bound of ``w`` from weak duality: the optimum is at most the
+    Lagrangian's maximum over the feasible set, itself at most its value at ``w`` plus the
+    Frank-Wolfe gap (a concave function lies below its tangent)."""
+    cost, slot, n_slots, budget, max_runs = prob.cost, prob.slot, prob.n_slots, prob.budget, prob.max_runs
+    if max_runs is None:
+        per_slot = np.full(n_slots, -np.inf)
+        np.maximum.at(per_slot, slot, h / cost)
+        best = float(np.sum(np.maximum(per_slot, 0.0)) * budget / n_slots)
+    else:
+        from scipy.optimize import linprog
+        S = np.zeros((n_slots, cost.size))
+        S[slot, np.arange(cost.size)] = cost
+        res = linprog(-h, A_ub=np.vstack([S, np.ones_like(cost)]),
+                      b_ub=[budget / n_slots] * n_slots + [max_runs], bounds=(0, None), method="highs")
+        if res.status != 0:
+            raise DesignError(f"equivalence-theorem bound: linprog status {res.status} ({res.message})")
+        best = float(-res.fun)
+    gap = max(0.0, best - float(h @ w))
+    gap += sum(mu * max(0.0, g.log_det(w) - g.bound) for g, mu in zip(prob.guards, mus))
+    crit, k = prob.criterion, prob.spec.k
+    if crit.degree == 0:
+        return float(np.exp(-gap / k))
+    if crit.degree < 0:
+        return float(max(0.0, 1.0 - gap / loss))
+    return float(abs(loss) / (abs(loss) + gap)) if loss < 0 else 0.0
+
+
+def approximate_design(features, criterion="D", *, cost=None, budget=1.0, max_runs=None, names=None,
+                       prior=None, solver=None):
+    """The optimal approximate design for any linear(ised) model: the convex program of
+    :func:`design` on given information rows.
+
+    Parameters
+    ----------
+    features : array_like, shape (n, k) or (S, n, k)
+        Row ``a_i`` of each candidate (``a_i a_i^T`` is one run's information), or one set
+        per prior draw (the criterion is averaged over them).
+    criterion : Criterion or str
+    cost : array_like, shape (n,), optional
+        Cost of one run of each candidate (default 1).
+    budget : float
+        ``sum_i w_i cost_i <= budget``.
+    max_runs : float, optional
+        ``sum_i w_i <= max_runs``.
+    names : sequence of str, optional
+        Column names (default ``p0, p1, ...``), for ``c:NAME``.
+    prior : numpy.ndarray, shape (k, k), optional
+        Information added to every design.
+    solver : str, optional
+
+    Returns
+    -------
+    ApproximateDesign
+        ``runs`` is the optimal number of runs of each candidate (``candidates`` is None).
+    """
+    rows = np.asarray(features, dtype=float)
+    if rows.ndim == 2:
+        rows = rows[None]
+    if rows.ndim != 3 or rows.shape[1] < 1 or rows.shape[2] < 1 or not np.all(np.isfinite(rows)):
+        raise ValueError(f"features has shape {np.shape(features)}; allowed: (n, k) or (S, n, k) finite "
+                         "numbers")
+    n, k = rows.shape[1:]
+    cost = np.ones(n) if cost is None else np.asarray(cost, dtype=float)
+    if cost.shape != (n,) or np.any(~np.isfinite(cost)) or np.any(cost <= 0):
+        raise ValueError(f"cost: allowed ({n},) positive numbers")
+    names = tuple(names) if names is not None else tuple(f"p{i}" for i in range(k))
+    if len(names) != k:
+        raise ValueError(f"names: {len(names)} given for {k} feature columns")
+    prob = Problem(as_criterion(criterion), Rows(names, None, [], prior), rows, cost=cost,
+                   budget=positive("budget", budget), max_runs=max_runs, solver=solver)
+    return solve_approximate(prob)
+

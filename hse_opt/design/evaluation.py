@@ -1,0 +1,148 @@
+"""Evaluation: what a plan predicts for a model -- each parameter's sigma, their correlations,
+the criterion's loss and the bias a slow linear heading drift (1 arcsec/h) puts on each."""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from .. import units
+from ..data import Plan
+from ..fit import as_model
+from ..information import analyse, separation_advice, weighted_jacobian
+from .criteria import as_criterion
+from .problem import criterion_rows, mean_loss, own, prior_information
+from .space import Stand
+
+#: a heading drift of this size (rad/s) is the unit of the reported drift bias: 1 arcsec/h
+DRIFT_UNIT = units.ARCSEC / units.HOUR
+
+
+@dataclass(frozen=True)
+class Evaluation:
+    """What a plan predicts for a model.
+
+    Attributes
+    ----------
+    criterion : str
+    criterion_value : float
+        The criterion's loss for this plan (nan when no criterion was given).
+    effects : tuple of str
+    tilt_known : bool
+    names, units : tuple of str
+    std : numpy.ndarray, shape (n_p,)
+        Predicted standard deviations, display units.
+    covariance, correlation : numpy.ndarray, shape (n_p, n_p)
+    condition : float
+    n_runs : int
+    total_time : float
+        End of the last alignment since power-on, s.
+    drift_bias : numpy.ndarray, shape (n_p,)
+        Bias of each estimate from a linear heading drift of 1 arcsec/h, display units.
+    """
+
+    criterion: str
+    criterion_value: float
+    effects: tuple
+    tilt_known: bool
+    names: tuple
+    units: tuple
+    std: np.ndarray
+    covariance: np.ndarray
+    correlation: np.ndarray
+    condition: float
+    n_runs: int
+    total_time: float
+    drift_bias: np.ndarray
+
+    def std_of(self, name):
+        """Predicted standard deviation of one parameter, display units."""
+        if name not in self.names:
+            raise ValueError(f"unknown parameter {name!r}; this model has: {', '.join(self.names)}")
+        return float(self.std[self.names.index(name)])
+
+    def to_dict(self):
+        """The JSON form (DESIGN.md contract keys, and more)."""
+        return {
+            "criterion": self.criterion,
+            "criterion_value": float(self.criterion_value) if np.isfinite(self.criterion_value) else None,
+            "effects": list(self.effects),
+            "tilt_known": self.tilt_known,
+            "n_runs": self.n_runs,
+            "total_time_h": self.total_time / units.HOUR,
+            "predicted_std": {n: {"value": float(s), "unit": u}
+                              for n, s, u in zip(self.names, self.std, self.units)},
+            "drift_bias_per_arcsec_per_h": {n: {"value": float(b), "unit": u}
+                                            for n, b, u in zip(self.names, self.drift_bias, self.units)},
+            "condition": float(self.condition),
+            "correlation": self.correlation.tolist(),
+        }
+
+    def summary(self):
+        """Report lines."""
+        lines = [f"model {'+'.join(self.effects)} (tilt {'known' if self.tilt_known else 'unknown'}): "
+                 f"{self.n_runs} runs, {self.total_time / units.HOUR:.3f} h from power-on to the last run's "
+                 "end",
+                 f"  {'parameter':<20}{'predicted sigma':>22}{'bias per arcsec/h drift':>28}"]
+        for n, s, b, u in zip(self.names, self.std, self.drift_bias, self.units):
+            b = 0.0 if abs(b) < 1e-9 * s else b  # rounding of a trend-free order
+            lines.append(f"  {n:<20}{s:>14.4g} {u:<7}{b:>+20.3g} {u}")
+        return lines
+
+
+
+def evaluate(plan, model=None, *, stand=None, tilt_known=True, criterion=None, nominal=None, prior=None):
+    """Predicted sigmas of a plan for a model.
+
+    Parameters
+    ----------
+    plan : hse_opt.data.Plan
+    model : Model, str or sequence of str, optional
+        Default: the paper's model.
+    stand : Stand, optional
+    tilt_known : bool
+    criterion : Criterion or str, optional
+        Also report this criterion's loss.
+    nominal : mapping name -> value, optional
+        Values (display units) at which the model is linearised.
+    prior : FitResult, Prior or numpy.ndarray, optional
+        Prior information (see :func:`design`).
+
+    Returns
+    -------
+    Evaluation
+
+    Raises
+    ------
+    UnidentifiableError
+        The plan cannot identify the model; the parameters are named, with runs that would
+        separate them.
+    """
+    model = as_model(model)
+    stand = stand or Stand()
+    if not isinstance(plan, Plan):
+        raise TypeError(f"expected a hse_opt.data.Plan, got {type(plan).__name__}")
+    tx, ty = (plan.tilt_x, plan.tilt_y) if plan.tilt_x is not None else (0.0, 0.0)
+    if not tilt_known and np.any(np.asarray(tx) != 0) | np.any(np.asarray(ty) != 0):
+        raise ValueError(f"{plan.source}: columns tilt_x_arcsec/tilt_y_arcsec vary the tilt, but with the tilt "
+                         "unknown the model assumes one tilt fixed in b0; allowed: tilt_known=True")
+    mm = model.measurement(tilt_known)
+    X = stand.inputs(mm, plan.rate, plan.azimuth, tx, ty, plan.duration, plan.t_start)
+    sigma = stand.sigma(plan.duration)
+    p = mm.vector(own(nominal or {}, mm))
+    Aw = weighted_jacobian(mm.jacobian(p, X), sigma, mm.scale)
+    F0 = prior_information(prior, mm.names)
+
+    info = analyse(Aw.T @ Aw + (0 if F0 is None else F0), mm.names, [q.unit for q in mm.params],
+                   advice=lambda d: separation_advice(mm, p, X, np.ones(len(mm.names), bool), d))
+    mid = plan.t_start + plan.duration / 2
+    bias = info.covariance @ (Aw.T @ ((mid - mid.mean()) * DRIFT_UNIT / sigma))
+    label, value = "", float("nan")
+    if criterion is not None:
+        crit = as_criterion(criterion)
+        spec = criterion_rows(crit, model, tilt_known, [dict(nominal or {})], F0)
+        label, value = crit.label, mean_loss(crit, spec.numeric(X, sigma), spec, np.ones(plan.run.size))
+    return Evaluation(label, value, model.effect_names, bool(tilt_known), mm.names, info.units, info.std,
+                      info.covariance, info.correlation, info.condition, int(plan.run.size),
+                      float(np.max(plan.t_start + plan.duration)), bias)
+

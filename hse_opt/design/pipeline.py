@@ -1,0 +1,315 @@
+"""Orchestration: :func:`design` runs the steps -- candidates, approximate design, rounding,
+pruning, refinement, run order, evaluation -- and returns a :class:`DesignResult`."""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from .. import units
+from ..data import Plan
+from ..fit import as_model
+from ..information import UnidentifiableError, check_identifiable
+from ..model.measurement import Model
+from .approximate import ApproximateDesign, solve_approximate
+from .criteria import C, D, NotSmooth, as_criterion, unit_vector
+from .evaluation import Evaluation, evaluate
+from .order import pick_order
+from .problem import Guard, Problem, criterion_rows, model_rows, prior_information, samples_of
+from .refine import refine as refine_plan
+from .rounding import prune as prune_plan
+from .rounding import round_design
+from .space import Costs, DesignSpace, Stand, positive
+
+
+@dataclass(frozen=True)
+class DesignResult:
+    """An optimised plan and what it achieves.
+
+    Attributes
+    ----------
+    plan : hse_opt.data.Plan
+        In execution order, with ``t_start`` from the costs.
+    evaluation : Evaluation
+        Predicted sigmas and drift biases of the plan (at its start times).
+    criterion : str
+    efficiency : float
+        Against the approximate optimum for the plan's alignment time (rounding, then
+        refinement: above 1 when refinement gains more off the candidate grid than the
+        rounding lost).
+    rounding_efficiency : float
+        The same before refinement: the rounding alone.
+    budget_efficiency : float
+        Against the approximate optimum for the whole budget (time spent on setups counts
+        as lost).
+    approximate : ApproximateDesign
+        The setup-free optimum over the candidates.
+    setup_time, alignment_time : float
+        s: warm-up and changes; alignments and per-run overheads.
+    refinement : str
+        IPOPT's return status, or why there was none.
+    guards : tuple of dict
+        Models the plan must also identify: ``effects``, ``d_efficiency`` (against their own
+        D-optimal approximate design), ``min_efficiency``, ``std`` (name -> predicted sigma).
+    notes : tuple of str
+    """
+
+    plan: Plan
+    evaluation: Evaluation
+    criterion: str
+    efficiency: float
+    rounding_efficiency: float
+    budget_efficiency: float
+    approximate: ApproximateDesign
+    setup_time: float
+    alignment_time: float
+    refinement: str
+    guards: tuple = ()
+    notes: tuple = ()
+
+    @property
+    def n_runs(self):
+        return int(self.plan.run.size)
+
+    @property
+    def total_time(self):
+        return self.evaluation.total_time
+
+    def std_of(self, name):
+        """Predicted standard deviation of one parameter, display units."""
+        return self.evaluation.std_of(name)
+
+    def to_dict(self):
+        """The JSON form (DESIGN.md contract keys, and more)."""
+        a = self.approximate
+        out = self.evaluation.to_dict()
+        out.update({
+            "criterion": self.criterion, "efficiency": float(self.efficiency),
+            "rounding_efficiency": float(self.rounding_efficiency),
+            "budget_efficiency": float(self.budget_efficiency),
+            "approximate": {"status": a.status, "solver": a.solver, "n_candidates": int(a.runs.size),
+                            "support": int(a.support.size), "iterations": a.iterations, "n_active": a.n_active,
+                            "certified_efficiency": float(a.certified_efficiency),
+                            "solve_time_s": a.solve_time},
+            "setup_time_h": self.setup_time / units.HOUR, "alignment_time_h": self.alignment_time / units.HOUR,
+            "refinement": self.refinement, "guards": [dict(g) for g in self.guards], "notes": list(self.notes),
+        })
+        return out
+
+    def summary(self):
+        """Report lines."""
+        a = self.approximate
+        hours = lambda t: f"{t / units.HOUR:.3f} h"  # noqa: E731
+        lines = [f"criterion {self.criterion}: {self.n_runs} runs in {hours(self.total_time)} (setups "
+                 f"{hours(self.setup_time)}, alignments {hours(self.alignment_time)})",
+                 f"approximate design: {a.runs.size} candidates ({a.n_active} active after {a.iterations} "
+                 f"round(s)), {a.support.size} in the support, {a.solver} {a.status} in {a.solve_time:.2f} s, "
+                 f"certified efficiency >= {a.certified_efficiency:.6f}",
+                 f"exact design: efficiency {self.efficiency:.4f} against the approximate optimum for the same "
+                 f"alignment time (rounding alone {self.rounding_efficiency:.4f}; refinement {self.refinement}); "
+                 f"{self.budget_efficiency:.4f} against the whole budget"]
+        lines += self.evaluation.summary()
+        for g in self.guards:
+            lines.append(f"also identifies {'+'.join(g['effects'])}: D-efficiency {g['d_efficiency']:.3f} "
+                         f"(at least {g['min_efficiency']:.3f} required)")
+        return lines + [f"note: {n}" for n in self.notes]
+
+
+def design(model=None, criterion="c:lambda2", *, budget, space=None, stand=None, costs=None,
+           max_runs=None, tilt_known=True, nominal=None, prior_sample=None, prior=None,
+           identify=None, identify_efficiency=0.25, prune=True, refine=True,
+           order="trend-robust", rng=None, solver=None):
+    """The test plan that minimises ``criterion`` within the stand-time ``budget``.
+
+    Parameters
+    ----------
+    model : Model, str or sequence of str, optional
+        Default: the paper's model (``hse``).
+    criterion : Criterion or str
+        ``'D'``, ``'A'``, ``'E'``, ``'c:NAME'`` or a :class:`Criterion` (e.g.
+        :class:`Discrimination`). Default ``c:lambda2``, the paper's goal. A and E depend on
+        the parameters' display units.
+    budget : float
+        Total test time, s, from power-on to the end of the last alignment.
+    space : DesignSpace, optional
+    stand : Stand, optional
+    costs : Costs, optional
+    max_runs : int, optional
+    tilt_known : bool
+        Pitch/roll from the alignments' leveling (see the module docstring).
+    nominal : mapping name -> value, optional
+        Display-unit values at which the model is linearised (nonlinear parameters).
+    prior_sample : mapping name -> array, optional
+        Draws (display units, equal numbers) over which the criterion is averaged: a design
+        robust to the nonlinear parameters.
+    prior : FitResult, Prior or numpy.ndarray, optional
+        Prior information from an earlier calibration (a FitResult or
+        :class:`~hse_opt.information.Prior`; or a Fisher matrix in the model's order).
+    identify : Model, str or sequence, optional
+        Models the plan must also identify (a list of effect names is one model; a list of
+        models or ``"a,b"`` strings is several), each with a D-efficiency of at least
+        ``identify_efficiency`` against its own D-optimal approximate design. Default: the
+        design model itself when the criterion may leave it unidentifiable (c, T).
+    identify_efficiency : float
+        In (0, 1).
+    prune : bool
+        Setup-aware search: drop stand positions (time slot, tilt, azimuth) of the
+        approximate design one at a time, re-solving on the rest, while the rounded plan --
+        which has more time for runs with fewer setups -- gets better.
+    refine : bool
+        Move rates and azimuths off the candidate grid with IPOPT.
+    order : {'trend-robust', 'min-setup'}
+    rng : numpy.random.Generator, optional
+        For the run-order search (default: seeded, reproducible).
+    solver : str, optional
+        cvxpy solver (default: Clarabel, then SCS).
+
+    Returns
+    -------
+    DesignResult
+
+    Raises
+    ------
+    ValueError
+        Bad arguments (named), or a budget too small for the model
+        (:class:`~hse_opt.information.UnidentifiableError` names the parameters).
+    DesignError
+        A solver failed (its status is in the message).
+    """
+    model, crit = as_model(model), as_criterion(criterion)
+    space, stand, costs = space or DesignSpace(), stand or Stand(), costs or Costs()
+    rng = rng if rng is not None else np.random.default_rng(0)
+    budget = positive("budget (s)", budget)
+    if order not in ("trend-robust", "min-setup"):
+        raise ValueError(f"order = {order!r}; allowed: 'trend-robust', 'min-setup'")
+    if max_runs is not None and (isinstance(max_runs, bool) or int(max_runs) != max_runs or max_runs < 1):
+        raise ValueError(f"max_runs = {max_runs!r}; allowed: an integer >= 1")
+    if not 0 < identify_efficiency < 1:
+        raise ValueError(f"identify_efficiency = {identify_efficiency!r}; allowed: 0 < value < 1")
+    if not tilt_known and space.max_tilt > 0:
+        raise ValueError("a tilt fixture (max_tilt > 0) needs tilt_known=True: with the tilt unknown the model "
+                         "assumes one tilt fixed in b0 for every run")
+    guard_models = _guard_models(identify, model, crit)
+    for m in (model, *guard_models):
+        if m.covariates:
+            raise ValueError(f"effects {[e.name for e in m.effects if hasattr(e, 'column')]} follow recorded "
+                             "covariates, which a plan cannot set; allowed: effects without covariates")
+    samples = samples_of(nominal, prior_sample)
+    known = {q.name for m in (model, *guard_models) for q in m.measurement(tilt_known).params}
+    unknown = sorted(set().union(*samples) - known)
+    if unknown:
+        raise ValueError(f"nominal/prior_sample: {unknown} are not parameters of the model(s); allowed: "
+                         f"{', '.join(sorted(known))}")
+    B = budget - costs.warmup
+    cand = space.candidates(costs.warmup, B)
+    cost = cand.duration + costs.run_overhead
+    if B < cost.min():
+        raise ValueError(f"budget {budget / units.HOUR:.4g} h leaves no time for one alignment after the "
+                         f"warm-up of {costs.warmup:g} s; allowed: budget > warm-up + one run")
+    mm = model.measurement(tilt_known)
+    X = cand.inputs(mm, stand)
+    sigma = stand.sigma(cand.duration)
+    spec = criterion_rows(crit, model, tilt_known, samples, prior_information(prior, mm.names))
+    if isinstance(crit, C):
+        unit_vector(spec.names, crit.name)
+    rows = spec.numeric(X, sigma)
+    _check_candidates(rows, spec, space, model)
+    base = dict(cost=cost, budget=B, max_runs=max_runs, slot=cand.slot, n_slots=int(space.time_slots),
+                candidates=cand, costs=costs, solver=solver)
+
+    guards = []
+    for gm in guard_models:
+        gmm = gm.measurement(tilt_known)
+        gspec = model_rows(gmm, samples, prior_information(prior, gmm.names))
+        grows = gspec.numeric(X, sigma)
+        _check_candidates(grows, gspec, space, gm)
+        dopt = solve_approximate(Problem(D(), gspec, grows, **base))
+        guards.append(Guard(gm, gspec, grows, -dopt.loss + gspec.k * np.log(identify_efficiency), dopt.loss))
+
+    prob = Problem(crit, spec, rows, tuple(guards), **base)
+    approx = solve_approximate(prob)
+    notes = []
+    if approx.certified_efficiency < 0.999:
+        notes.append(f"the approximate design is certified only to efficiency "
+                     f"{approx.certified_efficiency:.4f}")
+    exact = round_design(prob, approx.runs)
+    if prune:
+        exact = prune_plan(prob, approx.runs, exact)
+    if not np.isfinite(exact.loss):
+        raise UnidentifiableError(f"{int(exact.counts.sum())} whole runs within the budget cannot identify "
+                                  f"the model for criterion {crit.label}", spec.names)
+
+    # the approximate optimum for the exact plan's alignment time
+    t_align = float(exact.counts @ (exact.settings.duration + costs.run_overhead))
+    if prior is None and max_runs is None:
+        loss_same = prob.loss(approx.runs * t_align / B)
+    else:
+        loss_same = solve_approximate(prob.with_budget(t_align)).loss
+    rounding_eff = crit.efficiency(exact.loss, loss_same, spec.k)
+
+    status = "off"
+    if refine:
+        try:
+            status = refine_plan(prob, exact, stand, mm, space)
+        except NotSmooth as err:
+            status = f"none: criterion {crit.label} is not smooth ({err})"
+    efficiency = crit.efficiency(exact.loss, loss_same, spec.k)
+    budget_eff = crit.efficiency(exact.loss, approx.loss, spec.k)
+
+    seq = pick_order(exact, prob, stand, order, rng)
+    s = exact.settings.take(seq)
+    fixture = space.max_tilt > 0
+    plan = Plan(run=np.arange(1, seq.size + 1), rate=s.rate, azimuth=np.mod(s.azimuth, 2 * np.pi),
+                t_start=costs.schedule(s.rate, s.azimuth, s.tilt_x, s.tilt_y, s.duration, s.not_before),
+                duration=s.duration,
+                tilt_x=s.tilt_x if fixture else None, tilt_y=s.tilt_y if fixture else None)
+    evaluation = evaluate(plan, model, stand=stand, tilt_known=tilt_known, criterion=crit, nominal=nominal,
+                          prior=prior)
+    guard_out = []
+    for g in guards:
+        g_plan = g.at(g.spec.numeric(s.inputs(mm, stand), stand.sigma(s.duration)))
+        try:
+            ev = evaluate(plan, g.model, stand=stand, tilt_known=tilt_known, nominal=nominal, prior=prior)
+            std = {nm: float(v) for nm, v in zip(ev.names, ev.std)}
+        except UnidentifiableError as err:
+            std = {}
+            notes.append(f"the plan does not identify {'+'.join(g.model.effect_names)}: {err}")
+        guard_out.append({"effects": list(g.model.effect_names), "min_efficiency": float(identify_efficiency),
+                          "d_efficiency": float(np.exp((g.d_opt + g_plan.log_det(np.ones(seq.size)))
+                                                       / g.spec.k)),
+                          "std": std})
+    return DesignResult(plan, evaluation, crit.label, efficiency, rounding_eff, budget_eff, approx,
+                        float(costs.setups(s.rate, s.azimuth, s.tilt_x, s.tilt_y).sum()),
+                        float(np.sum(s.duration + costs.run_overhead)), status, tuple(guard_out), tuple(notes))
+
+
+def _check_candidates(rows, spec, space, model):
+    """Raise :class:`~hse_opt.information.UnidentifiableError` when even every candidate run
+    together cannot identify the model: then no plan from this design space can."""
+    for r in rows:
+        try:
+            check_identifiable(spec.prior + np.einsum("ni,nj->ij", r, r) / r.shape[0], spec.names)
+        except UnidentifiableError as err:
+            timed = [e.name for e in model.effects if e.level == "thermal"]
+            hint = (f" Time since power-on is not a factor of this design space (time_slots=1), and "
+                    f"{', '.join(timed)} changes with it: allowed time_slots >= 2 (DesignSpace(time_slots=N); "
+                    f"hse-opt design --time-slots N)."
+                    if timed and space.time_slots == 1 else "")
+            curved = [n for e in model.effects for n in e.nonlinear if n in err.names]
+            if curved:
+                hint += (f" {', '.join(curved)} {'enters' if len(curved) == 1 else 'enter'} the model nonlinearly "
+                         f"and the design linearises at the nominal values, where the heading may not depend on "
+                         f"{'it' if len(curved) == 1 else 'them'}: give values where it does "
+                         f"(nominal={{...}}; hse-opt design --nominal NAME=VALUE, e.g. a warm-up amplitude).")
+            raise UnidentifiableError(f"no plan from these candidate runs can identify the model: "
+                                      f"{str(err).rstrip('.')}.{hint}", err.names) from None
+
+
+def _guard_models(identify, model, crit):
+    if identify is None:
+        return [model] if crit.needs_guard else []
+    items = [identify] if isinstance(identify, (Model, str)) else list(identify)
+    if items and all(isinstance(i, str) and "," not in i for i in items) and len(items) > 1:
+        return [as_model(items)]  # a list of effect names is one model
+    return [as_model(i) for i in items]
+
