@@ -31,8 +31,9 @@ Units
 __version__ = "0.1.0"
 
 # -- public API (calibration: issue 4) --------------------------------------------------------
-from .fit import (Constraint, FitResult, SolverError, compensate, compensation, fit,  # noqa: E402
-                  load_fit, save_fit)
+from .compensation import compensate, compensation  # noqa: E402
+from .fit import Constraint, FitResult, SolverError, fit  # noqa: E402
+from .fit_file import load_fit, save_fit  # noqa: E402
 from .information import Prior, UnidentifiableError, heading_sigma  # noqa: E402
 from .paper_procedure import PaperCalibration, compensate_eq14, paper_procedure  # noqa: E402
 

@@ -48,7 +48,7 @@ from .data import Plan, Runs, write_text_atomic
 from .fit import fit as fit_runs
 from .information import heading_sigma
 from .model.effects import CATALOGUE
-from .model.measurement import Model
+from .model.composition import Model
 
 __all__ = ["DemoResult", "HiddenEffect", "NextPlan", "run_demo", "demo_truth", "demo_plan",
            "hidden_effect", "showable", "design_next", "report_sections", "write_outputs",

@@ -64,10 +64,10 @@ from scipy import optimize, stats
 
 from . import units
 from .data import Plan, Runs
-from .fit import FitResult, as_model, fit, replicate_groups
+from .fit import FitResult, fit, replicate_groups
 from .information import (MAX_CONDITION, UnidentifiableError, check_identifiable, heading_sigma,
                           weighted_jacobian)
-from .model import CATALOGUE, effect as make_effect
+from .model import CATALOGUE, as_model, effect as make_effect
 
 __all__ = ["ALPHA", "Candidate", "Comparison", "Diagnosis", "Term", "Test", "compare", "diagnose",
            "diagnostic_plan", "discriminating_runs", "model_runs", "refine"]

@@ -19,7 +19,8 @@ from dataclasses import dataclass
 import numpy as np
 
 from . import units
-from .fit import COMPENSATED_COLUMN, COMPENSATION_STD_COLUMN, run_sigma
+from .compensation import COMPENSATED_COLUMN, COMPENSATION_STD_COLUMN
+from .fit.weights import run_sigma
 from .model import closed_form as cf
 
 __all__ = ["PaperCalibration", "paper_procedure", "compensate_eq14", "POSITION_TOLERANCE"]

@@ -240,7 +240,7 @@ def _grid_runs(runs, mask, n, **columns):
 def _curve(fit, runs, mask, **columns):
     """The fitted model's heading error (rad) and the part compensation removes (rad) on
     made-up runs (:func:`_grid_runs`)."""
-    from .fit import compensation
+    from .compensation import compensation
     n = len(next(iter(columns.values())))
     grid = _grid_runs(runs, mask, n, **columns)
     h = fit.measurement.predict(fit.p, fit.measurement.inputs_from_runs(grid))
@@ -387,7 +387,7 @@ def plot_azimuth(fit, runs):
     model (the paper's Fig. 3); one row per tilt setup (:func:`tilt_setups`).
 
     "After" subtracts what compensation with the fit removes
-    (:func:`hse_opt.fit.compensation`: every error of the system, as the paper's Eq. 14
+    (:func:`hse_opt.compensation.compensation`: every error of the system, as the paper's Eq. 14
     removes the heading-sensitive error); the stand's own errors (the offset of its zero
     mark, errors of its azimuth reading, covariate offsets) remain.
 
@@ -395,7 +395,7 @@ def plot_azimuth(fit, runs):
     -------
     matplotlib.figure.Figure
     """
-    from .fit import compensation
+    from .compensation import compensation
 
     az = np.mod(runs.azimuth / units.DEG, 360.0)
     y, s = _arcsec(runs.heading_err), _arcsec(fit.sigma)
@@ -671,7 +671,7 @@ def _fit_statistics(fit):
 
 
 def _parameter_table(rows):
-    """The parameter table from :func:`hse_opt.fit.report_data` rows."""
+    """The parameter table from :func:`hse_opt.fit.summary.report_data` rows."""
     cells = [[f"<code>{html.escape(r['name'])}</code>", _fmt(r["value"], 5),
               _fmt(r["std"], 3) if r["state"] != "fixed" else "fixed", html.escape(r["unit"]),
               "" if r["state"] == "free" else html.escape(r["state"]), html.escape(r["description"])]
@@ -707,7 +707,7 @@ def fit_section(fit, runs, title=None):
     -------
     Section
     """
-    from .fit import report_data
+    from .fit.summary import report_data
 
     title = title or f"Calibration fit: {_effects_label(fit)}"
     data = report_data(fit, runs)            # also checks that these are the fit's runs

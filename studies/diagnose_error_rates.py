@@ -52,7 +52,7 @@ from threadpoolctl import threadpool_limits
 
 from hse_opt import units
 from hse_opt.diagnose import ALPHA, diagnose, diagnostic_plan, model_runs, refine
-from hse_opt.fit import as_model
+from hse_opt.model import as_model
 from hse_opt.information import analyse, fisher
 from hse_opt.sim.truth import TruthConfig, temperature
 

@@ -11,7 +11,7 @@ from browser import render
 from hse_opt import demo, units
 from hse_opt.cli import main
 from hse_opt.information import heading_sigma
-from hse_opt.model.measurement import Model
+from hse_opt.model import Model
 from hse_opt.sim import TruthConfig, simulate_heading_error
 
 SEED = 0

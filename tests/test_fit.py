@@ -126,9 +126,9 @@ def test_nonlinear_fit_matches_scipy_by_both_solvers(rng):
 def test_residual_jacobian_evaluator_equals_the_models_functions(rng):
     # the fit's one-call [h, dh/dp] (exact-size map) against MeasurementModel.predict/jacobian
     # (separate Functions, padded power-of-two maps), for several run counts
-    fitmod = importlib.import_module("hse_opt.fit")
+    fitmod = importlib.import_module("hse_opt.fit.problem")
     mm = Model(["hse", "axis_bias", "warmup"]).measurement(True)
-    ev = fitmod._residual_jacobian(mm)
+    ev = fitmod.residual_jacobian(mm)
     for n in (1, 7, 100):
         d = design(per=n)
         X = mm.inputs(d["rate"], d["azimuth"], d["latitude"], d["duration"], d["t_start"], d["pitch"],
@@ -479,7 +479,7 @@ def test_fit_json_round_trip(tmp_path, rng):
 
 
 def test_solver_failure_raises_with_status(rng, monkeypatch):
-    fitmod = importlib.import_module("hse_opt.fit")  # hse_opt.fit is also the function
+    fitmod = importlib.import_module("hse_opt.fit.solvers")
     runs = twin(NONLINEAR, design(n_sessions=2, per=12, rates_dps=(40,)), TRUTH_NONLINEAR, rng)
     monkeypatch.setitem(fitmod._IPOPT_OPTIONS, "ipopt.max_iter", 1)
     fitmod._nlp_solver.cache_clear()

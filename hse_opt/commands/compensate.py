@@ -35,7 +35,8 @@ def _stats(x):
 def run(args):
     from .. import units
     from ..data import load_runs, save_runs
-    from ..fit import COMPENSATED_COLUMN, COMPENSATION_STD_COLUMN, compensate, compensated_parameters, load_fit
+    from ..compensation import COMPENSATED_COLUMN, COMPENSATION_STD_COLUMN, compensate, compensated_parameters
+    from ..fit_file import load_fit
 
     if os.path.exists(args.output) and os.path.samefile(args.output, args.runs):
         raise ValueError(f"-o {args.output}: is the input file; allowed: another path")

@@ -121,7 +121,8 @@ def run(args):
     from .. import units
     from ..data import load_plan, save_plan
     from ..design import Costs, DesignSpace, design, evaluate, plan_lines
-    from ..fit import as_model, load_fit
+    from ..fit_file import load_fit
+    from ..model import as_model
     from ..information import UnidentifiableError
 
     model = as_model(args.effects or None)

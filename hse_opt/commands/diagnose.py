@@ -51,7 +51,7 @@ def parse_fix(items):
 def run(args):
     from ..data import load_runs
     from ..diagnose import ALPHA, compare, diagnose, refine
-    from ..fit import as_model
+    from ..model import as_model
 
     try:
         runs = load_runs(args.runs, **input_checks(args))

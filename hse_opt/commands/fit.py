@@ -123,7 +123,9 @@ def format_report(result, source):
 
 def run(args):
     from ..data import load_runs
-    from ..fit import as_model, fit, load_fit, save_fit
+    from ..fit import fit
+    from ..fit_file import load_fit, save_fit
+    from ..model import as_model
     from ..information import UnidentifiableError
 
     if args.output and os.path.exists(args.output) and os.path.samefile(args.output, args.runs):

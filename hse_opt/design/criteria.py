@@ -12,7 +12,7 @@ import casadi as ca
 import cvxpy as cp
 import numpy as np
 
-from ..fit import as_model
+from ..model.composition import as_model
 
 
 class NotSmooth(Exception):

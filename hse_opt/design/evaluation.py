@@ -8,7 +8,7 @@ import numpy as np
 
 from .. import units
 from ..data import Plan
-from ..fit import as_model
+from ..model.composition import as_model
 from ..information import analyse, separation_advice, weighted_jacobian
 from .criteria import as_criterion
 from .problem import criterion_rows, mean_loss, own, prior_information

@@ -8,9 +8,8 @@ import numpy as np
 
 from .. import units
 from ..data import Plan
-from ..fit import as_model
 from ..information import UnidentifiableError, check_identifiable
-from ..model.measurement import Model
+from ..model.composition import Model, as_model
 from .approximate import ApproximateDesign, solve_approximate
 from .criteria import C, D, NotSmooth, as_criterion, unit_vector
 from .evaluation import Evaluation, evaluate

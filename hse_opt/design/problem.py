@@ -14,7 +14,8 @@ import casadi as ca
 import numpy as np
 
 from ..information import Prior
-from ..model.measurement import BatchEvaluator, Model
+from ..model.composition import Model
+from ..model.measurement import BatchEvaluator
 from .criteria import Criterion, D
 from .space import Candidates, Costs
 

@@ -2,8 +2,9 @@
 heading-level measurement model."""
 from . import closed_form, symbolic
 from .effects import CATALOGUE, Covariate, Effect, Param, effect
-from .measurement import MeasurementModel, Model, paper_model
+from .composition import Model, as_model, paper_model
+from .measurement import MeasurementModel
 from .symbolic import Geometry
 
 __all__ = ["CATALOGUE", "Covariate", "Effect", "Geometry", "MeasurementModel", "Model", "Param",
-           "closed_form", "effect", "paper_model", "symbolic"]
+           "as_model", "closed_form", "effect", "paper_model", "symbolic"]

@@ -81,10 +81,6 @@ class Effect:
     def act(self, p, op, errors):  # pragma: no cover - the required hook
         raise NotImplementedError
 
-    def __add__(self, other):
-        from .measurement import Model
-        return Model([self]) + other
-
     def __repr__(self):
         return f"<effect {self.name}: {self.description}>"
 

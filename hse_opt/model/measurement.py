@@ -1,7 +1,7 @@
 """The heading-level measurement model h(params; run) and its Jacobian.
 
-A :class:`Model` is a set of effects (``paper_model() + "sync_delay"``). For a set of runs
-it gives a :class:`MeasurementModel`: CasADi Functions ``h(p, x)`` (heading error of one run,
+A :class:`~hse_opt.model.composition.Model` (a set of effects) gives, for a set of runs, a
+:class:`MeasurementModel`: CasADi Functions ``h(p, x)`` (heading error of one run,
 rad, estimated - true, from the full nonlinear gyrocompass) and ``J(p, x) = dh/dp``, built
 once and batch-evaluated over runs with ``Function.map``.
 
@@ -26,8 +26,8 @@ import casadi as ca
 import numpy as np
 
 from .. import units
-from .effects import Param, effect as make_effect
-from .symbolic import (Geometry, Operating, ErrorModel, averaged_rate_b0,
+from .effects import Param
+from .symbolic import (Operating, ErrorModel, averaged_rate_b0,
                        heading_error_gyrocompass)
 
 RUN_FIELDS = ("rate", "azimuth", "pitch", "roll", "latitude", "t_start", "duration")
@@ -36,72 +36,6 @@ RUN_FIELDS = ("rate", "azimuth", "pitch", "roll", "latitude", "t_start", "durati
 _COUPLING_FLOOR = 1e-3 * units.ARCSEC
 #: pitch/roll beyond this (rad) leave the small-tilt regime the catalogue assumes
 MAX_TILT = 2.0 * units.DEG
-
-
-class Model:
-    """A composition of effects; ``Model + effect`` adds one (by object or catalogue name).
-
-    Parameters
-    ----------
-    effects : sequence of Effect or str
-    geometry : Geometry, optional
-        The calibrated axis r_zb^s and K_g the symbolic model is built for.
-    """
-
-    def __init__(self, effects, geometry=None):
-        effects = tuple(make_effect(e) for e in effects)
-        names = [e.name for e in effects]
-        dup = {n for n in names if names.count(n) > 1}
-        if dup:
-            raise ValueError(f"effects {sorted(dup)} appear more than once in the model")
-        pnames = [p.name for e in effects for p in e.params]
-        dup = {n for n in pnames if pnames.count(n) > 1}
-        if dup:
-            raise ValueError(f"parameter names {sorted(dup)} are declared by more than one effect")
-        self.effects = effects
-        self.geometry = geometry or Geometry()
-
-    def __add__(self, other):
-        if isinstance(other, Model):
-            return Model(self.effects + other.effects, self.geometry)
-        if isinstance(other, (list, tuple)):
-            return Model(self.effects + tuple(other), self.geometry)
-        return Model(self.effects + (other,), self.geometry)
-
-    def __repr__(self):
-        return f"Model({[e.name for e in self.effects]})"
-
-    @property
-    def effect_names(self):
-        return tuple(e.name for e in self.effects)
-
-    @property
-    def params(self):
-        return tuple(p for e in self.effects for p in e.params)
-
-    @property
-    def covariates(self):
-        """Covariate columns the effects need, in order."""
-        return tuple(e.column for e in self.effects if hasattr(e, "column"))
-
-    def measurement(self, tilt_known=True):
-        """The :class:`MeasurementModel` for runs with (``True``) or without pitch/roll."""
-        return _measurement(self, bool(tilt_known))
-
-    def __eq__(self, other):
-        return isinstance(other, Model) and self._key() == other._key()
-
-    def __hash__(self):
-        return hash(self._key())
-
-    def _key(self):
-        return (tuple((type(e), e.name) for e in self.effects), tuple(self.geometry.r_zb_s),
-                tuple(self.geometry.K_g.ravel()))
-
-
-def paper_model(geometry=None):
-    """The paper's model: ``hse`` (offset and lambda2)."""
-    return Model(["hse"], geometry)
 
 
 @lru_cache(maxsize=64)

@@ -12,7 +12,7 @@ import numpy as np
 
 from ..design import Stand, evaluate
 from ..fit import as_model, fit
-from ..model.measurement import Model
+from ..model.composition import Model
 
 
 @dataclass(frozen=True)

@@ -1,0 +1,84 @@
+"""Compensation: the heading error a calibration (:class:`hse_opt.fit.FitResult`) removes from
+alignments, with its 1-sigma from the fit's covariance."""
+import numpy as np
+
+from . import units
+from .information import propagated_std
+
+#: columns :func:`compensate` adds (arcsec): compensated heading error and its 1-sigma
+COMPENSATED_COLUMN = "heading_err_comp_arcsec"
+COMPENSATION_STD_COLUMN = "heading_comp_std_arcsec"
+
+
+def compensated_parameters(fit_result):
+    """The parameters whose error a compensation removes: every parameter of the system
+    (sensor, encoder, processing, thermal effects) except the stand's own errors - the
+    ``offset`` of the b0 zero mark against the stand and the ``reference``-level effects
+    (stand azimuth reading errors, covariate offsets)."""
+    mm = fit_result.measurement
+    stand = {"offset"}
+    for e in fit_result.model.effects:
+        if e.level == "reference":
+            stand.update(q.name for q in e.params)
+    return tuple(nm for nm in mm.names
+                 if nm not in stand and nm.split("*", 1)[0] not in stand)
+
+
+def compensation(runs, fit_result, parameters=None):
+    """The modelled heading error of each run that compensation removes, and its 1-sigma.
+
+    Parameters
+    ----------
+    runs : hse_opt.data.Runs
+        Alignments to compensate (any position, rate or latitude). A tilt-known fit needs
+        their pitch/roll (Eq. 14 uses each alignment's own leveling); a tilt-unknown fit's
+        C23 coefficients hold for the stand it was calibrated on.
+    fit_result : FitResult
+    parameters : sequence of str, optional
+        Parameters whose error is removed (default :func:`compensated_parameters`); the
+        others are set to their nominal (no-error) value, nonlinear ones kept as fitted.
+
+    Returns
+    -------
+    correction, std : numpy.ndarray, shape (n,)
+        Heading error (estimated - true) predicted from those parameters, rad, and its
+        1-sigma from the fit's covariance, rad (the calibration's uncertainty, not the
+        run's own noise; :func:`~hse_opt.information.propagated_std`).
+
+    Raises
+    ------
+    ValueError
+        The runs lack what the fit needs, or the fit's covariance is not positive
+        semidefinite (a damaged FIT.json): the message names the parameters.
+    """
+    mm = fit_result.measurement
+    if fit_result.tilt_known and runs.pitch is None:
+        raise ValueError(f"{runs.source}: the calibration was fitted with known tilt; compensating "
+                         "needs each run's pitch_arcsec/roll_arcsec (Eq. 14 uses C23 from leveling)")
+    names = compensated_parameters(fit_result) if parameters is None else tuple(parameters)
+    for nm in names:
+        mm.parameter_index(nm)
+    use = np.array([nm in names for nm in mm.names])
+    keep = use | np.array([nm in mm.nonlinear for nm in mm.names])
+    p = np.where(keep, fit_result.p, mm.nominal)
+    X = mm.inputs_from_runs(runs)
+    correction = mm.predict(p, X)
+    Jd = mm.jacobian(p, X)[:, use] * mm.scale[use][None, :]
+    C = np.asarray(fit_result.covariance)[np.ix_(use, use)]
+    return correction, propagated_std(Jd, C, np.array(mm.names)[use])
+
+
+def compensate(runs, fit_result, parameters=None):
+    """``runs`` with the compensated heading error and its 1-sigma added as columns.
+
+    ``heading_err_comp_arcsec`` = ``heading_err_arcsec`` minus the :func:`compensation`;
+    ``heading_comp_std_arcsec`` = the compensation's 1-sigma from the fit's covariance. The
+    other columns are unchanged. Raises ``ValueError`` when ``runs`` already has them.
+    """
+    for col in (COMPENSATED_COLUMN, COMPENSATION_STD_COLUMN):
+        if col in runs.covariates:
+            raise ValueError(f"{runs.source}, column '{col}': already present; allowed: runs without "
+                             "it (compensate the uncompensated runs)")
+    correction, std = compensation(runs, fit_result, parameters)
+    return runs.replace(**{COMPENSATED_COLUMN: (runs.heading_err - correction) / units.ARCSEC,
+                           COMPENSATION_STD_COLUMN: std / units.ARCSEC})

@@ -1,0 +1,199 @@
+"""The fit itself: :func:`fit` (solvers and weights as :mod:`hse_opt.fit` describes)."""
+import numpy as np
+
+from .. import units
+from ..information import analyse, blind_out, invisible, null_space, separation_advice
+from ..model.composition import as_model
+from .problem import Problem, setup
+from .result import FitResult, SolverError
+from .solvers import gauss_newton, solve
+from .weights import HUBER_C, huber_weights, mad_scale, run_sigma
+
+
+def fit(runs, model=None, *, fix=None, tilt_known=None, bounds=None, constraints=(), prior=None,
+        robust=False, huber_c=HUBER_C, max_iter=100, jit=None, start=None):
+    """Calibrate ``model`` on ``runs`` by weighted least squares.
+
+    Parameters
+    ----------
+    runs : hse_opt.data.Runs
+    model : Model, str or sequence of str, optional
+        Default: the paper's model (``hse``). See :func:`as_model`.
+    fix : mapping name -> value (display unit), optional
+        Parameters held at a value.
+    tilt_known : bool, optional
+        Use the runs' pitch/roll (default: when the runs have them).
+    bounds : mapping name -> (lower, upper), optional
+        Display units; ``None`` for an open side. Nonlinear parameters default to their
+        declared range.
+    constraints : sequence of Constraint, optional
+        Linear equalities and inequalities between parameters.
+    prior : Prior or FitResult, optional
+        Gaussian prior information, e.g. the previous calibration (on-line update).
+    robust : bool
+        Huber loss instead of squares; ``huber_c`` is its threshold in sigmas.
+    max_iter : int
+        Iterations of the robust reweighting.
+    jit : bool, optional
+        Compile the model's batch Functions with the C compiler (a one-off ~1 s per model and
+        batch size, then several times faster): default for 5000 runs and more; worth it for
+        repeated fits of the same model, such as on-line updates.
+    start : mapping name -> value (display unit), optional
+        Where the iteration starts for free parameters (default: their nominal values); needed
+        when a parameter's signature vanishes at the nominal values of the others.
+
+    Returns
+    -------
+    FitResult
+
+    Raises
+    ------
+    UnidentifiableError
+        The runs cannot separate some free parameters (named, with runs that would).
+    SolverError
+        The solver failed (its status in the message and ``.status``).
+    ValueError
+        Bad arguments, infeasible constraints, too few runs.
+    """
+    model = as_model(model)
+    if runs.surveyed is not None:
+        raise ValueError(f"{runs.source}: rows without azimuth_deg (unsurveyed positions) are not "
+                         "supported by the fit yet; allowed: azimuth_deg in every row")
+    if tilt_known is None:
+        tilt_known = runs.pitch is not None
+    if tilt_known and runs.pitch is None:
+        raise ValueError(f"{runs.source}: tilt_known=True needs pitch_arcsec/roll_arcsec columns")
+    if not huber_c > 0:
+        raise ValueError(f"huber_c must be > 0 sigma, got {huber_c}")
+    mm = model.measurement(tilt_known)
+    X = mm.inputs_from_runs(runs)
+    y = np.asarray(runs.heading_err, dtype=float)
+    n = y.size
+    notes = list(runs.notes)
+    if tilt_known is False and runs.pitch is not None:
+        notes.append("pitch/roll given but not used: tilt-coupled terms fitted as free C23 coefficients")
+    (p_base, free, lower, upper, A_eq, b_eq, A_in, l_in, u_in, L, Lmu,
+     kept) = setup(mm, runs, fix, bounds, constraints, prior, notes, start)
+    k = int(free.sum())
+    if k == 0:
+        raise ValueError("every parameter is fixed: nothing to fit")
+    prob = Problem(mm, X, y, p_base, free, lower[free], upper[free], A_eq, b_eq, A_in, l_in, u_in,
+                    L, Lmu, jit)
+    r_prior = L.shape[0]
+    k_eq = np.linalg.matrix_rank(A_eq) if A_eq.size else 0
+    if n + r_prior <= k - k_eq:
+        raise ValueError(f"{runs.source}: {n} runs cannot fit {k - k_eq} free parameters "
+                         f"({', '.join(prob.names)}); need more runs than parameters")
+
+    sigma, weighting, more = run_sigma(runs, robust, mm)
+    notes += more
+    units_free = [q.unit for q, f in zip(mm.params, free) if f]
+
+    def advice_for(mask):
+        full = free.copy()
+        full[free] = mask
+
+        def advice(direction):
+            return separation_advice(mm, prob.p(z), X, full, direction)
+        return advice
+
+    # identifiability of the linear part before solving (nonlinear parameters held)
+    z = np.clip(p_base[free] / prob.scale, prob.lb, prob.ub)
+    lin = ~prob.nonlinear
+    eq_lin = A_eq[:, lin][~np.any(A_eq[:, ~lin] != 0, axis=1)] if A_eq.size else np.zeros((0, int(lin.sum())))
+
+    def check_start(z):
+        J0 = prob.jacobian(z)
+        A0 = J0[:, lin] / sigma[:, None]
+        analyse(blind_out(A0.T @ A0, invisible(J0, prob.ranges)[lin]) + L[:, lin].T @ L[:, lin],
+                np.array(prob.names)[lin], np.array(units_free)[lin],
+                advice=advice_for(lin), Z=null_space(eq_lin, int(lin.sum())))
+
+    # a bilinear effect (the encoder harmonics act through lambda2) has no heading signature
+    # where the parameters it multiplies start at 0: solve the others first
+    blind = lin & invisible(prob.jacobian(z), prob.ranges)
+    if blind.any() and (lin & ~blind).any() and not A_eq.size:
+        z, _ = gauss_newton(prob, 1 / sigma, z, np.zeros((0, k)), np.zeros(0), mask=lin & ~blind)
+    check_start(z)
+    if prob.nonlinear.any():  # start: the linear parameters solved with the nonlinear ones held
+        eq_rows = ~np.any(A_eq[:, ~lin] != 0, axis=1) if A_eq.size else np.zeros(0, bool)
+        z, _ = gauss_newton(prob, 1 / sigma, z, A_eq[eq_rows], b_eq[eq_rows], max_iter=1, mask=lin)
+        z = np.clip(z, prob.lb, prob.ub)
+
+    # solve; with robust weights or a sigma estimated from the residuals, re-solve until the
+    # weights settle (the sigma matters to the solution only against a prior, and to IPOPT's
+    # tolerances)
+    hw = np.ones(n)
+    if robust:
+        notes.append(f"Huber loss, threshold {huber_c:g} sigma (iteratively reweighted)")
+    for _ in range(max_iter):
+        z, C, binding, act, method, status = solve(prob, np.sqrt(hw) / sigma, z, notes)
+        res = prob.residual(z)
+        k_eff = null_space(C, k).shape[1]
+        dof = n + r_prior - k_eff
+        if dof <= 0:
+            raise ValueError(f"{runs.source}: no degrees of freedom left ({n} runs, {k_eff} free "
+                             "directions)")
+        new_sigma = sigma
+        if weighting in ("residual", "robust-scale"):
+            s = np.sqrt(np.sum(res ** 2) / dof) if weighting == "residual" else mad_scale(res)
+            if s <= 0:
+                raise ValueError(f"{runs.source}: the model fits the runs exactly; sigma cannot be "
+                                 "estimated from the residuals (give heading_std_arcsec)")
+            new_sigma = np.full(n, s)
+        new_hw = huber_weights(res / new_sigma, huber_c) if robust else hw
+        settled = (np.max(np.abs(new_hw - hw)) < 1e-7  # ~1e-7/n sigma on the estimates
+                   and np.max(np.abs(new_sigma / sigma - 1)) < 1e-6)
+        sigma, hw = new_sigma, new_hw
+        if settled or not (robust or (weighting == "residual" and (r_prior > 0 or method == "ipopt"))):
+            break
+    else:
+        raise SolverError(f"the weights did not settle in {max_iter} re-solves", "max_iter")
+    if robust:
+        method += "+huber"
+    if weighting == "residual":
+        notes.append(f"sigma {sigma[0] / units.ARCSEC:.3g} arcsec estimated from the residuals")
+    elif weighting == "robust-scale":
+        notes.append(f"sigma {sigma[0] / units.ARCSEC:.3g} arcsec from the residuals' median absolute "
+                     "deviation")
+    Z = null_space(C, k)
+
+    A = prob.jacobian(z) / sigma[:, None]
+    F_data = A.T @ A
+    u = res / sigma
+    if robust:
+        psi, dpsi = np.clip(u, -huber_c, huber_c), (np.abs(u) <= huber_c).astype(float)
+        m_ = dpsi.mean()
+        if m_ == 0:
+            raise ValueError(f"{runs.source}: every run is beyond the Huber threshold; raise huber_c")
+        K = 1 + k_eff / n * dpsi.var() / m_ ** 2
+        F_data = F_data / (K ** 2 * np.sum(psi ** 2) / max(n - k_eff, 1) / m_ ** 2)
+    info = analyse(blind_out(F_data, invisible(A * sigma[:, None], prob.ranges)) + L.T @ L,
+                   prob.names, units_free, advice=advice_for(np.ones(k, bool)), Z=Z)
+
+    n_p = len(mm.names)
+    cov = np.zeros((n_p, n_p))
+    cov[np.ix_(free, free)] = info.covariance
+    corr = np.zeros((n_p, n_p))
+    corr[np.ix_(free, free)] = info.correlation
+    std = np.sqrt(np.diag(cov))
+    e = L @ z - Lmu
+    chi2_prior = float(e @ e)
+    chi2 = float(u @ u) + chi2_prior
+    ll_term = n * np.log(np.sum(res ** 2) / n) + chi2_prior if weighting == "residual" else chi2
+    binding_names = tuple(str(prob.names[j]) for j in binding)
+    for nm in binding_names:
+        notes.append(f"{nm} is held at its bound (std 0: the bound, not the data, sets it)")
+    inequalities = [c for c in kept if not c.is_equality]
+    active = tuple(str(inequalities[j]) for j in act)
+    order = np.argsort(hw, kind="stable")
+    down = tuple(int(runs.run[i]) for i in order if hw[i] < 1 - 1e-12)
+    p = prob.p(z)
+    return FitResult(
+        model=model, tilt_known=tilt_known, names=mm.names, units=tuple(q.unit for q in mm.params),
+        values=p / mm.scale, std=std, covariance=cov, correlation=corr, free=free, p=p,
+        run=np.asarray(runs.run), residuals=res, sigma=sigma, standardized=u,
+        chi2=chi2, dof=int(dof), chi2_red=chi2 / dof, aic=ll_term + 2 * k_eff,
+        bic=ll_term + k_eff * np.log(n), condition=info.condition, weighting=weighting,
+        method=method, status=status, binding=binding_names, downweighted=down, notes=tuple(notes),
+        lower=lower, upper=upper, constraints=kept, active=active, weights=hw, chi2_prior=chi2_prior)

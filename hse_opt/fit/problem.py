@@ -1,0 +1,156 @@
+"""One fit's least-squares problem: data, free set, bounds, constraints and prior over the free
+parameters, with the residuals and Jacobian from one batch call of the model."""
+import math
+from functools import lru_cache
+
+import casadi as ca
+import numpy as np
+
+from ..information import Prior
+from ..model.measurement import BatchEvaluator
+from .result import Constraint, FitResult
+
+
+class Problem:
+    """Data, free set, bounds, constraints and prior of one fit, in display units over the
+    free parameters ``z`` (``p[free] = z * scale``)."""
+
+    def __init__(self, mm, X, y, p_base, free, lb, ub, A_eq, b_eq, A_in, l_in, u_in, L, Lmu, jit):
+        self.mm, self.X, self.y, self.jit = mm, X, y, jit
+        self.p_base, self.free = p_base, free
+        self.scale = mm.scale[free]
+        self.k = int(free.sum())
+        self.lb, self.ub = lb, ub
+        self.A_eq, self.b_eq, self.A_in, self.l_in, self.u_in = A_eq, b_eq, A_in, l_in, u_in
+        self.L, self.Lmu = L, Lmu
+        names = np.array(mm.names)[free]
+        self.names = tuple(str(nm) for nm in names)
+        self.nonlinear = np.array([nm in mm.nonlinear for nm in names], dtype=bool)
+        self.ranges = np.array([q.upper - q.lower for q, f in zip(mm.params, free) if f])
+        self._last = (None, None, None)
+
+    def p(self, z):
+        p = self.p_base.copy()
+        p[self.free] = z * self.scale
+        return p
+
+    def _evaluate(self, z):
+        """Residuals (n,) and dh/dz (n, k) at ``z`` from one batch call, the last kept: a
+        Gauss-Newton step needs both at every accepted point."""
+        z = np.asarray(z, dtype=float)
+        if not np.array_equal(self._last[0], z):
+            hJ = residual_jacobian(self.mm)(self.p(z), self.X, self.jit)
+            self._last = (z.copy(), self.y - hJ[:, 0], hJ[:, 1:][:, self.free] * self.scale[None, :])
+        return self._last[1], self._last[2]
+
+    def residual(self, z):
+        return self._evaluate(z)[0]
+
+    def jacobian(self, z):
+        """dh/dz (n, k), rad per display unit."""
+        return self._evaluate(z)[1]
+
+    def inside(self, z):
+        """Whether ``z`` lies strictly within the bounds (no bound can bind there)."""
+        return bool(np.all(z > self.lb) and np.all(z < self.ub))
+
+    def objective(self, z, w, r=None):
+        """chi2 (data and prior) at ``z``; ``r``: the residuals there, when known."""
+        r = w * (self.residual(z) if r is None else r)
+        e = self.L @ z - self.Lmu
+        return float(r @ r + e @ e)
+
+
+@lru_cache(maxsize=64)
+def residual_jacobian(mm):
+    """Batch evaluator of ``[h, dh/dp]`` (n, 1 + n_p) for ``mm``: one Function whose Jacobian
+    shares the heading's expression graph, so both cost about what the Jacobian alone does."""
+    p = ca.SX.sym("p", len(mm.names))
+    x = ca.SX.sym("x", mm.n_x)
+    h = mm.h(p, x)
+    return BatchEvaluator(ca.Function("hJ", [p, x], [ca.densify(ca.vertcat(h, ca.jacobian(h, p).T))],
+                                      ["p", "x"], ["h_dh_dp"]), exact=True)
+
+
+def setup(mm, runs, fix, bounds, constraints, prior, notes, start=None):
+    """Build the :class:`Problem` pieces from the user's fix/bounds/constraints/prior."""
+    names = list(mm.names)
+    fix = dict(fix or {})
+    p_base = mm.vector({**(start or {}), **fix})
+    free = np.array([nm not in fix for nm in names])
+    values = p_base / mm.scale
+    lower = np.full(len(names), -np.inf)
+    upper = np.full(len(names), np.inf)
+    user_bounded = set()
+    for nm, b in dict(bounds or {}).items():
+        i = mm.parameter_index(nm)
+        try:
+            lo, hi = (-np.inf if b[0] is None else float(b[0])), (np.inf if b[1] is None else float(b[1]))
+        except (TypeError, ValueError, IndexError):
+            raise ValueError(f"bound of {nm!r} must be (lower, upper) in {mm.params[i].unit}, "
+                             f"got {b!r}") from None
+        if math.isnan(lo) or math.isnan(hi) or lo > hi:
+            raise ValueError(f"bound of {nm!r}: need lower <= upper, got {lo} and {hi} "
+                             f"{mm.params[i].unit}")
+        if not free[i] and not lo <= values[i] <= hi:
+            raise ValueError(f"parameter {nm!r} is fixed at {values[i]:g} {mm.params[i].unit}, outside "
+                             f"its bound [{lo:g}, {hi:g}]")
+        lower[i], upper[i] = lo, hi
+        user_bounded.add(nm)
+    for i, q in enumerate(mm.params):
+        if free[i] and q.name in mm.nonlinear and q.name not in user_bounded:
+            lower[i], upper[i] = q.lower, q.upper
+            notes.append(f"{q.name} (nonlinear) searched within its declared range "
+                         f"[{q.lower:g}, {q.upper:g}] {q.unit}")
+    lower[~free] = upper[~free] = values[~free]
+
+    k = int(free.sum())
+    idx = {nm: j for j, nm in enumerate(np.array(names)[free])}
+    rows_eq, b_eq, rows_in, l_in, u_in, kept = [], [], [], [], [], []
+    for c in constraints or ():
+        if not isinstance(c, Constraint):
+            raise ValueError(f"constraints must be Constraint records, got {type(c).__name__}")
+        row, shift = np.zeros(k), 0.0
+        for nm, coef in c.coefficients:
+            i = mm.parameter_index(nm)
+            if free[i]:
+                row[idx[nm]] += coef
+            else:
+                shift += coef * values[i]
+        if not row.any():
+            if not c.lower - 1e-12 <= shift <= c.upper + 1e-12:
+                raise ValueError(f"constraint {c} fails for the fixed values ({shift:g})")
+            continue
+        kept.append(c)
+        if c.is_equality:
+            rows_eq.append(row)
+            b_eq.append(c.lower - shift)
+        else:
+            rows_in.append(row)
+            l_in.append(c.lower - shift)
+            u_in.append(c.upper - shift)
+
+    if prior is not None:
+        if isinstance(prior, FitResult):
+            prior = Prior.from_fit(prior)
+        if not isinstance(prior, Prior):
+            raise ValueError(f"prior must be a Prior or a FitResult, got {type(prior).__name__}")
+        free_names = list(np.array(names)[free])
+        used, dropped = prior.restrict(free_names)
+        if dropped:
+            notes.append(f"prior on {', '.join(dropped)} not used (not free in this model; "
+                         f"marginalised)")
+        if not used.names:
+            raise ValueError(f"{prior.source}: the prior names none of the free parameters "
+                             f"({', '.join(free_names)})")
+        notes.append(f"Gaussian prior from {prior.source} on {', '.join(used.names)}")
+        F, b = used.fisher(free_names)
+        lam, V = np.linalg.eigh(F)
+        keep = lam > 1e-12 * lam.max()
+        L = (np.sqrt(lam[keep])[:, None] * V[:, keep].T)
+        Lmu = L @ (np.linalg.pinv(F) @ b)
+    else:
+        L, Lmu = np.zeros((0, k)), np.zeros(0)
+    arr = lambda rows: np.array(rows, dtype=float).reshape(-1, k)  # noqa: E731
+    return (p_base, free, lower, upper, arr(rows_eq), np.array(b_eq, dtype=float), arr(rows_in),
+            np.array(l_in, dtype=float), np.array(u_in, dtype=float), L, Lmu, tuple(kept))

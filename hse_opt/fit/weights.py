@@ -1,0 +1,86 @@
+"""The weights of a fit: each run's heading sigma (the runs' own, the pure error of replicate
+groups, or one to be estimated from the residuals; :mod:`hse_opt.fit`) and the robust
+(Huber) weights and scale."""
+from functools import lru_cache
+
+import casadi as ca
+import numpy as np
+
+from .. import units
+from ..information import heading_sigma
+from ..model.measurement import RUN_FIELDS
+
+#: Huber's threshold in sigmas (95 % efficiency for Gaussian data)
+HUBER_C = 1.345
+
+
+def replicate_groups(runs, mm=None, tilt_tol=10 * units.ARCSEC):
+    """Replicate groups: runs with the same settings share a label. Returns ``(labels, n_groups)``.
+
+    Settings are the rate, azimuth, duration and latitude, the tilt (pitch and roll within
+    ``tilt_tol``: measured tilts carry noise) and -- for a measurement model ``mm`` whose
+    heading depends on them (a warm-up, a covariate effect) -- time since power-on and the
+    covariate columns: runs the model tells apart are not replicates, or their modelled
+    differences would count as noise. Without ``mm`` the tilt counts when the runs have it."""
+    cols = [np.round(np.asarray(a, float) / 1e-9)
+            for a in (runs.rate, np.mod(runs.azimuth, 2 * np.pi), runs.duration, runs.latitude)]
+    if runs.pitch is not None and (mm is None or mm.tilt_known):
+        cols += [np.round(np.asarray(runs.pitch) / tilt_tol), np.round(np.asarray(runs.roll) / tilt_tol)]
+    if mm is not None:
+        X = mm.inputs_from_runs(runs)
+        used = _inputs_used(mm)
+        extra = [RUN_FIELDS.index("t_start"), *range(len(RUN_FIELDS), mm.n_x)]  # time, covariates
+        cols += [X[i] for i in extra if used[i]]
+    _, labels = np.unique(np.column_stack(cols), axis=0, return_inverse=True)
+    labels = labels.ravel()
+    return labels, int(labels.max()) + 1 if labels.size else 0
+
+
+@lru_cache(maxsize=64)
+def _inputs_used(mm):
+    """Whether the model's heading depends on each run input (from the expression graph)."""
+    p, x = ca.SX.sym("p", len(mm.names)), ca.SX.sym("x", mm.n_x)
+    sp = ca.jacobian(mm.h(p, x), x).sparsity()
+    used = np.zeros(mm.n_x, dtype=bool)
+    used[np.asarray(sp.get_col(), dtype=int)] = True
+    return used
+
+
+def pure_error(runs, mm=None):
+    """``(sigma, dof)`` from the scatter within replicate groups (rad), or ``(None, dof)``."""
+    labels, g = replicate_groups(runs, mm)
+    dof = runs.rate.size - g
+    if dof < 2:
+        return None, dof
+    y = runs.heading_err
+    mean = np.bincount(labels, y, g) / np.bincount(labels, minlength=g)
+    return float(np.sqrt(np.sum((y - mean[labels]) ** 2) / dof)), dof
+
+
+def run_sigma(runs, robust=False, mm=None):
+    """``(sigma (n,) rad, weighting, notes)`` by the rules of the module docstring (replicates
+    as :func:`replicate_groups` of the measurement model ``mm``); where sigma is estimated
+    later from the residuals, the default noise model's (:func:`heading_sigma`)."""
+    n = len(runs)
+    if runs.heading_std is not None:
+        return np.asarray(runs.heading_std, dtype=float), "heading_std", []
+    # to be estimated from the residuals: start from the default noise model
+    guess = np.full(n, float(np.sqrt(np.mean(heading_sigma(runs.duration, runs.latitude) ** 2))))
+    if robust:
+        return guess, "robust-scale", []
+    s_pe, dof_pe = pure_error(runs, mm)
+    if s_pe is not None and s_pe > 0:
+        return np.full(n, s_pe), "pure-error", [
+            f"sigma {s_pe / units.ARCSEC:.3g} arcsec from {dof_pe} replicate degrees of freedom "
+            f"(pure error)"]
+    return guess, "residual", []
+
+
+def huber_weights(u, c):
+    """Huber weights ``min(1, c/|u|)`` of standardised residuals ``u``."""
+    a = np.abs(u)
+    return np.where(a <= c, 1.0, c / np.maximum(a, 1e-300))
+
+
+def mad_scale(res):
+    return 1.4826 * float(np.median(np.abs(res - np.median(res))))
