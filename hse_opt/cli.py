@@ -11,7 +11,7 @@ import os
 import sys
 
 #: command modules, in the order ``--help`` lists them
-COMMANDS = ("demo", "design", "simulate", "fit", "compensate", "diagnose")
+COMMANDS = ("demo", "design", "simulate", "fit", "compensate", "diagnose", "export")
 
 
 class _Parser(argparse.ArgumentParser):
@@ -26,6 +26,8 @@ def build_parser():
         prog="hse-opt",
         description="Calibration and compensation of the heading-sensitive error of a "
                     "constant-rate biased RLG system.")
+    from . import __version__
+    parser.add_argument("--version", action="version", version=f"hse-opt {__version__}")
     sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
     for name in COMMANDS:
         mod = importlib.import_module(f"hse_opt.commands.{name}")
@@ -62,6 +64,22 @@ def json_stdout():
 
 
 def main(argv=None):
+    try:
+        try:
+            status = _main(argv)
+        except SystemExit as done:  # argparse: --help, --version, usage errors
+            status = done.code
+        sys.stdout.flush()
+    except BrokenPipeError:
+        # the reader closed the pipe (``hse-opt ... | head``): nothing more to say and nowhere
+        # to say it; stdout goes to devnull so the interpreter's last flush is quiet too
+        with contextlib.suppress(OSError, ValueError):
+            os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
+        return 0
+    return status
+
+
+def _main(argv):
     args, extra = build_parser().parse_known_args(argv)
     if extra:  # reported by the command's own parser, so the message names the command
         args.subparser.error(f"unrecognized arguments: {' '.join(extra)}")
@@ -74,6 +92,8 @@ def main(argv=None):
         text = str(err) if isinstance(err, ValueError) else f"{err.filename}: {err.strerror}"
         print(f"hse-opt {args.command}: error: {' '.join(text.split())}", file=sys.stderr)
         return 2
+    except BrokenPipeError:
+        raise
     except Exception as err:  # noqa: BLE001 - the command line reports, never tracebacks
         print(f"hse-opt {args.command}: internal error: {type(err).__name__}: {err}", file=sys.stderr)
         return 1

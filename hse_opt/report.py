@@ -48,6 +48,7 @@ import numpy as np
 
 from . import __version__, units
 from .data import Runs, write_text_atomic
+from .factors import campaign_factors
 
 __all__ = ["Section", "Figure", "REPORT_NAME", "SETUP_TOL",
            "fit_section", "comparison_section", "diagnosis_section", "design_section",
@@ -190,33 +191,24 @@ def _notes(notes):
 
 
 # -- factors and model evaluation -----------------------------------------------------------
-def factors(runs):
-    """The factors a residual can depend on, as ``(key, label, values)``, values in the
-    edge units of the label. Factors that do not vary over the runs are left out.
+def factors(runs, derived=(), resolution=None):
+    """The factors a residual is plotted against, as ``(key, label, values)``, values in the
+    edge units of the label: those that vary beyond their resolution, never a column derived
+    from the heading error (:func:`hse_opt.factors.campaign_factors` has the rules).
 
     Parameters
     ----------
     runs : hse_opt.data.Runs
+    derived : sequence of str
+        Covariate columns derived from the heading error (besides those named ``heading...``).
+    resolution : mapping, optional
+        Resolutions overriding :data:`hse_opt.factors.RESOLUTION`.
 
     Returns
     -------
     list of (str, str, numpy.ndarray of shape (n,))
     """
-    n = len(runs)
-    out = [("rate", "bias rate [deg/s]", runs.rate / units.DEG_PER_S),
-           ("azimuth", "stand azimuth [deg]", np.mod(runs.azimuth / units.DEG, 360.0))]
-    if runs.t_start is not None:
-        out.append(("t_start", "time since power-on [h]", runs.t_start / units.HOUR))
-    else:
-        out.append(("order", "run order (no t_start_s)", np.arange(1, n + 1, dtype=float)))
-    out.append(("duration", "alignment length [s]", np.asarray(runs.duration, float)))
-    if runs.pitch is not None:
-        out.append(("pitch", "pitch of b0 [arcsec]", runs.pitch / units.ARCSEC))
-        out.append(("roll", "roll of b0 [arcsec]", runs.roll / units.ARCSEC))
-    out.append(("latitude", "latitude [deg]", runs.latitude / units.DEG))
-    for name, values in runs.covariates.items():
-        out.append((f"covariate:{name}", name, np.asarray(values, float)))
-    return [(k, lab, v) for k, lab, v in out if v.size and np.ptp(v) > 0]
+    return [(f.key, f.label, f.values) for f in campaign_factors(runs, derived, resolution).varying]
 
 
 def _arcsec(x):
@@ -245,6 +237,69 @@ def _curve(fit, runs, mask, **columns):
     grid = _grid_runs(runs, mask, n, **columns)
     h = fit.measurement.predict(fit.p, fit.measurement.inputs_from_runs(grid))
     return h, compensation(grid, fit)[0]
+
+
+def _only(fit, effects):
+    """The fit's SI parameter vector with the parameters of every effect outside ``effects``
+    at their nominal (no-error) values (tilt coefficients ``name*tilt_...`` follow ``name``)."""
+    mm = fit.measurement
+    owner = {q.name: e.name for e in fit.model.effects for q in e.params}
+    keep = np.array([owner.get(nm.split("*", 1)[0]) in effects for nm in mm.names])
+    return np.where(keep, fit.p, mm.nominal)
+
+
+def slope_parts(fit, runs):
+    """The calibration line's slope at each stand azimuth of the runs and each effect's part.
+
+    The slope is that of the fitted model between the smallest and largest bias rate, the
+    other inputs at their medians over the runs at that azimuth; an effect's part is the
+    slope of the model with only that effect's parameters as fitted (the others at their
+    nominal values). For the paper's model the ``hse`` part is -K_HSE (our sign, Eq. 16).
+
+    Returns
+    -------
+    dict or None
+        ``azimuth_deg`` (m,), ``slope`` (m,) and ``parts`` (effect -> (m,)), arcsec per
+        deg/s; None when the runs share one bias rate.
+    """
+    r1, r2 = float(np.min(runs.rate)), float(np.max(runs.rate))
+    if np.unique(np.round(runs.rate / units.DEG_PER_S, 6)).size < 2:
+        return None
+    mm = fit.measurement
+    labels, centres = _groups(np.mod(runs.azimuth, 2 * np.pi), 1 * units.DEG)
+    grids = [_grid_runs(runs, labels == g, 2, rate=np.array([r1, r2]), azimuth=np.full(2, c))
+             for g, c in enumerate(centres)]
+    X = np.concatenate([mm.inputs_from_runs(gr) for gr in grids], axis=1)
+
+    def slope(p):
+        h = mm.predict(p, X).reshape(-1, 2)
+        return (h[:, 1] - h[:, 0]) / units.ARCSEC / ((r2 - r1) / units.DEG_PER_S)
+    return {"azimuth_deg": centres / units.DEG, "slope": slope(fit.p),
+            "parts": {e: slope(_only(fit, {e})) for e in fit.model.effect_names}}
+
+
+def _rms(x):
+    return float(np.sqrt(np.mean(np.square(x))))
+
+
+def _slope_others(parts):
+    """Effects beyond hse whose part of the slope exceeds 5 % of it (RMS over azimuths)."""
+    return {e: v for e, v in parts["parts"].items() if e != "hse" and _rms(v) > 0.05 * _rms(parts["slope"])}
+
+
+def slope_caption(parts):
+    """The calibration line's caption: what its slope holds (:func:`slope_parts`)."""
+    base = ("Heading error against bias rate at each stand azimuth (points: measured, 1-sigma bars; "
+            "lines: the fitted model). The paper's Fig. 2: ")
+    others = _slope_others(parts)
+    if not others:
+        return base + ("the slope is -K_HSE = -lambda2 C23 / (3 w_ie cos L) (our sign), so it changes "
+                       "with azimuth as the tilt term C23 does.")
+    shares = ", ".join(f"{e} {_rms(v):.3g}" for e, v in {"hse": parts["parts"]["hse"], **others}.items())
+    return base + (f"here the slope is not K_HSE alone: effects beyond hse contribute to it. Of its "
+                   f"RMS over the stand azimuths, {_rms(parts['slope']):.3g} arcsec per deg/s, the "
+                   f"effects alone give: {shares} arcsec per deg/s. Dashed: the hse part alone, "
+                   "-K_HSE = -lambda2 C23 / (3 w_ie cos L) (our sign).")
 
 
 def _groups(values, tol):
@@ -320,15 +375,19 @@ _MAX_SETUPS = 3
 
 # -- plots of a fit --------------------------------------------------------------------------
 @_plotting
-def plot_calibration_line(fit, runs):
+def plot_calibration_line(fit, runs, hse_only=False):
     """Heading error against bias rate, per stand azimuth and tilt setup, with the fitted
-    model (the paper's Fig. 2). One panel per tilt setup (:func:`tilt_setups`).
+    model (the paper's Fig. 2). One panel per tilt setup (:func:`tilt_setups`). When effects
+    beyond ``hse`` are in the model, the ``hse`` part of the model is drawn dashed.
 
     Parameters
     ----------
     fit : hse_opt.fit.FitResult
     runs : hse_opt.data.Runs
         The runs the fit used.
+    hse_only : bool
+        Draw the ``hse`` part alone: points are the measurements less the fitted model's
+        other effects, lines the model's ``hse`` part (slope -K_HSE).
 
     Returns
     -------
@@ -339,6 +398,12 @@ def plot_calibration_line(fit, runs):
     if np.unique(np.round(rate_dps, 6)).size < 2:
         return None
     y, s = _arcsec(runs.heading_err), _arcsec(fit.sigma)
+    mm = fit.measurement
+    p_hse = _only(fit, {"hse"})
+    dashed = not hse_only and bool(_slope_others(slope_parts(fit, runs)))
+    if hse_only:  # the measurements less the fitted model's other effects
+        X = mm.inputs_from_runs(runs)
+        y = y - _arcsec(mm.predict(fit.p, X) - mm.predict(p_hse, X))
     setups = tilt_setups(runs)
     if len(setups) > _MAX_SETUPS:
         setups = [(np.ones(len(runs), bool), f"{len(setups)} tilt setups")]
@@ -358,9 +423,11 @@ def plot_calibration_line(fit, runs):
                 m = setup & (labels == g)
                 ax.errorbar(rate_dps[m], y[m], yerr=s[m], fmt="o", ms=4, color=col, capsize=2,
                             label=f"{centres[g] / units.DEG:.0f} deg")
-                h, _ = _curve(fit, runs, m, rate=grid * units.DEG_PER_S,
-                              azimuth=np.full(grid.size, centres[g]))
-                ax.plot(grid, _arcsec(h), "-", color=col, lw=1.2)
+                X = mm.inputs_from_runs(_grid_runs(runs, m, grid.size, rate=grid * units.DEG_PER_S,
+                                                   azimuth=np.full(grid.size, centres[g])))
+                ax.plot(grid, _arcsec(mm.predict(p_hse if hse_only else fit.p, X)), "-", color=col, lw=1.2)
+                if dashed:
+                    ax.plot(grid, _arcsec(mm.predict(p_hse, X)), "--", color=col, lw=1.0)
         else:
             sc = ax.scatter(rate_dps[setup], y[setup], s=16, cmap="twilight", vmin=0, vmax=360,
                             c=np.mod(runs.azimuth[setup] / units.DEG, 360), label="measured")
@@ -377,7 +444,8 @@ def plot_calibration_line(fit, runs):
         fig.legend(list(legend.values()), list(legend), loc="outside right upper", frameon=False,
                    title="stand azimuth")
     axes[0].set_ylabel("heading error [arcsec]")
-    fig.suptitle("Calibration line: heading error against bias rate")
+    fig.suptitle("Calibration line, the hse part alone: heading error less the other effects"
+                 if hse_only else "Calibration line: heading error against bias rate")
     return fig
 
 
@@ -438,11 +506,11 @@ def plot_azimuth(fit, runs):
     return fig
 
 
-def _residual_grid(fig, runs, series, ncols=3):
+def _residual_grid(fig, runs, series, ncols=3, derived=()):
     """Residuals (arcsec, 1-sigma bars) against every factor: one row of panels per entry of
     ``series`` = ``[(title, residual, sigma, colour)]``, factors wrapped ``ncols`` to a row,
     the rows of one factor chunk next to each other so before/after read top to bottom."""
-    facs = factors(runs)
+    facs = factors(runs, derived)
     chunks = [facs[i:i + ncols] for i in range(0, len(facs), ncols)] or [[]]
     axes = fig.subplots(len(chunks) * len(series), ncols, squeeze=False, sharey=True)
     lim = max(float(np.max(np.abs(r) + s)) for _, r, s, _ in series) * 1.08
@@ -462,23 +530,27 @@ def _residual_grid(fig, runs, series, ncols=3):
 
 
 @_plotting
-def plot_residuals(fit, runs):
+def plot_residuals(fit, runs, derived=()):
     """Residuals (measured - model, arcsec, with the 1-sigma used in the fit) against every
-    factor that varies over the runs (:func:`factors`).
+    factor that varies over the runs (:func:`factors`; ``derived`` as there).
 
     Returns
     -------
-    matplotlib.figure.Figure
+    matplotlib.figure.Figure or None
+        None when no factor varies beyond its resolution.
     """
-    rows = -(-len(factors(runs)) // 3)
+    rows = -(-len(factors(runs, derived)) // 3)
+    if not rows:
+        return None
     fig = _new_figure(7.5, 2.1 * max(1, rows))
-    _residual_grid(fig, runs, [("", _arcsec(fit.residuals), _arcsec(fit.sigma), _COLORS[0])])
+    _residual_grid(fig, runs, [("", _arcsec(fit.residuals), _arcsec(fit.sigma), _COLORS[0])],
+                   derived=derived)
     fig.suptitle(f"Residuals against every factor (RMS {fit.rms_arcsec:.2f} arcsec)")
     return fig
 
 
 @_plotting
-def plot_before_after(before, after, runs):
+def plot_before_after(before, after, runs, derived=()):
     """Residuals of two fits of the same runs against every factor: a row of panels for
     ``before`` above a row for ``after``, on the same scale.
 
@@ -490,10 +562,12 @@ def plot_before_after(before, after, runs):
     -------
     matplotlib.figure.Figure
     """
-    rows = -(-len(factors(runs)) // 3)
+    rows = -(-len(factors(runs, derived)) // 3)
+    if not rows:
+        return None
     fig = _new_figure(7.5, 1.9 * 2 * max(1, rows))
     _residual_grid(fig, runs, [(f"{_effects_label(f)}", _arcsec(f.residuals), _arcsec(f.sigma), col)
-                               for f, col in ((before, "#7f7f7f"), (after, _COLORS[1]))])
+                               for f, col in ((before, "#7f7f7f"), (after, _COLORS[1]))], derived=derived)
     fig.suptitle(f"Residuals before (RMS {before.rms_arcsec:.2f} arcsec) and after "
                  f"(RMS {after.rms_arcsec:.2f} arcsec)")
     return fig
@@ -673,10 +747,10 @@ def _fit_statistics(fit):
 def _parameter_table(rows):
     """The parameter table from :func:`hse_opt.fit.summary.report_data` rows."""
     cells = [[f"<code>{html.escape(r['name'])}</code>", _fmt(r["value"], 5),
-              _fmt(r["std"], 3) if r["state"] != "fixed" else "fixed", html.escape(r["unit"]),
-              "" if r["state"] == "free" else html.escape(r["state"]), html.escape(r["description"])]
+              _fmt(r["std"], 3) if r["state"] != "fixed" else "&ndash;", html.escape(r["unit"]),
+              html.escape(r["state"]), html.escape(r["description"])]
              for r in rows]
-    return _table(["parameter", "value", "1-sigma", "unit", "", "meaning"], cells,
+    return _table(["parameter", "value", "1-sigma", "unit", "state", "meaning"], cells,
                   keys=[f"param:{r['name']}" for r in rows], cls="params")
 
 
@@ -690,10 +764,20 @@ def _correlation_table(fit):
             + [f'<span class="{"hi" if i != j and abs(C[i, j]) > 0.9 else ""}">{C[i, j]:+.3f}</span>'
                for j in range(len(names))] for i, n in enumerate(names)]
     return ("<details><summary>Correlation of the estimates</summary>"
-            + _table([""] + names, rows, cls="corr") + "</details>")
+            + _table(["parameter"] + names, rows, cls="corr") + "</details>")
 
 
-def fit_section(fit, runs, title=None):
+def _missing_figure(what, why):
+    return f'<p class="notes">No {html.escape(what)}: {html.escape(why)}</p>'
+
+
+def _one_rate_text(runs):
+    rates = np.unique(np.round(runs.rate / units.DEG_PER_S, 6))
+    return (f"every run is at {', '.join(f'{r:g}' for r in rates)} deg/s; a line through the heading "
+            "error against bias rate needs two or more bias rates")
+
+
+def fit_section(fit, runs, title=None, derived=()):
     """The report section of a calibration fit.
 
     Parameters
@@ -702,6 +786,9 @@ def fit_section(fit, runs, title=None):
     runs : hse_opt.data.Runs
         The runs the fit used.
     title : str, optional
+    derived : sequence of str
+        Covariate columns derived from the heading error, never plotted as factors (besides
+        those named ``heading...``; :mod:`hse_opt.factors`).
 
     Returns
     -------
@@ -712,6 +799,13 @@ def fit_section(fit, runs, title=None):
     title = title or f"Calibration fit: {_effects_label(fit)}"
     data = report_data(fit, runs)            # also checks that these are the fit's runs
     stats = _fit_statistics(fit)
+    facs = campaign_factors(runs, derived)
+    parts = slope_parts(fit, runs)
+    data["factors"] = _factor_data(facs)
+    if parts is not None:
+        data["slope_arcsec_per_dps"] = _jsonable(parts)
+    line = plot_calibration_line(fit, runs)
+    residuals = plot_residuals(fit, runs, derived)
     blocks = [
         _paragraph(f"Weighted least squares of the model ({_effects_label(fit)}) to "
                    f"{fit.n_runs} alignments."),
@@ -719,12 +813,9 @@ def fit_section(fit, runs, title=None):
         + _table(["statistic", "value"], [[lab, v] for lab, _, v in stats],
                  keys=[k for _, k, _ in stats], cls="stats") + "</div>",
         _correlation_table(fit),
-        _notes(list(fit.notes) + [f"bound binds: {b}" for b in fit.binding]),
-        _embed(plot_calibration_line(fit, runs),
-               "Heading error against bias rate at each stand azimuth (points: measured, 1-sigma "
-               "bars; lines: the fitted model). The paper's Fig. 2: the slope is K_HSE = "
-               "lambda2 C23 / (w_ie cos L), so it changes with azimuth as the tilt term C23 does.",
-               "heading error against bias rate"),
+        _notes(list(fit.notes) + [f"bound binds: {b}" for b in fit.binding] + facs.notes()),
+        _embed(line, slope_caption(parts), "heading error against bias rate") if line is not None
+        else _missing_figure("calibration line (the paper's Fig. 2)", _one_rate_text(runs)),
         _embed(plot_azimuth(fit, runs),
                "Heading error against stand azimuth before (left) and after (right) compensation "
                "with the fit (the paper's Fig. 3), one row per tilt setup. Lines: the model at "
@@ -732,11 +823,21 @@ def fit_section(fit, runs, title=None):
                "stand's own errors remain (the offset of its zero mark, errors of its azimuth "
                "reading).",
                "heading error against azimuth before and after compensation"),
-        _embed(plot_residuals(fit, runs),
-               "Residuals (measured minus model) against every factor that varies over the runs; "
-               "structure here is an effect the model lacks.", "residuals against every factor"),
+        _embed(residuals,
+               "Residuals (measured minus model) against every factor that varies over the runs "
+               "beyond its resolution; structure here is an effect the model lacks.",
+               "residuals against every factor") if residuals is not None
+        else _missing_figure("residual plot", "no factor varies beyond its resolution"),
     ]
     return Section(title, tuple(b for b in blocks if b), data)
+
+
+def _factor_data(facs):
+    return {"varying": [f.key for f in facs.varying],
+            "constant": [{"key": f.key, "label": f.label, "min": float(np.min(f.values)),
+                          "max": float(np.max(f.values)), "resolution": f.resolution}
+                         for f in facs.constant],
+            "derived": list(facs.derived)}
 
 
 def _cell(x):
@@ -747,7 +848,7 @@ def _cell(x):
     return _fmt(x)
 
 
-def comparison_section(before, after=None, runs=None, title=None):
+def comparison_section(before, after=None, runs=None, title=None, derived=()):
     """The before/after of adding an effect: statistics and parameters side by side, and
     the residuals against every factor before and after.
 
@@ -774,7 +875,7 @@ def comparison_section(before, after=None, runs=None, title=None):
                          "hse_opt.diagnose.Comparison")
     added = [e for e in after.model.effect_names if e not in before.model.effect_names]
     title = title or f"Adding {', '.join(added) or 'nothing'}: before and after"
-    header = ["", _effects_label(before), _effects_label(after)]
+    header = ["statistic", _effects_label(before), _effects_label(after)]
     if comparison is not None:
         stats = [[html.escape(k), _cell(b), _cell(a)] for k, b, a in comparison.statistics]
         keys = [k for k, _, _ in comparison.statistics]
@@ -799,9 +900,10 @@ def comparison_section(before, after=None, runs=None, title=None):
     blocks = [
         '<div class="cols">' + _table(header, stats, keys=keys, cls="stats")
         + _table(["parameter"] + header[1:], params, cls="params") + "</div>",
-        _embed(plot_before_after(before, after, runs),
+        _embed(plot_before_after(before, after, runs, derived),
                f"Residuals against every factor before (grey rows) and after (red rows) adding "
-               f"{', '.join(added) or 'nothing'}, on one scale.", "residuals before and after"),
+               f"{', '.join(added) or 'nothing'}, on one scale.", "residuals before and after")
+        or _missing_figure("residual plot", "no factor varies beyond its resolution"),
     ]
     return Section(title, tuple(blocks), data)
 
@@ -810,7 +912,7 @@ def _p_text(p):
     return "&ndash;" if p is None else (f"{p:.2g}" if p >= 1e-300 else "&lt;1e-300")
 
 
-def diagnosis_section(diagnosis, title=None, residuals=True):
+def diagnosis_section(diagnosis, title=None, residuals=True, derived=()):
     """The report section of a diagnosis: verdict and goodness of fit, the ranking of
     candidate effects, residual structure against each factor and in words, ambiguities
     with the runs that would resolve them, influential runs and outliers.
@@ -822,6 +924,8 @@ def diagnosis_section(diagnosis, title=None, residuals=True):
     residuals : bool
         Also plot the residuals against every factor (False when the page already shows
         them in the fit's section).
+    derived : sequence of str
+        Covariate columns derived from the heading error (as :func:`fit_section`).
 
     Returns
     -------
@@ -879,9 +983,10 @@ def diagnosis_section(diagnosis, title=None, residuals=True):
         "<details><summary>Tests against each factor</summary>"
         + _table(["factor", "test", "p", "best function / note"], factor_rows) + "</details>",
         ("<h3>In words</h3>" + _notes(words)) if words else "",
-        _embed(plot_residuals(d.fit, d.runs), "Residuals against every factor.",
-               "residuals against every factor") if residuals else "",
-        _notes(list(d.notes)),
+        (_embed(plot_residuals(d.fit, d.runs, derived), "Residuals against every factor that varies "
+                "beyond its resolution.", "residuals against every factor")
+         or _missing_figure("residual plot", "no factor varies beyond its resolution")) if residuals else "",
+        _notes(list(d.notes) + campaign_factors(d.runs, derived).notes()),
     ]
     return Section(title, tuple(b for b in blocks if b), {"diagnosis": _jsonable(d.to_dict())})
 
@@ -943,7 +1048,7 @@ def design_section(result, baseline=None, title=None, baseline_note=None):
              ("efficiency against the whole budget", "budget_efficiency",
               _fmt(result.budget_efficiency)),
              ("refinement", "refinement", html.escape(result.refinement))]
-    blocks = [_table(["", "value"], [[lab, v] for lab, _, v in stats],
+    blocks = [_table(["statistic", "value"], [[lab, v] for lab, _, v in stats],
                      keys=[k for _, k, _ in stats], cls="stats")]
     blocks += _evaluation_blocks(ev, result.plan, baseline, baseline_note, "The optimised plan")
     blocks.append(_notes(list(result.notes)))
@@ -973,7 +1078,7 @@ def evaluation_section(evaluation, plan, baseline=None, title=None, baseline_not
              ("total time [h]", "total_time_h", _fmt(ev.total_time / units.HOUR)),
              ("criterion", "criterion", html.escape(f"{ev.criterion} = {ev.criterion_value:.6g}")),
              ("condition number", "condition", _fmt(ev.condition, 3))]
-    blocks = [_table(["", "value"], [[lab, v] for lab, _, v in stats],
+    blocks = [_table(["statistic", "value"], [[lab, v] for lab, _, v in stats],
                      keys=[k for _, k, _ in stats], cls="stats")]
     blocks += _evaluation_blocks(ev, plan, baseline, baseline_note, "The plan")
     data = {"evaluation": _jsonable(ev.to_dict()),

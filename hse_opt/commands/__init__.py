@@ -39,6 +39,14 @@ def add_report_argument(parser):
                         help="also write a self-contained HTML report to DIR/report.html")
 
 
+def add_derived_argument(parser):
+    """The ``--derived COLUMN`` option: a column derived from the heading error, never a
+    factor of the report (:mod:`hse_opt.factors`)."""
+    parser.add_argument("--derived", action="append", default=[], metavar="COLUMN",
+                        help="a column derived from the heading error, never plotted as a factor "
+                             "(columns named heading... are recognised anyway; repeatable)")
+
+
 def write_report(args, sections, title):
     """Write the report when ``--report DIR`` was given; says where on stderr."""
     if getattr(args, "report", None):

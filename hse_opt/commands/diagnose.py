@@ -1,5 +1,5 @@
 """``hse-opt diagnose``: compare a model with measured runs and find the missing effect."""
-from . import add_input_checks, input_checks, message, print_json
+from . import add_derived_argument, add_input_checks, input_checks, message, print_json
 
 NAME = "diagnose"
 HELP = "compare a model with measured runs: where it fails, which effect is missing"
@@ -31,6 +31,7 @@ def add_arguments(parser):
                         help="add the best significant effect and diagnose again, until adequate")
     parser.add_argument("--json", action="store_true", help="print one JSON object on stdout")
     parser.add_argument("--report", metavar="DIR", help="write the HTML report into DIR")
+    add_derived_argument(parser)
 
 
 def parse_fix(items):
@@ -66,7 +67,7 @@ def run(args):
     model = as_model(args.effects)
     steps = refine(runs, model, **kw) if args.refine else (diagnose(runs, model, **kw),)
     if args.report:
-        status = write_report(steps, args.report)
+        status = write_report(steps, args.report, args.runs, args.derived)
         if status:
             return status
     if args.json:
@@ -87,15 +88,15 @@ def run(args):
     return 0
 
 
-def write_report(steps, directory):
+def write_report(steps, directory, source="", derived=()):
     """The HTML report of the diagnosis steps (:mod:`hse_opt.report`): the first diagnosis,
     each added effect's before/after, and the last diagnosis; returns the exit status."""
     from .. import report
     from ..diagnose import compare
-    sections = [report.diagnosis_section(steps[0])]
+    sections = [report.diagnosis_section(steps[0], derived=derived)]
     if len(steps) > 1:
-        sections += [report.comparison_section(compare(a, b)) for a, b in zip(steps, steps[1:])]
-        sections.append(report.diagnosis_section(steps[-1]))
-    path = report.write_report(directory, sections, title="hse_opt diagnosis")
+        sections += [report.comparison_section(compare(a, b), derived=derived) for a, b in zip(steps, steps[1:])]
+        sections.append(report.diagnosis_section(steps[-1], derived=derived))
+    path = report.write_report(directory, sections, title=f"hse-opt diagnose {source}".rstrip())
     message(f"report: {path}")
     return 0

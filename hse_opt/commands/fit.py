@@ -3,7 +3,8 @@ import os
 
 import numpy as np
 
-from . import add_input_checks, add_report_argument, input_checks, message, print_json, write_report
+from . import (add_derived_argument, add_input_checks, add_report_argument, input_checks, message,
+               print_json, write_report)
 
 NAME = "fit"
 HELP = "calibrate a model on alignment results (RUNS.csv) by weighted least squares"
@@ -41,6 +42,7 @@ def add_arguments(parser):
     parser.add_argument("--json", action="store_true", help="print one JSON object on stdout")
     parser.add_argument("-o", "--output", metavar="FIT.json", help="write the calibration (for compensate)")
     add_report_argument(parser)
+    add_derived_argument(parser)
 
 
 def _assignments(items, option):
@@ -144,7 +146,7 @@ def run(args):
         message(f"hse-opt fit: wrote {args.output}")
     if args.report:
         from ..report import fit_section
-        write_report(args, [fit_section(result, runs)], f"hse-opt fit {args.runs}")
+        write_report(args, [fit_section(result, runs, derived=args.derived)], f"hse-opt fit {args.runs}")
     if args.json:
         print_json({**result.to_dict(), "source": args.runs})
     else:
