@@ -272,9 +272,8 @@ def analyse(F, names, units_, max_condition=MAX_CONDITION, advice=None, Z=None):
 
 def propagated_std(J, covariance, names=None, tol=1e-9):
     """1-sigma of each row of ``J x`` for ``x`` with covariance ``C``: ``sqrt(diag(J C J'))``,
-    computed as the row norms of ``J L`` with ``C = L L'`` (from the eigen-decomposition of
-    C's correlation form), so it is real and >= 0 by construction - no clipping or ``abs()``
-    of a negative variance.
+    computed as the row norms of ``J L`` with ``C = L L'`` (:func:`covariance_factor`), so it
+    is real and >= 0 by construction - no clipping or ``abs()`` of a negative variance.
 
     Parameters
     ----------
@@ -282,20 +281,40 @@ def propagated_std(J, covariance, names=None, tol=1e-9):
         Sensitivities of n quantities to k parameters (per display unit).
     covariance : array_like, shape (k, k)
         The parameters' covariance (display units); symmetric positive semidefinite.
-    names : sequence of str, optional
-        The parameters, for messages.
-    tol : float
-        Eigenvalues of the correlation matrix above ``-tol`` (rounding of a singular PSD
-        matrix, e.g. under equality constraints) count as zero; below, ``C`` is not a
-        covariance and ``ValueError`` says along which parameters.
+    names, tol
+        As :func:`covariance_factor`.
 
     Returns
     -------
     numpy.ndarray, shape (n,)
     """
     J = np.atleast_2d(np.asarray(J, dtype=float))
+    return np.linalg.norm(J @ covariance_factor(covariance, names, tol, k=J.shape[1]), axis=1)
+
+
+def covariance_factor(covariance, names=None, tol=1e-9, k=None):
+    """``L`` with ``C = L L'`` (up to rounding) from the eigen-decomposition of ``C``'s
+    correlation form.
+
+    Parameters
+    ----------
+    covariance : array_like, shape (k, k)
+        Symmetric positive semidefinite.
+    names : sequence of str, optional
+        The parameters, for messages.
+    tol : float
+        Eigenvalues of the correlation matrix above ``-tol`` (rounding of a singular PSD
+        matrix, e.g. under equality constraints) count as zero; below, ``C`` is not a
+        covariance and ``ValueError`` says along which parameters.
+    k : int, optional
+        The size ``C`` must have (default its own).
+
+    Returns
+    -------
+    numpy.ndarray, shape (k, k)
+    """
     C = np.asarray(covariance, dtype=float)
-    k = J.shape[1]
+    k = C.shape[0] if k is None and C.ndim == 2 else (k or 0)
     names = tuple(names) if names is not None else tuple(f"parameter {i}" for i in range(k))
     if C.shape != (k, k) or not np.all(np.isfinite(C)):
         raise ValueError(f"the covariance of {', '.join(names)} must be a finite {k} x {k} matrix, got "
@@ -317,7 +336,7 @@ def propagated_std(J, covariance, names=None, tol=1e-9):
         raise ValueError(f"the covariance is not positive semidefinite (eigenvalue {lam[0]:.3g} of its "
                          f"correlation form along {', '.join(bad)})")
     L = (s[:, None] * V) * np.sqrt(np.maximum(lam, 0.0))[None, :]  # C = L L' (up to rounding)
-    return np.linalg.norm(J @ L, axis=1)
+    return L
 
 
 def describe_runs(X, tilt_known=False):
