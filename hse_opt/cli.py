@@ -11,7 +11,7 @@ import os
 import sys
 
 #: command modules, in the order ``--help`` lists them
-COMMANDS = ("demo", "design", "simulate", "fit", "compensate", "diagnose", "export")
+COMMANDS = ("demo", "design", "simulate", "align", "fit", "compensate", "diagnose", "export")
 
 
 class _Parser(argparse.ArgumentParser):

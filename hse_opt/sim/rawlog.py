@@ -32,10 +32,25 @@ Files
     (a JSON object string). ``.csv``: one header row ``t_s, gyro_x_rad, gyro_y_rad,
     gyro_z_rad, accel_x_mps, accel_y_mps, accel_z_mps, encoder_rad``, one row per sample;
     metadata come from an optional sidecar ``<file>.json`` or the ``meta`` argument.
+    ``.csv`` with pulse counts (as test stands record them): the header ``t_s,
+    gyro_x_pulses, gyro_y_pulses, gyro_z_pulses, accel_x_pulses, accel_y_pulses,
+    accel_z_pulses, encoder_rad``, whole-number counts per sample, and the pulse weights in
+    the sidecar (or ``meta``): ``gyro_pulse_arcsec`` and ``accel_pulse_mps``, each one number
+    or three (x, y, z). The loader multiplies counts by weights; the log is then the same as
+    the ``_rad`` / ``_mps`` form. Either CSV form may give the table angle as
+    ``encoder_deg`` instead of ``encoder_rad``.
+
+Metadata keys the alignment command (``hse-opt align``) reads into RUNS.csv: ``run`` (integer
+id), ``position`` (stand-position label), ``azimuth_deg`` (the stand reading; without it the
+run has no heading reference), ``latitude_deg``, ``t_start_s``, ``temp_c``.
 
 Checks (:func:`validate_rawlog`): matching shapes, at least 3 samples, every value finite,
 timestamps strictly increasing and without gaps (no interval longer than 1.5 times the
 median), encoder steps below half a turn. A failure is a ValueError naming the sample index.
+:func:`check_rawlog` adds what a real recording can get wrong: a channel that is zero in
+every sample (dead or unconnected), and units (the gyros' rate against the encoder's, the
+accelerometers' specific force against gravity). :func:`load_rawlog` runs both, and names
+the file; a truncated file names the sample where it ends.
 """
 from __future__ import annotations
 
@@ -45,12 +60,22 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from hse_opt import units
 from hse_opt.data import atomic_path
 
-__all__ = ["RawLog", "validate_rawlog", "load_rawlog", "save_rawlog", "CSV_COLUMNS"]
+__all__ = ["RawLog", "validate_rawlog", "check_rawlog", "load_rawlog", "save_rawlog", "CSV_COLUMNS",
+           "PULSE_COLUMNS"]
 
 CSV_COLUMNS = ("t_s", "gyro_x_rad", "gyro_y_rad", "gyro_z_rad", "accel_x_mps", "accel_y_mps",
                "accel_z_mps", "encoder_rad")
+#: header of the pulse-count CSV form (weights ``gyro_pulse_arcsec``, ``accel_pulse_mps`` in meta)
+PULSE_COLUMNS = ("t_s", "gyro_x_pulses", "gyro_y_pulses", "gyro_z_pulses", "accel_x_pulses",
+                 "accel_y_pulses", "accel_z_pulses", "encoder_rad")
+_CHANNELS = ("gyro_x", "gyro_y", "gyro_z", "accel_x", "accel_y", "accel_z")
+#: specific force on a static base, m/s^2: the accelerometer units check allows [G_MIN, G_MAX]
+G_MIN, G_MAX = 5.0, 15.0
+#: the gyros' rate over the encoder's must lie in [1 / RATE_RATIO_MAX, RATE_RATIO_MAX]
+RATE_RATIO_MAX = 1.25
 #: an interval longer than this times the median interval is a gap
 GAP_FACTOR = 1.5
 
@@ -106,13 +131,15 @@ class RawLog:
         return float(np.median(np.diff(self.t)))
 
 
-def validate_rawlog(t, gyro, accel, encoder):
+def validate_rawlog(t, gyro, accel, encoder, *, copy=True):
     """Check and normalise raw-log arrays; returns ``(t, gyro, accel, encoder)`` as float64
-    (the encoder unwrapped). Raises ValueError naming the first offending sample index."""
-    t = np.array(t, dtype=float)
-    gyro = np.array(gyro, dtype=float)
-    accel = np.array(accel, dtype=float)
-    encoder = np.array(encoder, dtype=float)
+    (the encoder unwrapped), copies unless ``copy=False``. Raises ValueError naming the first
+    offending sample index."""
+    asarray = np.array if copy else np.asarray
+    t = asarray(t, dtype=float)
+    gyro = asarray(gyro, dtype=float)
+    accel = asarray(accel, dtype=float)
+    encoder = asarray(encoder, dtype=float)
     if t.ndim != 1:
         raise ValueError(f"raw log t_s must be 1-D, got shape {t.shape}")
     n = t.shape[0]
@@ -150,17 +177,77 @@ def validate_rawlog(t, gyro, accel, encoder):
     return t, gyro, accel, encoder
 
 
-def save_rawlog(log, path):
+def check_rawlog(log):
+    """What a real recording can get wrong beyond :func:`validate_rawlog`; ValueError naming
+    the channel, the samples and what is allowed.
+
+    * A gyro or accelerometer channel that is zero in every sample (dead or unconnected).
+    * Units. On a static base each sample's specific force has the magnitude of gravity
+      whatever the attitude: the median of ``|accel_k| / dt`` must lie in [5, 15] m/s^2
+      (velocity increments in m/s, not g or cm/s). The gyros turn with the table: the median
+      of ``|gyro_k| / dt`` (rad/s; Earth rate aside) must match the encoder's mean rate within
+      a factor 1.25 (increments in rad, not deg, arcsec or raw pulses; an encoder in rad).
+
+    Parameters
+    ----------
+    log : RawLog
+    """
+    n = len(log)
+    for j, name in enumerate(_CHANNELS):
+        x = (log.gyro if j < 3 else log.accel)[:, j % 3]
+        if not x[1:].any():
+            raise ValueError(f"raw log {name} is zero in every sample (sample index 1 to {n - 1}): a dead or "
+                             "unconnected channel; allowed: a recorded channel")
+    # medians over every 7th sample: the units are off by factors of 10 and more, when at all
+    sub = slice(1, None, 7)
+    dt = (log.t[1:] - log.t[:-1])[::7]
+    acc, gyr = log.accel[sub], log.gyro[sub]
+    f = np.median(np.sqrt(np.einsum("ij,ij->i", acc, acc)) / dt)
+    if not G_MIN <= f <= G_MAX:
+        raise ValueError(f"raw log accel_mps: the specific force is {f:.4g} m/s^2 (median over sample index 1 "
+                         f"to {n - 1}); allowed: {G_MIN:g}-{G_MAX:g} m/s^2 on a static base (velocity "
+                         "increments in m/s: about 1 is g s, 981 cm/s)")
+    span = log.encoder[-1] - log.encoder[0]
+    table = abs(span) / (log.t[-1] - log.t[0])
+    if table > 0.1 * units.DEG_PER_S:   # a table at rest: the alignment itself says so
+        w = np.median(np.sqrt(np.einsum("ij,ij->i", gyr, gyr)) / dt)
+        ratio = w / table
+        if not 1 / RATE_RATIO_MAX <= ratio <= RATE_RATIO_MAX:
+            raise ValueError(f"raw log gyro_rad and encoder_rad disagree: the gyros turn at {w:.4g} rad/s, the "
+                             f"encoder at {table:.4g} rad/s (median over sample index 1 to {n - 1}; ratio "
+                             f"{ratio:.4g}: 57.3 is degrees, 206265 arcsec, 1/57.3 an encoder in degrees); "
+                             "allowed: both in rad, ratio within 1.25")
+
+
+def save_rawlog(log, path, *, pulse_weights=None):
     """Write ``log`` to ``path`` (``.npz``; or ``.csv`` with a ``.json`` sidecar for meta),
-    each file whole or not at all."""
+    each file whole or not at all.
+
+    ``pulse_weights = (gyro_pulse, accel_pulse)`` (rad, m/s; one number or three each)
+    writes the pulse-count CSV form: the increments divided by the weights, which must give
+    whole numbers (the log's own quanta), and the weights in the sidecar.
+    """
     path = os.fspath(path)
     if path.endswith(".csv"):
-        data = np.column_stack([log.t, log.gyro, log.accel, log.encoder])
+        meta, header, inc = dict(log.meta), CSV_COLUMNS, np.column_stack([log.gyro, log.accel])
+        if pulse_weights is not None:
+            wg, wa = (np.broadcast_to(np.asarray(w, dtype=float), (3,)) for w in pulse_weights)
+            counts = inc / np.concatenate([wg, wa])
+            whole = np.round(counts)
+            if not np.all(np.abs(counts - whole) <= 1e-6 * np.maximum(1.0, np.abs(whole))):
+                raise ValueError(f"{path}: the increments are not whole multiples of the pulse weights")
+            inc = whole
+            header = PULSE_COLUMNS
+            meta["gyro_pulse_arcsec"] = (wg / units.ARCSEC).tolist()
+            meta["accel_pulse_mps"] = wa.tolist()
+        data = np.column_stack([log.t, inc, log.encoder])
         with atomic_path(path) as tmp:
-            np.savetxt(tmp, data, delimiter=",", header=",".join(CSV_COLUMNS), comments="", fmt="%.17g")
+            np.savetxt(tmp, data, delimiter=",", header=",".join(header), comments="", fmt="%.17g")
         with atomic_path(path + ".json") as tmp, open(tmp, "w", encoding="utf-8") as fh:
-            json.dump(log.meta, fh, indent=1, sort_keys=True)
+            json.dump(meta, fh, indent=1, sort_keys=True)
         return
+    if pulse_weights is not None:
+        raise ValueError(f"{path}: pulse counts are a CSV form; allowed: a .csv path with pulse_weights")
     if not path.endswith(".npz"):
         raise ValueError(f"{path}: raw log files end in .npz or .csv")
     with atomic_path(path) as tmp:
@@ -168,39 +255,139 @@ def save_rawlog(log, path):
                  meta_json=np.array(json.dumps(log.meta, sort_keys=True)))
 
 
-def load_rawlog(path, meta=None):
-    """Read a raw log (``.npz`` or ``.csv``); ``meta`` entries override the file's metadata.
+def _weights(meta, key, factor):
+    """A pulse weight from meta: one positive number or three -> (3,) in SI."""
+    if key not in meta:
+        raise ValueError(f"pulse counts need the pulse weight '{key}' in the .json sidecar (or meta); "
+                         "allowed: one positive number or three")
+    w = np.asarray(meta[key], dtype=float) * factor
+    if w.shape not in ((), (3,)) or not np.all(np.isfinite(w) & (w > 0)):
+        raise ValueError(f"meta '{key}' = {meta[key]!r}; allowed: one positive number or three")
+    return np.broadcast_to(w, (3,))
+
+
+def _read_csv(path):
+    """(header, data (n, 8)) of a raw-log CSV; a short or malformed line names its sample."""
+    with open(path, encoding="utf-8") as fh:
+        header = [h.strip() for h in fh.readline().split(",")]
+        text = fh.read()
+    lines = text.splitlines()
+    try:
+        data = np.loadtxt(lines, delimiter=",", ndmin=2, dtype=float)
+    except ValueError:
+        for k, line in enumerate(lines):
+            fields = line.split(",")
+            if len(fields) != len(header):
+                end = " (the file is truncated)" if k == len(lines) - 1 else ""
+                raise ValueError(f"sample index {k} (line {k + 2}) has {len(fields)} fields, the header "
+                                 f"{len(header)}{end}; allowed: one value per column") from None
+            for name, v in zip(header, fields):
+                try:
+                    float(v)
+                except ValueError:
+                    raise ValueError(f"sample index {k} (line {k + 2}), column {name}: {v.strip()!r} is not a "
+                                     "number") from None
+        raise
+    if data.shape[1] != len(header):
+        raise ValueError(f"{data.shape[1]} values per row, header {len(header)}")
+    if text and not text.endswith("\n"):
+        raise ValueError(f"the file is truncated: its last line (sample index {data.shape[0] - 1}) has no line "
+                         "end; allowed: whole lines")
+    return header, data
+
+
+def _read_npz(path):
+    """The arrays of a ``.npz`` file, name -> array.
+
+    Stored (uncompressed) members, as :func:`save_rawlog` writes them, are read in one pass
+    and viewed in place, without the per-member copies and CRC checks of :func:`numpy.load`
+    (a truncated file still fails: the zip directory sits at its end); compressed members go
+    through :func:`numpy.load`.
+    """
+    import io
+    import struct
+    import zipfile
+
+    with open(path, "rb") as fh:
+        buf = fh.read()
+    try:
+        infos = zipfile.ZipFile(io.BytesIO(buf)).infolist()
+    except zipfile.BadZipFile as exc:
+        raise ValueError(f"is truncated or not a numpy .npz archive ({exc}); allowed: a whole .npz raw "
+                         "log") from None
+    if any(i.compress_type != zipfile.ZIP_STORED for i in infos):
+        with np.load(path, allow_pickle=False) as z:
+            return {k: z[k] for k in z.files}
+    view, out = memoryview(buf), {}
+    for info in infos:
+        name_len, extra_len = struct.unpack("<HH", buf[info.header_offset + 26:info.header_offset + 30])
+        start = info.header_offset + 30 + name_len + extra_len
+        member = io.BytesIO(view[start:start + min(info.file_size, 65536)])
+        version = np.lib.format.read_magic(member)
+        read_header = (np.lib.format.read_array_header_1_0 if version == (1, 0)
+                       else np.lib.format.read_array_header_2_0)
+        shape, fortran, dtype = read_header(member)
+        count = int(np.prod(shape, dtype=np.int64))
+        if start + member.tell() + count * dtype.itemsize > len(buf) or dtype.hasobject:
+            raise ValueError(f"array {info.filename} is truncated; allowed: a whole .npz raw log")
+        arr = np.frombuffer(buf, dtype=dtype, count=count, offset=start + member.tell())
+        out[info.filename.removesuffix(".npy")] = arr.reshape(shape, order="F" if fortran else "C")
+    return out
+
+
+def load_rawlog(path, meta=None, *, check=True):
+    """Read a raw log (``.npz`` or ``.csv``, either CSV form); ``meta`` entries override the
+    file's metadata.
+
+    ``check`` also runs :func:`check_rawlog` (dead channels, units).
 
     Raises
     ------
     ValueError
-        The file is malformed or fails :func:`validate_rawlog` (the message names the file
-        and the sample index).
+        The file is malformed, truncated or fails :func:`validate_rawlog` / :func:`check_rawlog`
+        (the message names the file and the sample index).
     """
     path = os.fspath(path)
     try:
         if path.endswith(".npz"):
-            with np.load(path, allow_pickle=False) as z:
-                missing = [k for k in ("t_s", "gyro_rad", "accel_mps", "encoder_rad") if k not in z]
-                if missing:
-                    raise ValueError(f"missing arrays {missing}")
-                file_meta = json.loads(str(z["meta_json"])) if "meta_json" in z else {}
-                arrays = (z["t_s"], z["gyro_rad"], z["accel_mps"], z["encoder_rad"])
+            z = _read_npz(path)
+            missing = [k for k in ("t_s", "gyro_rad", "accel_mps", "encoder_rad") if k not in z]
+            if missing:
+                raise ValueError(f"missing arrays {missing}")
+            file_meta = json.loads(str(z["meta_json"])) if "meta_json" in z else {}
+            arrays = (z["t_s"], z["gyro_rad"], z["accel_mps"], z["encoder_rad"])
         elif path.endswith(".csv"):
-            with open(path, encoding="utf-8") as fh:
-                header = [h.strip() for h in fh.readline().split(",")]
-            if tuple(header) != CSV_COLUMNS:
-                raise ValueError(f"header {header}; required {list(CSV_COLUMNS)}")
-            data = np.loadtxt(path, delimiter=",", skiprows=1, ndmin=2)
+            header, data = _read_csv(path)
             file_meta = {}
             if os.path.exists(path + ".json"):
                 with open(path + ".json", encoding="utf-8") as fh:
                     file_meta = json.load(fh)
-            arrays = (data[:, 0], data[:, 1:4], data[:, 4:7], data[:, 7])
+            file_meta.update(meta or {})
+            enc = header[-1:]
+            enc_factor = {"encoder_rad": 1.0, "encoder_deg": units.DEG}.get(enc[0] if enc else "")
+            if tuple(header[:-1]) == CSV_COLUMNS[:-1] and enc_factor:
+                gyro, accel = data[:, 1:4], data[:, 4:7]
+            elif tuple(header[:-1]) == PULSE_COLUMNS[:-1] and enc_factor:
+                counts = data[:, 1:7]
+                frac = np.abs(counts - np.round(counts)) > 1e-9
+                if frac.any():
+                    k, j = np.argwhere(frac)[0]
+                    raise ValueError(f"sample index {k}, column {PULSE_COLUMNS[1 + j]}: {counts[k, j]!r} is not a "
+                                     "whole number; allowed: pulse counts")
+                gyro = counts[:, :3] * _weights(file_meta, "gyro_pulse_arcsec", units.ARCSEC)
+                accel = counts[:, 3:] * _weights(file_meta, "accel_pulse_mps", 1.0)
+            else:
+                raise ValueError(f"header {header}; allowed: {list(CSV_COLUMNS)} or {list(PULSE_COLUMNS)} (the "
+                                 "encoder as encoder_rad or encoder_deg)")
+            arrays = (data[:, 0], gyro, accel, data[:, 7] * enc_factor)
         else:
             raise ValueError("raw log files end in .npz or .csv")
         m = dict(file_meta)
         m.update(meta or {})
-        return RawLog(*arrays, meta=m)
+        t, gyro, accel, encoder = validate_rawlog(*arrays, copy=False)  # the arrays are the loader's own
+        log = RawLog._trusted(t, gyro, accel, encoder, m)
+        if check:
+            check_rawlog(log)
+        return log
     except ValueError as exc:
         raise ValueError(f"{path}: {exc}") from None

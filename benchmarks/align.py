@@ -1,0 +1,89 @@
+"""``hse-opt align`` benchmark (issue 13, item 4): prints its figures.
+
+1. The alignment of one 10-minute 500 Hz raw log (the paper-like default system, 40 deg/s),
+   reading excluded (target <= 20 ms), and the reading of its ``.npz`` file.
+2. ``hse-opt align DIR -o RUNS.csv --jobs N`` on a directory of 100 such logs, end to end as
+   a user runs it (a fresh process: start-up, reading, checks, alignment, RUNS.csv), in logs
+   per second (target >= 40 with ``--jobs 2`` on the project's 2-core machine). The
+   directory holds 10 distinct simulated logs, each hard-linked 10 times under its own name
+   (100 files, 10 x 29 MB on disk): every file is read, checked and aligned in full.
+
+    python benchmarks/align.py               # 100 logs, --jobs 2
+    python benchmarks/align.py --logs 20 --jobs 1
+"""
+import argparse
+import os
+import statistics
+import subprocess
+import sys
+import tempfile
+import time
+
+import numpy as np
+
+from hse_opt.sim import AlignConfig, RunSpec, TruthConfig, align, generate, load_rawlog, save_rawlog
+from hse_opt.units import DEG_PER_S
+
+
+def one_log(repeats, path):
+    truth = TruthConfig.default()
+    log = generate(truth, RunSpec(rate=40 * DEG_PER_S, azimuth=0.3, duration=600.0, t_start=7200.0),
+                   np.random.default_rng(0))
+    cfg = AlignConfig.from_truth(truth)
+    align(log, cfg)                                   # warm-up
+    ta = []
+    for _ in range(repeats):
+        t0 = time.perf_counter()
+        align(log, cfg)
+        ta.append(time.perf_counter() - t0)
+    save_rawlog(log, path)
+    load_rawlog(path)
+    tr = []
+    for _ in range(repeats):
+        t0 = time.perf_counter()
+        load_rawlog(path)
+        tr.append(time.perf_counter() - t0)
+    print(f"one 10-minute 500 Hz log ({len(log)} samples, {repeats} repeats; median [min]):")
+    print(f"  align (reading excluded) : {1e3 * statistics.median(ta):6.1f} ms  [{1e3 * min(ta):.1f}]  "
+          "(target <= 20 ms)")
+    print(f"  read .npz + checks       : {1e3 * statistics.median(tr):6.1f} ms  [{1e3 * min(tr):.1f}]")
+
+
+def directory(n_logs, jobs, workdir):
+    truth = TruthConfig.default()
+    logdir = os.path.join(workdir, "logs")
+    os.makedirs(logdir)
+    distinct = min(10, n_logs)
+    for k in range(distinct):
+        log = generate(truth, RunSpec(rate=(20 + 20 * (k % 3)) * DEG_PER_S * (-1) ** k, azimuth=0.3,
+                                      duration=600.0, t_start=7200.0 + 700 * k), np.random.default_rng(k))
+        save_rawlog(log, os.path.join(workdir, f"src{k}.npz"))
+    for i in range(n_logs):
+        os.link(os.path.join(workdir, f"src{i % distinct}.npz"), os.path.join(logdir, f"log_{i:03d}.npz"))
+    out = os.path.join(workdir, "RUNS.csv")
+    cmd = [sys.executable, "-m", "hse_opt.cli", "align", logdir, "-o", out, "--jobs", str(jobs), "--no-progress"]
+    subprocess.run(cmd, check=True, capture_output=True)          # warm the page cache
+    times = []
+    for _ in range(3):
+        t0 = time.perf_counter()
+        subprocess.run(cmd, check=True, capture_output=True)
+        times.append(time.perf_counter() - t0)
+    best = min(times)
+    print(f"hse-opt align on {n_logs} ten-minute logs, --jobs {jobs} (3 runs; best [median]):")
+    print(f"  {best:.2f} s [{statistics.median(times):.2f}] -> {n_logs / best:.1f} logs/s "
+          f"[{n_logs / statistics.median(times):.1f}]  (target >= 40 logs/s with --jobs 2)")
+
+
+def main():
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--logs", type=int, default=100)
+    ap.add_argument("--jobs", type=int, default=2)
+    ap.add_argument("--repeats", type=int, default=20)
+    args = ap.parse_args()
+    with tempfile.TemporaryDirectory() as workdir:
+        one_log(args.repeats, os.path.join(workdir, "one.npz"))
+        directory(args.logs, args.jobs, workdir)
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,153 @@
+"""``hse-opt align``: raw logs (npz, CSV increments, CSV pulse counts) -> RUNS.csv, and bad logs.
+
+References: the simulator's true attitude and commanded rate (not the processor's output),
+the generated log's own arrays for the pulse-count form, and hand-made defects at known
+sample indices.
+"""
+import json
+import shutil
+
+import numpy as np
+import pytest
+
+from hse_opt import units
+from hse_opt.cli import main
+from hse_opt.data import load_runs
+from hse_opt.sim import RunSpec, TruthConfig, generate, load_rawlog, save_rawlog, true_attitude
+from hse_opt.sim.rawlog import check_rawlog
+
+TRUTH = TruthConfig.default()
+RUNS_SPEC = [  # (rate deg/s, stand azimuth deg, position, surveyed)
+    (20.0, 30.0, "A", False), (40.0, 30.0, "A", False), (-40.0, 30.0, "A", False), (40.0, 120.0, "B", True)]
+
+
+@pytest.fixture(scope="module")
+def logdir(tmp_path_factory):
+    d = tmp_path_factory.mktemp("logs")
+    truths = []
+    for i, (rate, az, pos, surveyed) in enumerate(RUNS_SPEC):
+        spec = RunSpec(rate=rate * units.DEG_PER_S, azimuth=np.radians(az), duration=30.0, t_start=900.0 + 60 * i)
+        log = generate(TRUTH, spec, np.random.default_rng(i))
+        meta = {**log.meta, "position": pos, "run": 10 + i}
+        if not surveyed:
+            del meta["azimuth_deg"]
+        object.__setattr__(log, "meta", meta)
+        kw = {"pulse_weights": (TRUTH.gyro.pulse, TRUTH.accel.pulse)} if i == 1 else {}
+        save_rawlog(log, d / (f"r{i}.csv" if i == 1 else f"r{i}.npz"), **kw)
+        truths.append((log, true_attitude(TRUTH, spec)))
+    return d, truths
+
+
+def test_pulse_count_csv_reads_back_the_generated_increments(logdir):
+    d, truths = logdir
+    log = truths[1][0]
+    back = load_rawlog(d / "r1.csv")
+    assert np.array_equal(back.t, log.t)
+    # the generated increments are whole pulses; counts x weight give them back to rounding
+    assert np.allclose(back.gyro, log.gyro, rtol=1e-12, atol=0)
+    assert np.allclose(back.accel, log.accel, rtol=1e-12, atol=0)
+    assert back.meta["gyro_pulse_arcsec"] == pytest.approx([TRUTH.gyro.pulse / units.ARCSEC] * 3)
+
+
+def test_align_writes_one_row_per_log_with_metadata(logdir, tmp_path, capsys):
+    d, truths = logdir
+    out = tmp_path / "RUNS.csv"
+    assert main(["align", str(d), "-o", str(out), "--jobs", "2", "--no-progress"]) == 0
+    runs = load_runs(out)
+    assert runs.run.tolist() == [10, 11, 12, 13]
+    assert runs.position.tolist() == ["A", "A", "A", "B"]
+    assert runs.surveyed.tolist() == [False, False, False, True]
+    for i, (rate, az, _, _) in enumerate(RUNS_SPEC):
+        log, att = truths[i]
+        assert runs.rate[i] / units.DEG_PER_S == pytest.approx(rate, rel=1e-3)      # from the encoder
+        assert runs.duration[i] == pytest.approx(30.0, abs=1e-6)
+        assert runs.t_start[i] == pytest.approx(900.0 + 60 * i)
+        # the alignment against the simulator's true attitude of b0, within 5 of its own sigmas
+        dh = (runs.heading[i] - att["heading"] + np.pi) % (2 * np.pi) - np.pi
+        assert abs(dh) < 5 * runs.heading_std[i] + 30 * units.ARCSEC
+        assert abs(runs.pitch[i] - att["pitch"]) < 20 * units.ARCSEC
+        assert abs(runs.roll[i] - att["roll"]) < 20 * units.ARCSEC
+    # the surveyed log: heading minus the stand reading
+    assert runs.heading_err[3] == pytest.approx(runs.heading[3] - np.radians(120.0), abs=1e-9)
+    assert "4 of 4 logs aligned" in capsys.readouterr().err
+
+
+def _bad(d, tmp_path, name, edit):
+    """Copy the good logs and break one of them with ``edit(path)``."""
+    work = tmp_path / "logs"
+    shutil.copytree(d, work)
+    edit(work / name)
+    return work
+
+
+def _rewrite(path, **change):
+    z = dict(np.load(path))
+    for k, fun in change.items():
+        z[k] = fun(np.array(z[k]))
+    np.savez(path, **z)
+
+
+def _set(index, value, column=None):
+    def fun(a):
+        if column is None:
+            a[index] = value
+        else:
+            a[index, column] = value
+        return a
+    return fun
+
+
+@pytest.mark.parametrize("name, edit, expected", [
+    ("r2.npz", lambda p: p.write_bytes(p.read_bytes()[:200000]), "r2.npz: is truncated"),
+    ("r1.csv", lambda p: p.write_text(p.read_text()[:-30]), "r1.csv: .*sample index 14999 .*truncated"),
+    ("r0.npz", lambda p: _rewrite(p, gyro_rad=_set(4321, np.nan, 1)), "r0.npz: .*not finite.*sample index 4321"),
+    ("r0.npz", lambda p: _rewrite(p, t_s=lambda t: np.where(np.arange(t.size) >= 777, t + 0.05, t)),
+     "r0.npz: .*gap before sample index 777"),
+    ("r3.npz", lambda p: _rewrite(p, accel_mps=_set(slice(None), 0.0, 2)), "r3.npz: .*accel_z is zero in every sample"),
+    ("r3.npz", lambda p: _rewrite(p, gyro_rad=lambda g: g / units.DEG), "r3.npz: .*gyro_rad and encoder_rad disagree.*ratio 57"),
+    ("r0.npz", lambda p: _rewrite(p, accel_mps=lambda a: a / 9.80665), "r0.npz: .*specific force is 0.99.*about 1 is g s"),
+])
+def test_a_bad_log_is_named_and_the_others_still_written(logdir, tmp_path, capsys, name, edit, expected):
+    d, _ = logdir
+    work = _bad(d, tmp_path, name, edit)
+    out = tmp_path / "RUNS.csv"
+    assert main(["align", str(work), "-o", str(out), "--no-progress"]) == 2
+    err = capsys.readouterr().err
+    lines = [ln for ln in err.splitlines() if "error:" in ln]
+    assert len(lines) == 1
+    import re
+    assert re.search(expected, lines[0]), lines[0]
+    assert "3 of 4 logs aligned" in err and "1 bad log" in err
+    assert len(load_runs(out)) == 3
+
+
+def test_pulse_counts_need_their_weights_and_whole_numbers(logdir, tmp_path):
+    d, _ = logdir
+    work = _bad(d, tmp_path, "r1.csv", lambda p: None)
+    meta = json.loads((work / "r1.csv.json").read_text())
+    del meta["gyro_pulse_arcsec"]
+    (work / "r1.csv.json").write_text(json.dumps(meta))
+    with pytest.raises(ValueError, match="r1.csv: pulse counts need the pulse weight 'gyro_pulse_arcsec'"):
+        load_rawlog(work / "r1.csv")
+    lines = (d / "r1.csv").read_text().splitlines()
+    fields = lines[6].split(",")
+    fields[2] = fields[2] + ".5"
+    lines[6] = ",".join(fields)
+    (work / "r1.csv").write_text("\n".join(lines) + "\n")
+    (work / "r1.csv.json").write_text((d / "r1.csv.json").read_text())
+    with pytest.raises(ValueError, match="sample index 5, column gyro_y_pulses: .* not a whole number"):
+        load_rawlog(work / "r1.csv")
+
+
+def test_simulated_logs_pass_the_real_log_checks(logdir):
+    _, truths = logdir
+    for log, _ in truths:
+        check_rawlog(log)          # no exception: generated logs have the units and channels
+
+
+def test_no_log_aligned_writes_nothing(tmp_path, capsys):
+    (tmp_path / "x.npz").write_bytes(b"not a zip")
+    out = tmp_path / "RUNS.csv"
+    assert main(["align", str(tmp_path / "x.npz"), "-o", str(out), "--no-progress"]) == 2
+    assert not out.exists() and "nothing written" in capsys.readouterr().err
+    assert main(["align", str(tmp_path / "missing.npz"), "-o", str(out)]) == 2
