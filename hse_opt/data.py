@@ -58,7 +58,7 @@ rows share which constant. What this data can estimate:
   by 3e-7 rad, a relative 3e-4 of C23 and ~0.01 arcsec of heading error at 40 deg/s.
 
 ``PLAN.csv`` (:class:`Plan`): ``run, rate_dps, azimuth_deg, t_start_s, duration_s`` and
-optionally ``tilt_x_arcsec`` with ``tilt_y_arcsec``.
+optionally ``tilt_x_arcsec`` with ``tilt_y_arcsec``, and ``position`` (a text label).
 
 Checks
 ------
@@ -229,6 +229,18 @@ def _wrap(angle):
     return (np.asarray(angle) + np.pi) % (2 * np.pi) - np.pi
 
 
+def _labels(values, src):
+    """Position labels from file text or in-memory values (text or integers) -> array of str."""
+    out = []
+    for i, v in enumerate(values):
+        text = str(v).strip() if isinstance(v, (str, numbers.Integral)) and not isinstance(v, bool) else None
+        if not text:
+            raise DataError(src, f"label {v!r} is not allowed; allowed: a non-empty text label",
+                            row=i + 1, column="position")
+        out.append(text)
+    return np.array(out, dtype=str)
+
+
 def _looks_like_radians(azimuth_deg):
     u = np.unique(azimuth_deg)
     return bool(u.size >= 2 and np.all(np.abs(u) <= 2 * np.pi + 1e-9) and np.ptp(u) >= 1.0
@@ -282,6 +294,17 @@ class _Table:
             self._check_covariate_name(name, src)
             covariates[name] = self._array(value, name, n, first)
         set_("covariates", covariates)
+        if getattr(self, "position", None) is not None:
+            pos = np.array(self.position, dtype=object)
+            if pos.shape != (n,):
+                raise DataError(src, f"has shape {pos.shape}; allowed: ({n},) like '{first}'", column="position")
+            for i, v in enumerate(pos.tolist()):
+                if not isinstance(v, str) or not v.strip() or v != v.strip():
+                    raise DataError(src, f"label {v!r} is not allowed; allowed: a non-empty text label "
+                                         "without surrounding spaces", row=i + 1, column="position")
+            pos = pos.astype(str)
+            pos.setflags(write=False)
+            set_("position", pos)
         seen = {}
         for i, r in enumerate(self.run.tolist()):
             if r in seen:
@@ -376,6 +399,11 @@ class _Table:
 
     @classmethod
     def _parse(cls, columns, src, min_rate_dps, allow_small_azimuths, header_line):
+        if "position" in columns and "position" in cls._TEXT:
+            columns = dict(columns)
+            labels = _labels(_sequence(columns.pop("position"), src, "position"), src)
+            table = cls._parse(columns, src, min_rate_dps, allow_small_azimuths, header_line)
+            return dataclasses.replace(table, position=labels)
         names = list(columns)
         for col in cls._COLUMNS:
             if col.required and col.name not in names:
@@ -474,6 +502,8 @@ class _Table:
             if x is not None:
                 cols[c.name] = ([str(v) for v in x.tolist()] if c.factor == 0
                                 else [_to_text(v, c.factor) for v in x])
+        if getattr(self, "position", None) is not None:
+            cols["position"] = self.position.tolist()
         for name, x in self.covariates.items():
             cols[name] = [_to_text(v, 1.0) for v in x]
         return cols
@@ -578,17 +608,6 @@ class Runs(_Table):
     def __post_init__(self):
         super().__post_init__()
         n, src = len(self), self.source
-        if self.position is not None:
-            pos = np.array(self.position, dtype=object)
-            if pos.shape != (n,):
-                raise DataError(src, f"has shape {pos.shape}; allowed: ({n},) like 'run'", column="position")
-            for i, v in enumerate(pos.tolist()):
-                if not isinstance(v, str) or not v.strip() or v != v.strip():
-                    raise DataError(src, f"label {v!r} is not allowed; allowed: a non-empty text label "
-                                         "without surrounding spaces", row=i + 1, column="position")
-            pos = pos.astype(str)
-            pos.setflags(write=False)
-            object.__setattr__(self, "position", pos)
         if self.surveyed is not None:
             sv = np.array(self.surveyed)
             if sv.shape != (n,) or sv.dtype != bool:
@@ -653,10 +672,6 @@ class Runs(_Table):
                     col = [v if ok else "" for v, ok in zip(col, self.surveyed.tolist())]
                 out[name] = col
             cols = out
-        if self.position is not None:
-            cols = {**{k: v for k, v in cols.items() if k not in self.covariates},
-                    "position": self.position.tolist(),
-                    **{k: v for k, v in cols.items() if k in self.covariates}}
         return cols
 
     @classmethod
@@ -664,14 +679,7 @@ class Runs(_Table):
         """The field-campaign columns (``position``, ``heading_deg``, empty ``azimuth_deg``),
         then the common parse (see the module docstring, "Field campaigns")."""
         columns = dict(columns)
-        if "heading_deg" not in columns:
-            if "position" in columns:
-                columns["position"] = _sequence(columns["position"], src, "position")
-                position = columns.pop("position")
-                runs = super()._parse(columns, src, min_rate_dps, allow_small_azimuths, header_line)
-                return dataclasses.replace(runs, position=cls._labels(position, src))
-            return super()._parse(columns, src, min_rate_dps, allow_small_azimuths, header_line)
-        if "run" not in columns:  # the common parse names the missing column
+        if "heading_deg" not in columns or "run" not in columns:  # the common parse names the missing column
             return super()._parse(columns, src, min_rate_dps, allow_small_azimuths, header_line)
         n = len(_sequence(columns["run"], src, "run"))
         heading = _sequence(columns["heading_deg"], src, "heading_deg")
@@ -689,7 +697,6 @@ class Runs(_Table):
         for i in np.flatnonzero(~surveyed & ~err_missing):
             raise DataError(src, "is given where azimuth_deg is empty; allowed: heading_err_arcsec only "
                                  "with the stand azimuth it refers to", row=int(i) + 1, column="heading_err_arcsec")
-        position = columns.pop("position", None)
         # the common parse on stand-ins: the own heading for a missing azimuth, 0 for a missing error
         columns["azimuth_deg"] = [a if ok else h for a, h, ok in zip(seqs["azimuth_deg"], heading, surveyed)]
         columns["heading_err_arcsec"] = [_heading_err_text(a, h) if ok else 0 if miss else e for a, h, e, ok, miss
@@ -702,7 +709,7 @@ class Runs(_Table):
                                      "1, not whole numbers); allowed: degrees, or allow_small_azimuths=True "
                                      "(--allow-small-azimuths) for a fine sweep in degrees", column=name)
         heading_err = np.array(runs.heading_err)
-        labels = None if position is None else cls._labels(_sequence(position, src, "position"), src)
+        labels = runs.position
         groups = labels if labels is not None else np.full(n, "field")
         for label in np.unique(groups[~surveyed]):
             rows = np.flatnonzero((groups == label) & ~surveyed)
@@ -718,18 +725,7 @@ class Runs(_Table):
                                      "a position column separates positions)", row=int(rows[k]) + 1,
                                 column="heading_deg")
             heading_err[rows] = dev
-        return dataclasses.replace(runs, heading_err=heading_err, position=labels, surveyed=surveyed)
-
-    @staticmethod
-    def _labels(values, src):
-        out = []
-        for i, v in enumerate(values):
-            text = str(v).strip() if isinstance(v, (str, numbers.Integral)) and not isinstance(v, bool) else None
-            if not text:
-                raise DataError(src, f"label {v!r} is not allowed; allowed: a non-empty text label",
-                                row=i + 1, column="position")
-            out.append(text)
-        return np.array(out, dtype=str)
+        return dataclasses.replace(runs, heading_err=heading_err, surveyed=surveyed)
 
 
 @dataclass(frozen=True, eq=False)
@@ -750,6 +746,9 @@ class Plan(_Table):
         Alignment length, s.
     tilt_x, tilt_y : numpy.ndarray, shape (n,), or None
         Deliberate tilt of the table base about x and y, rad (both or neither).
+    position : numpy.ndarray of str, shape (n,), or None
+        Stand-position labels (``position``, text): rows with one label are one placement
+        of the system (a field campaign, :func:`hse_opt.sim.run_campaign`).
     covariates : dict[str, numpy.ndarray]
         Other numeric columns, shape (n,), in the file's unit, under the file's name.
     source : str
@@ -763,9 +762,12 @@ class Plan(_Table):
     duration: np.ndarray
     tilt_x: np.ndarray | None = None
     tilt_y: np.ndarray | None = None
+    position: np.ndarray | None = None
     covariates: dict = field(default_factory=dict)
     source: str = "<memory>"
 
+    _ROW_FIELDS = ("position",)
+    _TEXT = ("position",)
     _COLUMNS = (_RUN, _RATE, _AZIMUTH, _T_START, _DURATION, _Col("tilt_x_arcsec", "tilt_x", ARCSEC, False),
                 _Col("tilt_y_arcsec", "tilt_y", ARCSEC, False))
     _PAIRS = (("tilt_x", "tilt_y"),)

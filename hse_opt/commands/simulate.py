@@ -1,4 +1,5 @@
 """``hse-opt simulate``: PLAN.csv (+ TRUTH.toml) -> RUNS.csv with the numeric simulator."""
+import os
 import sys
 
 from . import message
@@ -9,9 +10,15 @@ DESCRIPTION = (
     "Simulate every planned alignment with the numeric simulator: raw 500 Hz gyro, "
     "accelerometer and encoder data of the true system (TRUTH.toml; default: the paper-like "
     "system) through the alignment processor. Writes RUNS.csv with the heading error, the "
-    "alignment's own pitch, roll and 1-sigma, and the mean IMU temperature (temp_c).")
+    "alignment's own pitch, roll and 1-sigma, and the mean IMU temperature (temp_c). With "
+    "--field, a field campaign: each stand position (the plan's position column, else one per "
+    "azimuth, labelled P1, P2, ...) keeps its true heading to itself, and RUNS.csv carries the "
+    "alignment's own heading_deg and the position instead of azimuth_deg and "
+    "heading_err_arcsec (kept for the positions named in --surveyed). --raw-logs DIR also writes "
+    "every run's raw log, for hse-opt align.")
 EXAMPLE = """examples:
   hse-opt simulate PLAN.csv -o RUNS.csv --seed 1 --jobs 2
+  hse-opt simulate FIELD_PLAN.csv -o RUNS.csv --field --surveyed A --raw-logs logs/
   hse-opt simulate PLAN.csv --truth TRUTH.toml -o RUNS.csv --dask tcp://scheduler:8786"""
 
 
@@ -26,6 +33,12 @@ def add_arguments(parser):
                         help="run on the Dask scheduler at ADDRESS (e.g. tcp://host:8786) instead")
     parser.add_argument("--write-truth", metavar="FILE",
                         help="also write the truth used, every key, to FILE (TOML)")
+    parser.add_argument("--field", action="store_true",
+                        help="a field campaign: the positions' true headings are hidden from RUNS.csv")
+    parser.add_argument("--surveyed", metavar="LABELS", default="",
+                        help="with --field: comma-separated positions whose azimuth is known")
+    parser.add_argument("--raw-logs", metavar="DIR",
+                        help="also write each run's raw log to DIR/run_<id>.npz (DIR must exist)")
     parser.add_argument("--no-progress", dest="progress", action="store_false",
                         help="no progress bar on stderr")
 
@@ -44,6 +57,11 @@ def run(args):
     from ..data import load_plan, save_runs
     from ..sim import TruthConfig, run_campaign
 
+    surveyed = [p.strip() for p in args.surveyed.split(",") if p.strip()]
+    if surveyed and not args.field:
+        raise ValueError("--surveyed: allowed only with --field")
+    if args.raw_logs and not os.path.isdir(args.raw_logs):
+        raise ValueError(f"--raw-logs {args.raw_logs}: the directory does not exist; allowed: an existing directory")
     truth = _io("read", "truth", TruthConfig.from_toml, args.truth) if args.truth else TruthConfig.default()
     plan = _io("read", "plan", load_plan, args.plan)
     client = None
@@ -58,12 +76,14 @@ def run(args):
               disable=None if args.progress else True) as bar:
         try:
             runs = run_campaign(plan, truth, args.seed, jobs=args.jobs, client=client,
-                                progress=lambda done, total: bar.update(done - bar.n))
+                                progress=lambda done, total: bar.update(done - bar.n),
+                                field=args.field, surveyed=surveyed, raw_logs=args.raw_logs)
         finally:
             if client is not None:
                 client.close()
     _io("write", "runs", save_runs, args.output, runs)
     if args.write_truth:
         _io("write", "truth", truth.to_toml, args.write_truth)
-    message(f"hse-opt simulate: {len(runs)} runs written to {args.output}")
+    logs = f"; raw logs in {args.raw_logs}" if args.raw_logs else ""
+    message(f"hse-opt simulate: {len(runs)} runs written to {args.output}{logs}")
     return 0

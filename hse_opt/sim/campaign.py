@@ -92,6 +92,8 @@ class RunResult:
         The filter's 1-sigma heading, rad.
     temp_c : float
         Mean IMU temperature over the run, degC.
+    heading : float
+        The alignment's own heading, rad in [0, 2 pi).
     """
 
     heading_err: float
@@ -99,9 +101,10 @@ class RunResult:
     roll: float
     heading_std: float
     temp_c: float
+    heading: float = float("nan")
 
 
-def simulate_run(truth, run, rng, align_config=None):
+def simulate_run(truth, run, rng, align_config=None, *, log_path=None, log_meta=None):
     """Simulate and align one run.
 
     Parameters
@@ -111,14 +114,25 @@ def simulate_run(truth, run, rng, align_config=None):
     rng : numpy.random.Generator
     align_config : AlignConfig, optional
         Processor (default: :func:`default_align_config`).
+    log_path : str, optional
+        Also write the raw log there (:func:`hse_opt.sim.save_rawlog`), its metadata updated
+        with ``log_meta`` (a None value removes the key).
 
     Returns
     -------
     RunResult
     """
-    res, _, meta = simulate_alignment(truth, run, rng, align_config)
+    cfg = default_align_config(truth) if align_config is None else align_config
+    log = generate(truth, run, rng)
+    res = align(log, cfg)
+    if log_path is not None:
+        from hse_opt.sim.rawlog import RawLog, save_rawlog
+        meta = {**log.meta, **(log_meta or {})}
+        meta = {k: v for k, v in meta.items() if v is not None}
+        save_rawlog(RawLog._trusted(log.t, log.gyro, log.accel, log.encoder, meta), log_path)
     return RunResult(heading_err=float(wrap_angle(res.heading - run.azimuth)), pitch=res.pitch,
-                     roll=res.roll, heading_std=res.heading_std, temp_c=float(meta["temp_c"]))
+                     roll=res.roll, heading_std=res.heading_std, temp_c=float(log.meta["temp_c"]),
+                     heading=float(np.mod(res.heading, 2 * np.pi)))
 
 
 def simulate_heading_error(truth, rate, azimuth, latitude=None, duration=600.0, *,
@@ -218,18 +232,29 @@ def _single_blas_thread():
     return threadpool_limits(limits=1, user_api="blas")
 
 
-def _simulate_chunk(truth, align_config, seed, items):
-    """Worker: simulate a list of (run_id, RunSpec); returns [(run_id, RunResult)]."""
+def _simulate_chunk(truth, align_config, seed, items, logs=None):
+    """Worker: simulate a list of (run_id, RunSpec); returns [(run_id, RunResult)]. ``logs``:
+    run_id -> (path, meta) of the raw logs to write."""
     out = []
     with _single_blas_thread():
         for rid, spec in items:
             rng = np.random.default_rng(np.random.SeedSequence([int(seed), int(rid)]))
-            out.append((rid, simulate_run(truth, spec, rng, align_config)))
+            path, meta = (logs or {}).get(rid, (None, None))
+            out.append((rid, simulate_run(truth, spec, rng, align_config, log_path=path, log_meta=meta)))
     return out
 
 
+def _positions(plan):
+    """Position labels of a plan: its ``position`` column, else ``P1``, ``P2``, ... by stand
+    azimuth in order of first appearance (labels that do not give the azimuth away)."""
+    if plan.position is not None:
+        return plan.position
+    keys = list(dict.fromkeys(plan.azimuth.tolist()))
+    return np.array([f"P{keys.index(a) + 1}" for a in plan.azimuth.tolist()])
+
+
 def run_campaign(plan, truth, seed, jobs=1, client=None, progress=None, *,
-                 align_config=None, chunk_size=None):
+                 align_config=None, chunk_size=None, field=False, surveyed=(), raw_logs=None):
     """Simulate every run of a plan.
 
     Parameters
@@ -250,6 +275,17 @@ def run_campaign(plan, truth, seed, jobs=1, client=None, progress=None, *,
         Processor (default: :func:`default_align_config`).
     chunk_size : int, optional
         Runs per task (default: about 4 tasks per worker, at most 64 runs).
+    field : bool
+        A field campaign: each position (the plan's ``position`` labels, else ``P1``, ``P2``,
+        ... by stand azimuth) keeps its true heading to itself. The runs carry ``position`` and
+        the alignment's own ``heading_deg``; ``azimuth_deg`` and ``heading_err_arcsec`` only at
+        the positions named in ``surveyed`` (a mixed campaign), empty elsewhere.
+    surveyed : collection of str
+        Positions of a field campaign whose stand azimuth is known.
+    raw_logs : str or os.PathLike, optional
+        Also write each run's raw log to this existing directory as ``run_<id>.npz`` (the
+        metadata: ``run``, ``position``, ``t_start_s``, ``latitude_deg``, ``temp_c``, and
+        ``azimuth_deg`` unless the position's heading is hidden), ready for ``hse-opt align``.
 
     Returns
     -------
@@ -274,6 +310,24 @@ def run_campaign(plan, truth, seed, jobs=1, client=None, progress=None, *,
         raise DataError(plan.source, "clashes with the simulated mean IMU temperature; allowed: "
                                      "another name for a plan column", column=TEMP_COLUMN)
     items = _prepare(plan, truth)
+    positions = _positions(plan)
+    surveyed = {str(p) for p in surveyed}
+    if not field and surveyed:
+        raise ValueError("surveyed positions are a field-campaign option; allowed: field=True (--field)")
+    if surveyed - set(positions.tolist()):
+        raise ValueError(f"surveyed positions {sorted(surveyed - set(positions.tolist()))} are not in the plan; "
+                         f"allowed: {sorted(set(positions.tolist()))}")
+    known = np.array([not field or p in surveyed for p in positions.tolist()])
+    logs = None
+    if raw_logs is not None:
+        import os
+        directory = os.fspath(raw_logs)
+        if not os.path.isdir(directory):
+            raise ValueError(f"{directory}: the raw-log directory does not exist; allowed: an existing directory")
+        logs = {rid: (os.path.join(directory, f"run_{rid}.npz"),
+                      {"run": rid, "position": str(positions[i]),
+                       "azimuth_deg": None if not known[i] else float(plan.azimuth[i] / units.DEG)})
+                for i, (rid, _) in enumerate(items)}
     cfg = default_align_config(truth) if align_config is None else align_config
     total = len(items)
     workers = jobs if client is None else max(1, len(client.scheduler_info().get("workers", {})) or 1)
@@ -289,16 +343,16 @@ def run_campaign(plan, truth, seed, jobs=1, client=None, progress=None, *,
 
     if client is not None:
         from distributed import as_completed as dask_as_completed
-        futures = [client.submit(_simulate_chunk, truth, cfg, int(seed), ch, pure=False)
+        futures = [client.submit(_simulate_chunk, truth, cfg, int(seed), ch, _part(logs, ch), pure=False)
                    for ch in chunks]
         for fut in dask_as_completed(futures):
             _collect(fut.result())
     elif jobs == 1:
         for item in items:
-            _collect(_simulate_chunk(truth, cfg, seed, [item]))
+            _collect(_simulate_chunk(truth, cfg, seed, [item], logs))
     else:
         with ProcessPoolExecutor(max_workers=jobs) as pool:
-            futures = [pool.submit(_simulate_chunk, truth, cfg, int(seed), ch) for ch in chunks]
+            futures = [pool.submit(_simulate_chunk, truth, cfg, int(seed), ch, _part(logs, ch)) for ch in chunks]
             for fut in as_completed(futures):
                 _collect(fut.result())
     res = [results[rid] for rid, _ in items]
@@ -308,10 +362,34 @@ def run_campaign(plan, truth, seed, jobs=1, client=None, progress=None, *,
     for name in ("tilt_x_arcsec", "tilt_y_arcsec", *plan.covariates):
         if name in written:
             covariates[name] = written[name]
+    if field:
+        return _field_runs(plan, truth, column, covariates, positions, known)
     return Runs(run=plan.run, rate=plan.rate, azimuth=plan.azimuth, heading_err=column("heading_err"),
                 latitude=np.full(total, truth.site.latitude), duration=plan.duration,
                 t_start=plan.t_start, pitch=column("pitch"), roll=column("roll"),
-                heading_std=column("heading_std"), covariates=covariates, source="<simulated>")
+                heading_std=column("heading_std"), position=plan.position, covariates=covariates,
+                source="<simulated>")
+
+
+def _part(logs, chunk):
+    return None if logs is None else {rid: logs[rid] for rid, _ in chunk}
+
+
+def _field_runs(plan, truth, column, covariates, positions, known):
+    """The RUNS table of a field campaign: the plan's azimuth only where it is known."""
+    written = plan.to_columns()
+    heading_err = column("heading_err") / units.ARCSEC
+    cols = {"run": plan.run, "rate_dps": written["rate_dps"],
+            "azimuth_deg": np.where(known, written["azimuth_deg"], np.nan),
+            "heading_err_arcsec": np.where(known, heading_err, np.nan),
+            "heading_deg": column("heading") / units.DEG,
+            "latitude_deg": np.full(len(plan), truth.site.latitude / units.DEG),
+            "duration_s": written["duration_s"], "t_start_s": written["t_start_s"],
+            "pitch_arcsec": column("pitch") / units.ARCSEC, "roll_arcsec": column("roll") / units.ARCSEC,
+            "heading_std_arcsec": column("heading_std") / units.ARCSEC, "position": positions, **covariates}
+    cols = {k: (v.tolist() if isinstance(v, np.ndarray) else v) for k, v in cols.items()}
+    return Runs.from_columns(cols, source="<simulated field campaign>", min_rate_dps=0.0,
+                             allow_small_azimuths=True)
 
 
 # -- raw logs -> RUNS.csv (``hse-opt align``) ----------------------------------------------------
