@@ -17,7 +17,8 @@ import time
 import numpy as np
 
 from hse_opt import units
-from hse_opt.diagnose import diagnose, diagnostic_plan, model_runs
+from hse_opt.diagnose import diagnose
+from hse_opt.validation.synthetic import diagnostic_plan, model_runs
 
 
 def campaign(n, seed):

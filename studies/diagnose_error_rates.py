@@ -7,7 +7,7 @@ effect (or two) at the size stated in the table this script prints. The temperat
 comes from the simulator's thermal model (``hse_opt.sim.truth.temperature``: warm-up rise,
 a 1-h swing, and a different lab temperature on each of the four days).
 
-The plan (``hse_opt.diagnose.diagnostic_plan``): 4 cold starts, 16 back-to-back 300-s runs
+The plan (``hse_opt.validation.synthetic.diagnostic_plan``): 4 cold starts, 16 back-to-back 300-s runs
 each; +-20, +-40, +-60 deg/s; 8 azimuths; base tilt of the stand (-120, -55 arcsec) plus a
 tilt fixture per day (none, 0.5 deg about x, about y, about both). In it every catalogue
 effect has a signature of its own (the study checks that the full model is identifiable).
@@ -51,8 +51,9 @@ from scipy import stats
 from threadpoolctl import threadpool_limits
 
 from hse_opt import units
-from hse_opt.diagnose import ALPHA, diagnose, diagnostic_plan, model_runs, refine
+from hse_opt.diagnose import ALPHA, diagnose, refine
 from hse_opt.model import as_model
+from hse_opt.validation.synthetic import diagnostic_plan, model_runs
 from hse_opt.information import analyse, fisher
 from hse_opt.sim.truth import TruthConfig, temperature
 

@@ -51,7 +51,8 @@ from threadpoolctl import threadpool_limits
 
 from hse_opt import units
 from hse_opt.data import Runs
-from hse_opt.diagnose import diagnostic_plan, refine
+from hse_opt.diagnose import refine
+from hse_opt.validation.synthetic import diagnostic_plan
 from hse_opt.sim import TruthConfig, run_campaign
 
 SEED = 6

@@ -22,10 +22,11 @@ from hse_opt import units
 from hse_opt.cli import main
 from hse_opt.data import Plan, Runs, load_runs, save_plan, save_runs
 from hse_opt.datasets import paper_table1
-from hse_opt.diagnose import compare, diagnose, diagnostic_plan, model_runs, refine
+from hse_opt.diagnose import compare, diagnose, refine
 from hse_opt.fit import as_model, fit
 from hse_opt.information import UnidentifiableError
 from hse_opt.model import CATALOGUE, Effect, Param
+from hse_opt.validation.synthetic import diagnostic_plan, model_runs
 
 # a RuntimeWarning (overflow, invalid value) is a numerical defect here, not noise
 pytestmark = pytest.mark.filterwarnings("error::RuntimeWarning")

@@ -542,7 +542,7 @@ def test_a_bilinear_effect_is_fitted_from_a_start_where_it_has_no_signature():
     # the encoder's 1st harmonic reaches heading only through lambda2 (a product of errors):
     # at the nominal start (lambda2 = 0) it has no signature; the fit solves the paper's
     # parameters first and then sees it. Its 2nd harmonic has none at all: held by the user
-    from hse_opt.diagnose import diagnostic_plan, model_runs
+    from hse_opt.validation.synthetic import diagnostic_plan, model_runs
     truth = dict(offset=3.0, lambda2=4.2, enc_c1=320.0, enc_s1=240.0)
     runs = model_runs(diagnostic_plan(), truth, np.random.default_rng(1),
                       base_tilt=(-120 * units.ARCSEC, -55 * units.ARCSEC))

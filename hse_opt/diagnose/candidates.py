@@ -1,0 +1,221 @@
+"""Which effect is missing: every catalogue effect not in the model (and ``covariate:<column>``
+for every covariate column) tested by a score test at the fit, refitted (Delta-BIC, RMS after)
+and ranked; candidates these runs cannot test are named with the reason; candidates that
+explain the data equally well are grouped as ambiguous."""
+from __future__ import annotations
+
+import dataclasses
+from dataclasses import dataclass
+
+import numpy as np
+
+from .. import units
+from ..fit import FitResult
+from ..information import UnidentifiableError, check_identifiable, weighted_jacobian
+from ..model import CATALOGUE, effect as make_effect
+from ._format import num
+from .profile import fit_profiled
+
+#: a parameter that, at the edge of its bounds, moves no run's heading by this many sigma has
+#: no heading signature in these runs
+_BLIND = 1e-3
+
+
+@dataclass(frozen=True, eq=False)
+class Candidate:
+    """A catalogue effect not in the model, tested against the residuals.
+
+    Attributes
+    ----------
+    effect, description : str
+    parameters : tuple of str
+        Its parameters in the extended model (tilt-coupled ones as free C23 coefficients when
+        the tilt is unknown).
+    held : tuple of str
+        Parameters without a heading signature in these runs, held at their nominal value
+        (named, never silently).
+    testable : bool
+    reason : str
+        Why it is not testable (confounded with which parameters), else "".
+    statistic : float or None
+        Score-test F statistic; ``dof`` its degrees of freedom; ``p_value``, ``log_p``.
+    delta_bic : float or None
+        BIC after refitting minus BIC before (negative: the effect pays for its parameters).
+    rms_after : float or None
+        Residual RMS after refitting, rad.
+    chi2_red_after : float or None
+    fit : FitResult or None
+        The refit.
+    significant : bool
+        Its score test rejects at the family-wise level.
+    ambiguous_with : tuple of str
+        Candidates that explain the data equally well (see :class:`Diagnosis`).
+    """
+
+    effect: str
+    description: str
+    parameters: tuple
+    held: tuple
+    testable: bool
+    reason: str
+    statistic: float | None = None
+    dof: tuple = ()
+    p_value: float | None = None
+    log_p: float | None = None
+    delta_bic: float | None = None
+    rms_after: float | None = None
+    chi2_red_after: float | None = None
+    fit: FitResult | None = None
+    significant: bool = False
+    ambiguous_with: tuple = ()
+
+    @property
+    def rms_after_arcsec(self):
+        return None if self.rms_after is None else self.rms_after / units.ARCSEC
+
+    def to_dict(self):
+        return {"effect": self.effect, "p_value": num(self.p_value),
+                "delta_bic": num(self.delta_bic), "rms_after_arcsec": num(self.rms_after_arcsec),
+                "statistic": num(self.statistic), "dof": list(self.dof),
+                "chi2_red_after": num(self.chi2_red_after), "significant": self.significant,
+                "testable": self.testable, "reason": self.reason, "parameters": list(self.parameters),
+                "held": list(self.held), "ambiguous_with": list(self.ambiguous_with),
+                "description": self.description}
+
+
+
+def covariate_columns(runs, covariates):
+    if covariates is None:
+        return list(runs.covariates)
+    covariates = [c.strip() for c in covariates.split(",")] if isinstance(covariates, str) else list(covariates)
+    missing = [c for c in covariates if c not in runs.covariates]
+    if missing:
+        raise ValueError(f"{runs.source}: covariate column(s) {missing} not in the runs; allowed: "
+                         f"{', '.join(runs.covariates) or 'none (the file has no covariate columns)'}")
+    return covariates
+
+
+def candidate_names(f0, covariates, candidates):
+    have = set(f0.model.effect_names)
+    if candidates is None:
+        names = [e for e in CATALOGUE if e not in have]
+        names += [f"covariate:{c}" for c in covariates if f"covariate:{c}" not in have]
+        return names
+    names = [c.strip() for c in candidates.split(",")] if isinstance(candidates, str) else list(candidates)
+    for name in names:
+        make_effect(name)  # raises with the allowed names
+        if name in have:
+            raise ValueError(f"candidate {name!r} is already in the model ({', '.join(sorted(have))})")
+    return names
+
+
+def test_candidates(null, f0, runs, names, fix, refit):
+    out, bases = [], {}
+    for name in names:
+        cand, U = _candidate(null, f0, runs, name, fix, refit)
+        out.append(cand)
+        if U is not None:
+            bases[name] = U
+    return out, bases
+
+
+def _candidate(null, f0, runs, name, fix, refit):
+    eff = make_effect(name)
+    model1 = f0.model + eff
+    mm1 = model1.measurement(f0.tilt_known)
+    X1 = mm1.inputs_from_runs(runs)
+    known = {n: float(v) for n, v in zip(f0.names, f0.values)}
+    p1 = mm1.vector({n: v for n, v in known.items() if n in mm1.names})
+    new = [i for i, n in enumerate(mm1.names) if n not in known]
+    params = tuple(mm1.names[i] for i in new)
+    description = eff.description
+    tested = [i for i in new if mm1.names[i] not in mm1.nonlinear and mm1.names[i] not in fix]
+    J = mm1.jacobian(p1, X1)
+    # blind parameters: at the edge of their bounds they move no heading by _BLIND sigma
+    reach = np.array([np.max(np.abs(J[:, i])) * max(abs(mm1.params[i].lower), abs(mm1.params[i].upper))
+                      * mm1.scale[i] / np.min(null.sigma) for i in tested])
+    held = tuple(mm1.names[i] for i, r in zip(tested, reach) if r < _BLIND)
+    tested = [i for i, r in zip(tested, reach) if r >= _BLIND]
+    if not tested:
+        return Candidate(name, description, params, held, False,
+                         "no heading signature in these runs" + _signature_hint(params)), None
+    # identifiable jointly with the model? (the same check the fit makes)
+    free0 = [mm1.names.index(n) for n, fr in zip(f0.names, f0.free) if fr]
+    cols = free0 + tested
+    A1 = weighted_jacobian(J[:, cols], null.sigma, mm1.scale[cols])
+    try:
+        check_identifiable(A1.T @ A1, [mm1.names[i] for i in cols])
+    except UnidentifiableError as err:
+        other = [n for n in err.names if n not in params]
+        mine = [n for n in err.names if n in params]
+        if other:
+            why = f"{', '.join(mine) or params[0]} cannot be told apart from {', '.join(other)} by these runs"
+        else:
+            why = f"{', '.join(err.names)} cannot be told apart from each other by these runs"
+        return Candidate(name, description, params, held, False, why), None
+    U = null.basis(A1[:, len(free0):])
+    F, dof, p, logp = null.score(U)
+    cand = Candidate(name, description, params, held, True, "", F, dof, p, logp)
+    if refit and p is not None:
+        fix1 = dict(fix)
+        fix1.update({n: mm1.params[mm1.parameter_index(n)].nominal for n in held})
+        try:
+            f1 = fit_profiled(runs, model1, fix1, f0.tilt_known, start=known)
+        except (ValueError, RuntimeError, np.linalg.LinAlgError) as err:
+            # the null fit validated the runs: this is the candidate not fitting these runs
+            cand = dataclasses.replace(cand, reason=f"refit failed: {err}")
+        else:
+            cand = dataclasses.replace(cand, delta_bic=float(f1.bic - f0.bic), rms_after=float(
+                np.sqrt(np.mean(f1.residuals ** 2))), chi2_red_after=float(f1.chi2_red), fit=f1)
+            nonlinear = [i for i in new if mm1.names[i] in mm1.nonlinear]
+            if nonlinear:  # its signature at the fitted nonlinear values, for the comparisons
+                p_nl = p1.copy()
+                p_nl[nonlinear] = f1.p[nonlinear]
+                J = mm1.jacobian(p_nl, X1)
+                U = null.basis(weighted_jacobian(J[:, tested], null.sigma, mm1.scale[tested]))
+    return cand, U
+
+
+def _signature_hint(params):
+    if any("*tilt_" in p for p in params):
+        return " (it acts through the tilt, which these runs do not carry)"
+    return ""
+
+
+def rank(cands):
+    """Testable candidates by Delta-BIC (score log p where there is no refit, and as tie-break),
+    then the untestable ones."""
+    def key(c):
+        if not c.testable or c.p_value is None:
+            return (2, 0.0, 0.0, c.effect)
+        if c.delta_bic is None:
+            return (1, c.log_p, 0.0, c.effect)
+        return (0, c.delta_bic, c.log_p, c.effect)
+    return sorted(cands, key=key)
+
+
+def ambiguity(null, cands, bases, alpha):
+    """The best significant candidate and every significant candidate that makes it redundant
+    (its score test given the other does not reject at ``alpha``): these runs cannot tell them
+    apart."""
+    sig = [c for c in cands if c.significant and c.effect in bases]
+    if not sig:
+        return [], cands
+    best = sig[0]
+    Ub = bases[best.effect]
+    same = []
+    for c in sig[1:]:
+        Uc = bases[c.effect]
+        # the best given c: its part orthogonal to the model and to c
+        U_b_given_c = null.basis(Ub, extra=Uc)
+        r_c = null.r - Uc @ (Uc.T @ null.r)
+        rss_c = float(r_c @ r_c)
+        _, _, p, _ = null.score(U_b_given_c, r=r_c, rss=rss_c, k_extra=Uc.shape[1])
+        if p is None or p >= alpha:
+            same.append(c.effect)
+    if not same:
+        return [], cands
+    group = [best.effect] + same
+    cands = [dataclasses.replace(c, ambiguous_with=tuple(g for g in group if g != c.effect))
+             if c.effect in group else c for c in cands]
+    return group, cands

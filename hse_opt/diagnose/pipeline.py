@@ -1,0 +1,144 @@
+"""The diagnosis itself: :func:`diagnose` (fit, influence, goodness of fit, factors,
+candidates, ambiguity, structure, verdict) and :func:`refine` (add the best candidate until
+adequate)."""
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+from scipy import stats
+
+from ..fit import FitResult
+from ..model import as_model
+from .candidates import ambiguity, candidate_names, covariate_columns, rank, test_candidates
+from .discrimination import discriminating_runs
+from .factors import factor_tests
+from .profile import fit_profiled, fixed_of
+from .result import Diagnosis
+from .statistics import ALPHA, Null, Test, flag_runs, lack_of_fit
+from .structure import sparse_structure
+
+
+def diagnose(runs, model=None, *, fix=None, tilt_known=None, alpha=ALPHA, candidates=None,
+             covariates=None, refit=True):
+    """Compare ``model`` with the measured ``runs``: residuals, influence, goodness of fit,
+    residual structure against every factor, the ranking of missing effects, the verdict.
+
+    Parameters
+    ----------
+    runs : hse_opt.data.Runs
+    model : Model, str, sequence of str or FitResult, optional
+        The model to diagnose (default the paper's ``hse``); a FitResult of these runs is used
+        as the fit.
+    fix : mapping name -> value (display unit), optional
+        Parameters held at a value (passed to :func:`hse_opt.fit.fit`).
+    tilt_known : bool, optional
+        Use the runs' pitch/roll (default: when the runs have them).
+    alpha : float
+        Family-wise significance level of the verdict, in (0, 1).
+    candidates : sequence of str, optional
+        Effects to test (default: every catalogue effect not in the model, and
+        ``covariate:<column>`` for each covariate column).
+    covariates : sequence of str, optional
+        Covariate columns to use as factors and candidates (default: every covariate column).
+    refit : bool
+        Refit every testable candidate (Delta-BIC, RMS after); False gives the score tests only.
+
+    Returns
+    -------
+    Diagnosis
+
+    Raises
+    ------
+    UnidentifiableError
+        The model itself cannot be fitted to these runs (named parameters).
+    ValueError
+        Bad arguments (unknown effect, covariate column not in the runs, alpha outside (0, 1)).
+    """
+    if not (0.0 < alpha < 1.0):
+        raise ValueError(f"alpha = {alpha!r}; allowed: a significance level in (0, 1)")
+    covariates = covariate_columns(runs, covariates)
+    fix = dict(fix or {})
+    if isinstance(model, FitResult):
+        f0 = model
+        if f0.run.shape != runs.run.shape or np.any(f0.run != runs.run):
+            raise ValueError("the FitResult given as model was not fitted to these runs (run ids differ)")
+    else:
+        f0 = fit_profiled(runs, as_model(model), fix, tilt_known)
+    fix.update(fixed_of(f0))
+    null = Null(f0, runs)
+    notes = list(dict.fromkeys(f0.notes))
+
+    # comparison: influence and outliers
+    lev, cooks, stud = null.influence()
+    outliers, influential = flag_runs(f0.run, lev, cooks, stud, null.k, alpha)
+    if np.any(lev > 1 - 1e-9):
+        notes.append("runs " + ", ".join(str(int(r)) for r in f0.run[lev > 1 - 1e-9])
+                     + " alone determine a parameter (leverage 1): their residuals are 0 by construction")
+
+    # goodness of fit
+    chi2_test = None
+    if f0.weighting == "heading_std":
+        chi2_test = Test("chi-square", "standardised residuals against the runs' own sigmas",
+                         float(f0.chi2), (int(f0.dof),), float(stats.chi2.sf(f0.chi2, f0.dof)),
+                         float(stats.chi2.logsf(f0.chi2, f0.dof)))
+    lof = lack_of_fit(null, runs)
+
+    # where it fails
+    factor_results, library = factor_tests(null, runs, covariates, f0.tilt_known)
+    if runs.t_start is None:
+        notes.append("time since power-on unknown: cumulative run durations (run order) stand in")
+
+    # which effect is missing
+    names = candidate_names(f0, covariates, candidates)
+    cands, bases = test_candidates(null, f0, runs, names, fix, refit)
+
+    tested = [t for t in (chi2_test, lof) if t is not None and t.tested]
+    tested += [t for t in factor_results if t.tested]
+    m = len(tested) + sum(c.p_value is not None for c in cands)
+    level = alpha / max(m, 1)
+    cands = [dataclasses.replace(c, significant=c.testable and c.p_value is not None and c.p_value < level)
+             for c in cands]
+    rejected = any(t.p_value < level for t in tested) or any(c.significant for c in cands)
+    if m == 0:
+        notes.append("no test is possible with these runs (too few, or nothing varies): the verdict "
+                     "'adequate' only means that nothing could be checked")
+    elif chi2_test is not None and chi2_test.p_value < level and not any(c.significant for c in cands) \
+            and not any(t.p_value < level for t in tested if t is not chi2_test):
+        notes.append(f"the scatter exceeds the runs' own sigmas (chi2_red {f0.chi2_red:.3g}) but no factor "
+                     "or catalogue effect explains it: the sigmas may be optimistic, or the missing effect "
+                     "follows nothing recorded with the runs")
+    cands = rank(cands)
+    ambiguous, cands = ambiguity(null, cands, bases, alpha)
+    proposals = ()
+    if len(ambiguous) > 1:
+        by = {c.effect: c for c in cands}
+        proposals = tuple(dict(r, a=ambiguous[0], b=b) for b in ambiguous[1:]
+                          if by[ambiguous[0]].fit is not None and by[b].fit is not None
+                          for r in discriminating_runs(runs, by[ambiguous[0]].fit, by[b].fit, k=2))
+    structure = sparse_structure(null, library, bases, alpha)
+    factor_results = tuple(sorted(factor_results, key=lambda t: (not t.tested, t.log_p if t.tested else 0.0)))
+    return Diagnosis(
+        fit=f0, runs=runs, alpha=alpha, fix=tuple(sorted(fix.items())), candidate_names=tuple(names),
+        covariates=tuple(covariates), studentized=stud, leverage=lev, cooks=cooks, outliers=outliers,
+        influential=influential, chi2_test=chi2_test, lack_of_fit=lof, factors=factor_results,
+        candidates=tuple(cands), structure=tuple(structure), ambiguous=tuple(ambiguous),
+        proposals=proposals, verdict="missing-effect" if rejected else "adequate", n_tests=m,
+        notes=tuple(notes))
+
+
+
+def refine(runs, model=None, *, max_steps=4, **kw):
+    """Diagnose, add the best significant candidate, repeat until the verdict is adequate (or no
+    significant candidate is left, or ``max_steps`` effects were added).
+
+    Returns
+    -------
+    tuple of Diagnosis
+        The first diagnosis, then one per added effect; ``compare(steps[0], steps[-1])`` shows
+        the error fall.
+    """
+    steps = [diagnose(runs, model, **kw)]
+    while steps[-1].verdict != "adequate" and len(steps) <= max_steps and steps[-1].best is not None:
+        steps.append(steps[-1].add(steps[-1].best.effect))
+    return tuple(steps)

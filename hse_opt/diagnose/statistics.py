@@ -1,0 +1,184 @@
+"""The fit as a weighted linear model, and the tests made at it.
+
+The tests on structure are F tests of nested weighted linear models built at the fit: the
+weighted residual ``r = (y - h(p)) / sigma`` and the weighted, column-scaled Jacobian ``A`` of
+the free parameters. For ``q`` more columns ``Z`` (a factor's functions, or a candidate
+effect's Jacobian columns at the fit with its own parameters at their nominal values, weighted
+the same way), ``P`` projects on the part of ``Z`` orthogonal to ``A`` and the score statistic
+``S = r' P r`` is the fall of the weighted residual sum of squares ``RSS`` that refitting the
+linearised extended model would give (the Lagrange-multiplier statistic). It is referred to
+``F = (S / q) / ((RSS - S) / (n - k - q)) ~ F(q, n - k - q)``, exact for Gaussian noise and
+models linear in their parameters, and independent of the sigmas' absolute scale (only their
+ratios weight the runs). The lack-of-fit test is the same test with one indicator column per
+replicate group. Influence (leverage, Cook's distance, externally studentised residuals) is
+that of the same weighted linear model.
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+from scipy import stats
+
+from ..fit import replicate_groups
+from ..information import MAX_CONDITION, weighted_jacobian
+from ._format import num
+
+#: default family-wise significance level of the verdict
+ALPHA = 0.05
+#: a projected direction (unit columns) shorter than this is in the span of the model
+_TOL = 1.0 / MAX_CONDITION
+
+
+@dataclass(frozen=True)
+class Test:
+    """One hypothesis test.
+
+    Attributes
+    ----------
+    name : str
+        The factor or test (``azimuth``, ``chi-square``, ``lack of fit``, ...).
+    description : str
+        What was tested, in words.
+    statistic : float or None
+        F (or chi-square) statistic; None when the runs cannot test it.
+    dof : tuple of int
+        Degrees of freedom (numerator, denominator) or (dof,) for chi-square.
+    p_value, log_p : float or None
+        The p-value and its logarithm (for ranking far into the tail); None when not computable
+        (``note`` says why).
+    best : str
+        For a factor, the single function of it that explains most of the residual.
+    note : str
+    """
+
+    name: str
+    description: str
+    statistic: float | None
+    dof: tuple
+    p_value: float | None
+    log_p: float | None = None
+    best: str = ""
+    note: str = ""
+
+    @property
+    def tested(self):
+        return self.p_value is not None
+
+    def to_dict(self):
+        return {"name": self.name, "description": self.description,
+                "statistic": num(self.statistic), "dof": list(self.dof),
+                "p_value": num(self.p_value), "best": self.best, "note": self.note}
+
+
+
+class Null:
+    """The fit as a weighted linear model: residual, orthonormal basis of the model's columns,
+    and projections / F tests of extra columns."""
+
+    def __init__(self, f, runs):
+        self.f = f
+        self.sigma = np.asarray(f.sigma, float)
+        self.r = np.asarray(f.residuals, float) / self.sigma
+        mm = f.measurement
+        free = np.asarray(f.free, bool)
+        self.A = weighted_jacobian(mm.jacobian(f.p, mm.inputs_from_runs(runs))[:, free], self.sigma,
+                                   mm.scale[free])
+        d = np.linalg.norm(self.A, axis=0)
+        self.Q, _ = np.linalg.qr(self.A / np.where(d > 0, d, 1.0))
+        self.n = self.r.size
+        # profiled parameters count as fitted (FitResult.dof already holds that)
+        self.k = self.n - int(f.dof)
+        self.rss = float(self.r @ self.r)
+
+    def basis(self, Z, extra=None):
+        """Orthonormal basis (n, q') of the part of span(Z) orthogonal to the model (and to
+        ``extra``); Z (n, q) already weighted."""
+        Z = np.asarray(Z, float)
+        if Z.ndim == 1:
+            Z = Z[:, None]
+        d = np.linalg.norm(Z, axis=0)
+        Z = Z[:, d > 0] / d[d > 0]
+        blocks = [self.Q] + ([extra] if extra is not None and extra.shape[1] else [])
+        for _ in range(2):  # twice is enough (Kahan-Parlett)
+            for B in blocks:
+                Z = Z - B @ (B.T @ Z)
+        if Z.shape[1] == 0:
+            return np.zeros((self.n, 0))
+        U, s, _ = np.linalg.svd(Z, full_matrices=False)
+        return U[:, s > _TOL]
+
+    def score(self, U, r=None, rss=None, k_extra=0):
+        """``(F, (q, dof), p, log p)`` of the columns U (orthonormal, orthogonal to the model):
+        the score / nested-model F test. ``r``/``rss`` default to the fit's."""
+        r = self.r if r is None else r
+        rss = self.rss if rss is None else rss
+        q = U.shape[1]
+        dof = self.n - self.k - k_extra - q
+        if q < 1 or dof < 1:
+            return None, (q, dof), None, None
+        s = float(np.sum((U.T @ r) ** 2))
+        s = min(max(s, 0.0), rss)
+        F = (s / q) / ((rss - s) / dof) if rss > s else np.inf
+        return F, (q, dof), float(stats.f.sf(F, q, dof)), f_logsf(F, q, dof)
+
+    def influence(self):
+        """Leverage, Cook's distance and externally studentised residuals per run."""
+        h = np.clip(np.sum(self.Q ** 2, axis=1), 0.0, 1.0)
+        n, k = self.n, self.Q.shape[1]
+        e = self.r
+        s2 = self.rss / (n - k) if n > k else np.nan
+        with np.errstate(divide="ignore", invalid="ignore"):
+            one_h = 1.0 - h
+            cooks = e ** 2 * h / (k * s2 * one_h ** 2)
+            s2_i = ((n - k) * s2 - e ** 2 / one_h) / (n - k - 1) if n - k - 1 > 0 else np.full(n, np.nan)
+            stud = e / np.sqrt(s2_i * one_h)
+        bad = one_h < 1e-9
+        cooks[bad], stud[bad] = np.nan, np.nan
+        return h, cooks, stud
+
+
+def f_logsf(F, q, dof):
+    """log of the F(q, dof) upper tail, finite far into the tail."""
+    if not np.isfinite(F):
+        return -np.inf
+    v = float(stats.f.logsf(F, q, dof))
+    if np.isfinite(v):
+        return v
+    x = dof / (dof + q * F)  # sf = I_x(dof/2, q/2); log of its leading term
+    a, b = dof / 2.0, q / 2.0
+    return float(a * math.log(x) + b * math.log1p(-x) - math.log(a)
+                 - (math.lgamma(a) + math.lgamma(b) - math.lgamma(a + b)))
+
+
+
+def flag_runs(run, lev, cooks, stud, k, alpha):
+    """Outliers (externally studentised residual rejecting at ``alpha``, Bonferroni over the
+    runs) and the runs the fit hinges on (Cook's distance above the median of F(k, n - k), or
+    leverage above 0.5), as run ids, most extreme first."""
+    n = run.size
+    with np.errstate(invalid="ignore"):
+        p = n * 2.0 * stats.t.sf(np.abs(stud), n - k - 1) if n - k - 1 > 0 else np.full(n, np.nan)
+    cut = stats.f.ppf(0.5, k, n - k) if n > k else np.inf
+    cooks = np.nan_to_num(cooks, nan=np.inf)  # leverage 1: the fit rests on the run entirely
+    outliers = tuple(int(run[i]) for i in np.argsort(-np.nan_to_num(np.abs(stud))) if p[i] < alpha)
+    influential = tuple(int(run[i]) for i in np.argsort(-cooks) if cooks[i] > cut or lev[i] > 0.5)
+    return outliers, influential
+
+
+
+def lack_of_fit(null, runs):
+    """Pure-error lack-of-fit F test: the model against one mean per replicate group."""
+    labels, g = replicate_groups(runs, null.f.measurement)
+    if g == null.n:
+        return None
+    D = np.zeros((null.n, g))
+    D[np.arange(null.n), labels] = 1.0
+    U = null.basis(D / null.sigma[:, None])
+    F, dof, p, logp = null.score(U)
+    if p is None:
+        return Test("lack of fit", f"{g} replicate groups", None, dof, None, None, "",
+                    "not enough replicate groups beyond the model's parameters")
+    return Test("lack of fit", f"model against {g} replicate-group means (pure error from "
+                f"{dof[1]} degrees of freedom)", F, dof, p, logp)
