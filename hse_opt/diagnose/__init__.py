@@ -44,7 +44,6 @@ chi-square tests; influence), :mod:`.factors`, :mod:`.candidates` (ranking, ambi
 import sys
 import types
 
-from ..validation.synthetic import diagnostic_plan, model_runs
 from .candidates import Candidate
 from .discrimination import discriminating_runs
 from .pipeline import diagnose, refine
@@ -54,6 +53,15 @@ from .structure import Term
 
 __all__ = ["ALPHA", "Candidate", "Comparison", "Diagnosis", "Term", "Test", "compare", "diagnose",
            "diagnostic_plan", "discriminating_runs", "model_runs", "refine"]
+
+
+def __getattr__(name):
+    # the synthetic plan and data generators moved to hse_opt.validation.synthetic (which sits
+    # above the diagnosis); the old names still resolve
+    if name in ("diagnostic_plan", "model_runs"):
+        from ..validation import synthetic
+        return getattr(synthetic, name)
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
 
 
 class _CallableModule(types.ModuleType):
