@@ -8,9 +8,8 @@ import numpy as np
 
 from .. import units
 from ..data import Plan, Runs
-from ..model import as_model
 from ..information import heading_sigma
-from ..model import CATALOGUE
+from ..model import CATALOGUE, as_model
 
 
 def diagnostic_plan(sessions=4, runs_per_session=16, rates_dps=(20.0, 40.0, 60.0), n_azimuths=8,
