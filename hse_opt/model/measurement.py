@@ -19,13 +19,13 @@ mrad. Their heading signatures are the mixed derivatives d2h/(dp dC23) of the sy
 model, so nothing is written by hand. The untilted part of such a parameter is a constant
 heading offset (for lambda2: the skew part of Lambda), absorbed by ``offset``.
 """
-import warnings
 from functools import cached_property, lru_cache
 
 import casadi as ca
 import numpy as np
 
 from .. import units
+from ..compile_cache import compiled
 from .effects import Param
 from .symbolic import (Operating, ErrorModel, averaged_rate_b0,
                        heading_error_gyrocompass)
@@ -308,10 +308,11 @@ class BatchEvaluator:
 
     Runs go through in chunks of a fixed size (a power of two up to ``max_chunk``, the last
     chunk padded), each chunk one call of the mapped Function on numpy memory (no per-run
-    Python work, no copies into CasADi matrices). Above ``jit_above`` runs the mapped
-    Function is compiled once with the C compiler (CasADi jit) for speed; if compiling
-    fails, the virtual machine is used and a warning says why. ``jit=True/False`` on a call
-    overrides the size rule (repeated small batches, e.g. on-line fits, gain from it too).
+    Python work, no copies into CasADi matrices). From ``jit_above`` runs on, the Function
+    mapped over ``jit_chunk`` runs is compiled to C once per machine
+    (:mod:`hse_opt.compile_cache`) and evaluates every batch size; if compiling fails, the
+    virtual machine is used and a warning says why. ``jit=True/False`` on a call overrides
+    the size rule (repeated small batches, e.g. on-line fits, gain from it too).
     ``exact=True``: a call that is not compiled maps exactly its ``n`` runs (up to
     ``max_chunk``) instead of padding to a power of two - a third less work at 100 runs, for
     a mapped Function per run count (~0.4 ms to build; the last ``_MAX_EXACT`` kept): for
@@ -320,16 +321,19 @@ class BatchEvaluator:
 
     _MAX_EXACT = 64
 
-    def __init__(self, fun, max_chunk=4096, jit_above=5000, exact=False):
+    def __init__(self, fun, max_chunk=4096, jit_above=1000, exact=False, jit_chunk=256):
         self.fun = fun
         self.n_out = fun.nnz_out(0)
         self.max_chunk = max_chunk
         self.jit_above = jit_above
+        self.jit_chunk = jit_chunk
         self.exact = exact
         self._cache = {}
         self._functions = {}
 
-    def _chunk(self, n):
+    def _chunk(self, n, jit=False):
+        if jit:
+            return self.jit_chunk
         return min(self.max_chunk, 1 << max(0, int(np.ceil(np.log2(max(n, 1))))))
 
     def function(self, chunk, jit=False):
@@ -338,7 +342,7 @@ class BatchEvaluator:
         key = (chunk, jit)
         if key not in self._functions:
             f = self.fun.map(f"{self.fun.name()}_map", "serial", chunk, [0], [])
-            self._functions[key] = _compile(f) if jit else f
+            self._functions[key] = compiled(f) if jit else f
         return self._functions[key]
 
     def _mapped(self, chunk, jit):
@@ -351,8 +355,9 @@ class BatchEvaluator:
         """The same evaluation inside a CasADi graph: ``p`` (n_p x 1) and ``X`` (n_x x n) MX
         -> MX (n_out x n), through the chunked mapped Functions (shared with numeric calls)."""
         n = X.shape[1]
-        chunk = self._chunk(n)
-        f = self.function(chunk, n >= self.jit_above if jit is None else bool(jit))
+        jit = n >= self.jit_above if jit is None else bool(jit)
+        chunk = self._chunk(n, jit)
+        f = self.function(chunk, jit)
         cols = []
         for i in range(0, n, chunk):
             m = min(chunk, n - i)
@@ -368,7 +373,7 @@ class BatchEvaluator:
         if n == 0:
             return out if self.n_out > 1 else out[:, 0]
         jit = n >= self.jit_above if jit is None else bool(jit)
-        chunk = n if self.exact and not jit and n <= self.max_chunk else self._chunk(n)
+        chunk = n if self.exact and not jit and n <= self.max_chunk else self._chunk(n, jit)
         if (chunk, jit) not in self._cache and len(self._cache) >= self._MAX_EXACT:
             for key in [key for key in self._cache if not key[1]]:  # compiled ones stay
                 del self._cache[key], self._functions[key]
@@ -391,14 +396,3 @@ class BatchEvaluator:
             out[full:] = pad_out[: n - full]
         return out if self.n_out > 1 else out[:, 0]
 
-
-def _compile(f):
-    """Wrap a Function in an MX Function compiled with CasADi's jit (gcc -O3)."""
-    args = [ca.MX.sym(f"a{i}", f.sparsity_in(i)) for i in range(f.n_in())]
-    opts = {"jit": True, "compiler": "shell",
-            "jit_options": {"flags": ["-O3", "-march=native"], "verbose": False}}
-    try:
-        return ca.Function(f"{f.name()}_jit", args, f.call(args), opts)
-    except RuntimeError as err:  # no C compiler: keep the virtual machine
-        warnings.warn(f"CasADi jit failed, evaluating without it: {err}", RuntimeWarning, stacklevel=3)
-        return f
