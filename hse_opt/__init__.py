@@ -28,19 +28,23 @@ Units
     edges (files, command line, reports, parameter display units), converted through
     :mod:`hse_opt.units`; a non-SI name carries its unit (``rate_dps``).
 """
+import sys
+import types
+
 __version__ = "0.1.0"
 
-# -- public API (calibration: issue 4) --------------------------------------------------------
-from .compensation import compensate, compensation  # noqa: E402
-from .fit import Constraint, FitResult, SolverError, fit  # noqa: E402
-from .fit_file import load_fit, save_fit  # noqa: E402
-from .information import Prior, UnidentifiableError, heading_sigma  # noqa: E402
-from .paper_procedure import PaperCalibration, compensate_eq14, paper_procedure  # noqa: E402
-
-#: more of the public API, imported on first use: name -> (module, attribute); attribute None
-#: gives the module itself (``hse_opt.diagnose`` is a callable module: ``hse_opt.diagnose(runs)``
-#: and ``hse_opt.diagnose.refine(runs)`` both work)
+#: the public API, imported on first use (``import hse_opt.sim`` loads neither the model's
+#: CasADi stack nor the design's cvxpy): name -> (module, attribute); attribute None gives the
+#: module itself (``hse_opt.diagnose`` is a callable module: ``hse_opt.diagnose(runs)`` and
+#: ``hse_opt.diagnose.refine(runs)`` both work)
 _API = {
+    # calibration (issue 4)
+    **{name: ("fit", name) for name in ("Constraint", "FitResult", "SolverError", "fit")},
+    **{name: ("compensation", name) for name in ("compensate", "compensation")},
+    **{name: ("fit_file", name) for name in ("load_fit", "save_fit")},
+    **{name: ("information", name) for name in ("Prior", "UnidentifiableError", "heading_sigma")},
+    **{name: ("paper_procedure", name) for name in ("PaperCalibration", "compensate_eq14",
+                                                   "paper_procedure")},
     "diagnose": ("diagnose", None),
     "Diagnosis": ("diagnose", "Diagnosis"),
     # experiment design (issue 5): hse_opt.design(model, criterion, budget=...) designs a plan
@@ -54,9 +58,7 @@ _API = {
 }
 
 
-__all__ = ["Constraint", "FitResult", "SolverError", "compensate", "compensation", "fit", "load_fit",
-           "save_fit", "Prior", "UnidentifiableError", "heading_sigma", "PaperCalibration",
-           "compensate_eq14", "paper_procedure", *_API]
+__all__ = list(_API)
 
 
 def __getattr__(name):
@@ -67,8 +69,24 @@ def __getattr__(name):
     except KeyError:
         raise AttributeError(f"module 'hse_opt' has no attribute {name!r}") from None
     mod = importlib.import_module(f".{module}", __name__)
-    return mod if attr is None else getattr(mod, attr)
+    value = mod if attr is None else getattr(mod, attr)
+    globals()[name] = value
+    return value
 
 
 def __dir__():
     return sorted(set(globals()) | set(_API))
+
+
+class _Package(types.ModuleType):
+    """The package keeps its API names: importing a submodule binds it as an attribute of the
+    package, which would turn ``hse_opt.fit`` (the function) into the module ``hse_opt.fit``
+    once anything imports that module; such a binding is left to ``sys.modules``."""
+
+    def __setattr__(self, name, value):
+        if isinstance(value, types.ModuleType) and _API.get(name, (None, None))[1] is not None:
+            return
+        super().__setattr__(name, value)
+
+
+sys.modules[__name__].__class__ = _Package

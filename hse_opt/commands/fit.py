@@ -84,7 +84,7 @@ def parse_fix(items):
 
 def format_report(result, source):
     """The readable report of a :class:`~hse_opt.fit.FitResult`, as lines."""
-    from scipy.stats import chi2 as chi2_dist
+    from scipy.special import chdtrc
 
     d = result.to_dict()
     lines = [f"hse-opt fit: {source}: {result.n_runs} runs, effects {', '.join(d['effects'])}",
@@ -103,7 +103,7 @@ def format_report(result, source):
     lines.append("")
     fit_line = f"  chi2 {result.chi2:.4g} / dof {result.dof} = {result.chi2_red:.4g}"
     if result.weighting in ("heading_std", "pure-error"):
-        fit_line += f" (p = {chi2_dist.sf(result.chi2, result.dof):.3g})"
+        fit_line += f" (p = {chdtrc(result.dof, result.chi2):.3g})"
     else:
         fit_line += " (sigma from the residuals: no goodness-of-fit test)"
     lines += [fit_line, f"  AIC {result.aic:.4g}, BIC {result.bic:.4g}, residual RMS "

@@ -1,10 +1,13 @@
 """The numeric alignment simulator: the independent reference for :mod:`hse_opt.model`.
 
-Built from the physics (``PHYSICS.md``) and sharing only :mod:`hse_opt.units` and
-:mod:`hse_opt.frames` with the symbolic model.
+Built from the physics (``PHYSICS.md``); it imports only :mod:`hse_opt.units` and
+:mod:`hse_opt.data` (file formats) from the rest of the package, has its own rotations
+(:mod:`hse_opt.sim.rotations`) and loads neither CasADi nor cvxpy.
 
 Modules
 -------
+rotations
+    rotation matrices, Euler angles, rotation vectors, Earth rate (numpy).
 truth
     :class:`TruthConfig` -- the true system (frozen, TOML in and out, units in key names);
     :class:`RunSpec` -- one run of a plan.

@@ -51,7 +51,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from hse_opt import units
-from hse_opt.frames import dcm_to_zyx, earth_rate_n, skew
+from hse_opt.sim.rotations import dcm_to_zyx, earth_rate_n, skew
 from hse_opt.sim._fastmath import PhaseTable, cos_sin
 from hse_opt.sim.rawlog import RawLog
 

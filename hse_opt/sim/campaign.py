@@ -31,7 +31,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from hse_opt import units
-from hse_opt.frames import wrap_angle
+from hse_opt.sim.rotations import wrap_angle
 from hse_opt.data import DataError, Plan, Runs
 from hse_opt.sim.align import AlignConfig, align
 from hse_opt.sim.imu import generate, true_attitude

@@ -37,7 +37,7 @@ import math
 
 import numpy as np
 
-from hse_opt.frames import (dcm_to_zyx, earth_rate_n, rot_x, rot_y, rot_z, rotvec_to_dcm)
+from hse_opt.sim.rotations import dcm_to_zyx, earth_rate_n, rot_x, rot_y, rot_z, rotvec_to_dcm
 from hse_opt.sim._fastmath import MAX_DEVIATION, PhaseTable, normal_f32, rotate_small
 from hse_opt.sim.rawlog import RawLog
 from hse_opt.sim.truth import gyro_matrices, temperature, validate_run

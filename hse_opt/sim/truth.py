@@ -119,7 +119,7 @@ from hse_opt import units
 # the exact decimal <-> SI conversions and the atomic writer of the file formats (one
 # implementation each, in data.py)
 from hse_opt.data import _to_si, _to_text, atomic_path
-from hse_opt.frames import R_ZB_S_IDEAL, c_b_s, skew
+from hse_opt.sim.rotations import R_ZB_S_IDEAL, c_b_s, skew
 
 if sys.version_info >= (3, 11):
     import tomllib
@@ -721,7 +721,7 @@ def validate_run(truth, run):
     mats = gyro_matrices(truth)
     axes_s = np.linalg.inv(mats["K_g"])                       # rows: gyro axes in s
     proj = np.abs(axes_s @ mats["C_b_s"][:, 2])               # |cos| between axis and z_b
-    from hse_opt.frames import EARTH_RATE
+    from hse_opt.sim.rotations import EARTH_RATE
     min_rate = (truth.gyro.lockin + EARTH_RATE) / proj.min()
     if not abs(run.rate) > min_rate:
         raise RunError(

@@ -1,0 +1,53 @@
+"""Import independence: the simulator (the model's independent reference) loads neither the
+model's CasADi stack nor cvxpy, the package and the command line load nothing heavy before a
+command needs it, and the package's API names stay what they are whatever was imported."""
+import json
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+ROOT = Path(__file__).resolve().parents[1]
+HEAVY = ("casadi", "cvxpy", "scipy", "matplotlib", "hse_opt.model", "hse_opt.frames")
+
+
+def _loaded(code):
+    """The heavy modules in ``sys.modules`` after ``code`` runs in a fresh interpreter."""
+    probe = f"{code}\nimport json, sys\nprint(json.dumps(sorted(m for m in sys.modules if m.split('.')[0] in "\
+            f"{sorted({h.split('.')[0] for h in HEAVY})!r} or m in {list(HEAVY)!r})))"
+    env = {**os.environ, "PYTHONPATH": str(ROOT)}
+    out = subprocess.run([sys.executable, "-c", probe], env=env, capture_output=True, text=True, check=True,
+                         cwd=ROOT).stdout
+    return set(json.loads(out.splitlines()[-1]))
+
+
+def _roots(mods):
+    return {m for m in HEAVY if m in mods or any(n.startswith(m + ".") for n in mods)}
+
+
+def test_simulator_loads_neither_casadi_nor_cvxpy_nor_the_model():
+    mods = _loaded("import hse_opt.sim; from hse_opt.sim import generate, align, run_campaign")
+    assert _roots(mods) == set(), sorted(mods)
+
+
+@pytest.mark.parametrize("code", ["import hse_opt", "import hse_opt.cli; hse_opt.cli.build_parser()",
+                                  "import hse_opt.data, hse_opt.units"])
+def test_package_and_command_line_load_nothing_heavy(code):
+    assert _roots(_loaded(code)) == set()
+
+
+def test_fit_loads_casadi_but_not_cvxpy_or_matplotlib():
+    mods = _loaded("import hse_opt; hse_opt.fit")
+    assert "casadi" in mods and not _roots(mods) & {"cvxpy", "matplotlib"}
+
+
+def test_api_names_stay_functions_after_their_modules_are_imported():
+    import hse_opt
+    from hse_opt.fit import FitResult  # noqa: F401 - binds the module hse_opt.fit in a plain package
+
+    assert callable(hse_opt.fit) and hse_opt.fit.__name__ == "fit"
+    assert hse_opt.compensate.__name__ == "compensate"
+    assert hse_opt.__all__ and all(hasattr(hse_opt, name) for name in hse_opt.__all__)
+    assert sys.modules["hse_opt.fit"].__name__ == "hse_opt.fit"
