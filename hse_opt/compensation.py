@@ -8,6 +8,9 @@ from .information import propagated_std
 #: columns :func:`compensate` adds (arcsec): compensated heading error and its 1-sigma
 COMPENSATED_COLUMN = "heading_err_comp_arcsec"
 COMPENSATION_STD_COLUMN = "heading_comp_std_arcsec"
+#: column :func:`compensate` adds for runs with their own heading (``heading_deg``): the
+#: compensated heading, deg -- what a field alignment reports after compensation
+COMPENSATED_HEADING_COLUMN = "heading_comp_deg"
 
 
 def compensated_parameters(fit_result):
@@ -72,13 +75,19 @@ def compensate(runs, fit_result, parameters=None):
     """``runs`` with the compensated heading error and its 1-sigma added as columns.
 
     ``heading_err_comp_arcsec`` = ``heading_err_arcsec`` minus the :func:`compensation`;
-    ``heading_comp_std_arcsec`` = the compensation's 1-sigma from the fit's covariance. The
-    other columns are unchanged. Raises ``ValueError`` when ``runs`` already has them.
+    ``heading_comp_std_arcsec`` = the compensation's 1-sigma from the fit's covariance; for
+    runs with their own heading (``heading_deg``, field campaigns) also ``heading_comp_deg`` =
+    ``heading_deg`` minus the compensation, the compensated alignment heading. At an unsurveyed
+    position ``heading_err`` is relative to the position's mean heading (:mod:`hse_opt.data`),
+    and so is its compensated value. The other columns are unchanged. Raises ``ValueError``
+    when ``runs`` already has them.
     """
-    for col in (COMPENSATED_COLUMN, COMPENSATION_STD_COLUMN):
+    for col in (COMPENSATED_COLUMN, COMPENSATION_STD_COLUMN, COMPENSATED_HEADING_COLUMN):
         if col in runs.covariates:
             raise ValueError(f"{runs.source}, column '{col}': already present; allowed: runs without "
                              "it (compensate the uncompensated runs)")
     correction, std = compensation(runs, fit_result, parameters)
+    heading = {} if runs.heading is None else {
+        COMPENSATED_HEADING_COLUMN: np.mod(runs.heading - correction, 2 * np.pi) / units.DEG}
     return runs.replace(**{COMPENSATED_COLUMN: (runs.heading_err - correction) / units.ARCSEC,
-                           COMPENSATION_STD_COLUMN: std / units.ARCSEC})
+                           COMPENSATION_STD_COLUMN: std / units.ARCSEC, **heading})

@@ -37,9 +37,10 @@ single-position procedure; :attr:`Runs.notes` says so), and a heading more than
 :data:`MAX_POSITION_SPREAD_DEG` from its position's mean heading is an error (one position
 is one stand heading: it catches a forgotten ``position`` column).
 
-In memory (:class:`Runs`) an unsurveyed row has ``surveyed = False``, ``azimuth`` = its own
-heading and ``heading_err`` = its heading minus the position's mean heading: the heading
-error up to one unknown constant per position. :meth:`Runs.reference_groups` tells which
+In memory (:class:`Runs`) an unsurveyed row has ``surveyed = False``, ``azimuth`` = the
+position's mean heading (the system's own headings averaged: one true heading per position)
+and ``heading_err`` = its heading minus that mean: the heading error up to one unknown
+constant per position. :meth:`Runs.reference_groups` tells which
 rows share which constant. What this data can estimate:
 
 * Surveyed rows share the one unknown constant of the stand reading (``offset``), as
@@ -558,8 +559,8 @@ class Runs(_Table):
         Stand-position labels (``position``); rows with one label share one true heading.
     surveyed : numpy.ndarray of bool, shape (n,), or None
         False for rows without a heading reference (an unsurveyed position: ``azimuth_deg``
-        empty or absent, ``heading_deg`` given). In those rows ``azimuth`` is the system's own
-        heading and ``heading_err`` is the heading minus the position's mean heading, known
+        empty or absent, ``heading_deg`` given). In those rows ``azimuth`` is the position's
+        mean heading (the system's own) and ``heading_err`` the heading minus it, known
         up to the position's unknown constant (see "Field campaigns" in the module
         docstring). None: every row is surveyed.
     covariates : dict[str, numpy.ndarray]
@@ -708,7 +709,7 @@ class Runs(_Table):
                 raise DataError(src, "the values look like radians (all within +-2 pi, spread over at least "
                                      "1, not whole numbers); allowed: degrees, or allow_small_azimuths=True "
                                      "(--allow-small-azimuths) for a fine sweep in degrees", column=name)
-        heading_err = np.array(runs.heading_err)
+        heading_err, azimuth = np.array(runs.heading_err), np.array(runs.azimuth)
         labels = runs.position
         groups = labels if labels is not None else np.full(n, "field")
         for label in np.unique(groups[~surveyed]):
@@ -725,7 +726,8 @@ class Runs(_Table):
                                      "a position column separates positions)", row=int(rows[k]) + 1,
                                 column="heading_deg")
             heading_err[rows] = dev
-        return dataclasses.replace(runs, heading_err=heading_err, surveyed=surveyed)
+            azimuth[rows] = ref
+        return dataclasses.replace(runs, azimuth=azimuth, heading_err=heading_err, surveyed=surveyed)
 
 
 @dataclass(frozen=True, eq=False)

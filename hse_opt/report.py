@@ -804,7 +804,8 @@ def fit_section(fit, runs, title=None, derived=()):
     data["factors"] = _factor_data(facs)
     if parts is not None:
         data["slope_arcsec_per_dps"] = _jsonable(parts)
-    line = plot_calibration_line(fit, runs)
+    field = runs.surveyed is not None     # positions without a reference: the paper's own Fig. 2
+    line = plot_field_line(fit, runs) if field else plot_calibration_line(fit, runs)
     residuals = plot_residuals(fit, runs, derived)
     blocks = [
         _paragraph(f"Weighted least squares of the model ({_effects_label(fit)}) to "
@@ -814,9 +815,10 @@ def fit_section(fit, runs, title=None, derived=()):
                  keys=[k for _, k, _ in stats], cls="stats") + "</div>",
         _correlation_table(fit),
         _notes(list(fit.notes) + [f"bound binds: {b}" for b in fit.binding] + facs.notes()),
-        _embed(line, slope_caption(parts), "heading error against bias rate") if line is not None
+        _embed(line, FIELD_LINE_CAPTION if field else slope_caption(parts), "heading error against bias rate")
+        if line is not None
         else _missing_figure("calibration line (the paper's Fig. 2)", _one_rate_text(runs)),
-        _embed(plot_azimuth(fit, runs),
+        None if field else _embed(plot_azimuth(fit, runs),
                "Heading error against stand azimuth before (left) and after (right) compensation "
                "with the fit (the paper's Fig. 3), one row per tilt setup. Lines: the model at "
                "each rate with the other inputs at their medians; after compensation only the "
@@ -1176,3 +1178,52 @@ def write_report(directory, sections, title="hse_opt report", summary=None):
     path = directory / REPORT_NAME
     write_text_atomic(path, render_html(sections, title, summary))
     return path
+
+
+#: the caption of :func:`plot_field_line`
+FIELD_LINE_CAPTION = (
+    "The paper's Fig. 2, per position: each alignment's heading error against the bias rate, "
+    "normalised to the position's line at 0 deg/s (the unknown heading of a position without a "
+    "reference drops out there), with the fitted line and its 1-sigma band. The slope is "
+    "-K_HSE; it differs between positions through their C23 = -gamma cos psi + theta sin psi "
+    "(their own leveling and heading), while lambda2 is one. A position seen at one rate has "
+    "no line. The heading-error-against-azimuth figure needs surveyed azimuths and is not drawn.")
+
+
+@_plotting
+def plot_field_line(fit, runs):
+    """The paper's Fig. 2 for a field campaign: heading against bias rate at each position,
+    normalised to the position's line at 0 deg/s, with the fitted line and its 1-sigma band
+    (:func:`hse_opt.field.position_lines`; the slope is -K_HSE, which differs between
+    positions through their C23).
+
+    Returns
+    -------
+    matplotlib.figure.Figure or None
+        None when no position has two bias rates (no line to draw).
+    """
+    from .field import position_lines
+
+    lines = [ln for ln in position_lines(fit, runs) if np.unique(np.round(ln.rate, 9)).size >= 2]
+    if not lines:
+        return None
+    fig = _new_figure(7.5, 3.4)
+    ax = fig.subplots()
+    for g, ln in enumerate(lines):
+        col = _COLORS[g % len(_COLORS)]
+        rate_dps = ln.rate / units.DEG_PER_S
+        lo, hi = min(rate_dps.min(), 0.0), max(rate_dps.max(), 0.0)
+        grid = np.linspace(lo, hi, 41)
+        mid, band = ln.line(grid * units.DEG_PER_S)
+        label = (f"{ln.label}{' (surveyed)' if ln.surveyed else ''}: K_HSE "
+                 f"{ln.k_hse_arcsec_per_radps:.1f} +- {ln.k_hse_std_arcsec_per_radps:.1f} arcsec/(rad/s)")
+        ax.fill_between(grid, _arcsec(mid - band), _arcsec(mid + band), color=col, alpha=0.15, lw=0)
+        ax.plot(grid, _arcsec(mid), "-", color=col, lw=1.2)
+        ax.errorbar(rate_dps, _arcsec(ln.heading), yerr=_arcsec(ln.sigma), fmt="o", ms=4, color=col,
+                    capsize=2, label=label)
+    ax.axhline(0.0, color="0.6", lw=0.6)
+    ax.set_xlabel("bias rate Omega [deg/s]")
+    ax.set_ylabel("heading, normalised to 0 deg/s [arcsec]")
+    fig.legend(loc="outside right upper", frameon=False, title="position")
+    fig.suptitle("Calibration line per position (the paper's Fig. 2)")
+    return fig

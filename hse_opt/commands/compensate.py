@@ -46,7 +46,10 @@ def run(args):
     save_runs(out, args.output)
     message(f"hse-opt compensate: wrote {args.output}")
     before = runs.heading_err / units.ARCSEC
-    after = out.covariates[COMPENSATED_COLUMN]
+    after = np.array(out.covariates[COMPENSATED_COLUMN])
+    group, positions = runs.reference_groups()
+    for k in range(len(positions)):   # an unsurveyed position: its scatter about its own mean
+        after[group == k] -= after[group == k].mean()
     summary = {"n_runs": len(runs), "fit": args.fit, "output": args.output,
                "parameters": list(compensated_parameters(calibration)),
                "before": _stats(before), "after": _stats(after),
@@ -61,4 +64,7 @@ def run(args):
               f"peak-to-peak {b['ptp_arcsec']:.4g} -> {a['ptp_arcsec']:.4g} arcsec")
         print(f"  compensation 1-sigma (calibration uncertainty): mean "
               f"{summary['comp_std_mean_arcsec']:.3g} arcsec")
+        if positions:
+            print(f"  positions without a heading reference ({', '.join(positions)}): their heading "
+                  "errors about each position's mean heading, before and after")
     return 0

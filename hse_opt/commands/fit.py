@@ -147,8 +147,17 @@ def run(args):
     if args.report:
         from ..report import fit_section
         write_report(args, [fit_section(result, runs, derived=args.derived)], f"hse-opt fit {args.runs}")
+    field = runs.surveyed is not None   # positions without a reference: K_HSE per position
     if args.json:
-        print_json({**result.to_dict(), "source": args.runs})
+        extra = {}
+        if field:
+            from ..field import position_lines
+            extra["positions"] = [ln.to_dict() for ln in position_lines(result, runs)]
+        print_json({**result.to_dict(), **extra, "source": args.runs})
     else:
-        print("\n".join(format_report(result, args.runs)))
+        lines = format_report(result, args.runs)
+        if field:
+            from ..field import position_summary
+            lines += position_summary(result, runs)
+        print("\n".join(lines))
     return 0

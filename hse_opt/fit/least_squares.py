@@ -2,9 +2,9 @@
 import numpy as np
 
 from .. import units
-from ..information import analyse, blind_out, invisible, null_space, separation_advice
+from ..information import UnidentifiableError, analyse, blind_out, invisible, null_space, separation_advice
 from ..model.composition import as_model
-from .problem import Problem, setup
+from .problem import Problem, position_projector, setup
 from .result import FitResult, SolverError
 from .solvers import gauss_newton, solve
 from .weights import HUBER_C, huber_weights, mad_scale, run_sigma
@@ -56,9 +56,6 @@ def fit(runs, model=None, *, fix=None, tilt_known=None, bounds=None, constraints
         Bad arguments, infeasible constraints, too few runs.
     """
     model = as_model(model)
-    if runs.surveyed is not None:
-        raise ValueError(f"{runs.source}: rows without azimuth_deg (unsurveyed positions) are not "
-                         "supported by the fit yet; allowed: azimuth_deg in every row")
     if tilt_known is None:
         tilt_known = runs.pitch is not None
     if tilt_known and runs.pitch is None:
@@ -70,6 +67,18 @@ def fit(runs, model=None, *, fix=None, tilt_known=None, bounds=None, constraints
     y = np.asarray(runs.heading_err, dtype=float)
     n = y.size
     notes = list(runs.notes)
+    group, positions = runs.reference_groups()
+    if positions:  # field campaign: one unknown constant per unsurveyed position
+        if robust:
+            raise ValueError(f"{runs.source}: robust=True (--robust) with positions without a heading "
+                             "reference is not supported; allowed: the least-squares fit")
+        notes.append(f"{len(positions)} position{'s' if len(positions) > 1 else ''} without a heading "
+                     f"reference ({', '.join(positions)}): each one's unknown heading eliminated exactly "
+                     "(only differences within a position count; never reported)")
+        if not (group < 0).any() and "offset" in mm.names and "offset" not in (fix or {}):
+            fix = {**(fix or {}), "offset": 0.0}
+            notes.append("offset held at 0: no surveyed position (each position's constant absorbs it; "
+                         "not a calibration result)")
     if tilt_known is False and runs.pitch is not None:
         notes.append("pitch/roll given but not used: tilt-coupled terms fitted as free C23 coefficients")
     (p_base, free, lower, upper, A_eq, b_eq, A_in, l_in, u_in, L, Lmu,
@@ -77,16 +86,17 @@ def fit(runs, model=None, *, fix=None, tilt_known=None, bounds=None, constraints
     k = int(free.sum())
     if k == 0:
         raise ValueError("every parameter is fixed: nothing to fit")
-    prob = Problem(mm, X, y, p_base, free, lower[free], upper[free], A_eq, b_eq, A_in, l_in, u_in,
-                    L, Lmu, jit)
-    r_prior = L.shape[0]
-    k_eq = np.linalg.matrix_rank(A_eq) if A_eq.size else 0
-    if n + r_prior <= k - k_eq:
-        raise ValueError(f"{runs.source}: {n} runs cannot fit {k - k_eq} free parameters "
-                         f"({', '.join(prob.names)}); need more runs than parameters")
-
     sigma, weighting, more = run_sigma(runs, robust, mm)
     notes += more
+    project, n_pos = position_projector(runs, sigma)
+    prob = Problem(mm, X, y, p_base, free, lower[free], upper[free], A_eq, b_eq, A_in, l_in, u_in,
+                   L, Lmu, jit, project=project)
+    r_prior = L.shape[0]
+    k_eq = np.linalg.matrix_rank(A_eq) if A_eq.size else 0
+    if n - n_pos + r_prior <= k - k_eq:
+        field = f" ({n_pos} go to the positions' unknown headings)" if n_pos else ""
+        raise ValueError(f"{runs.source}: {n} runs{field} cannot fit {k - k_eq} free parameters "
+                         f"({', '.join(prob.names)}); need more runs than parameters")
     units_free = [q.unit for q, f in zip(mm.params, free) if f]
 
     def advice_for(mask):
@@ -97,6 +107,16 @@ def fit(runs, model=None, *, fix=None, tilt_known=None, bounds=None, constraints
             return separation_advice(mm, prob.p(z), X, full, direction)
         return advice
 
+    def field_analyse(*a, **kw):
+        """:func:`analyse`; for a field campaign the error says which positions saw one rate only."""
+        try:
+            return analyse(*a, **kw)
+        except UnidentifiableError as err:
+            if not positions:
+                raise
+            raise UnidentifiableError(f"{err}; {_single_rate_positions(runs, group, positions)}", err.names,
+                                      err.direction, err.condition) from None
+
     # identifiability of the linear part before solving (nonlinear parameters held)
     z = np.clip(p_base[free] / prob.scale, prob.lb, prob.ub)
     lin = ~prob.nonlinear
@@ -105,7 +125,7 @@ def fit(runs, model=None, *, fix=None, tilt_known=None, bounds=None, constraints
     def check_start(z):
         J0 = prob.jacobian(z)
         A0 = J0[:, lin] / sigma[:, None]
-        analyse(blind_out(A0.T @ A0, invisible(J0, prob.ranges)[lin]) + L[:, lin].T @ L[:, lin],
+        field_analyse(blind_out(A0.T @ A0, invisible(J0, prob.ranges)[lin]) + L[:, lin].T @ L[:, lin],
                 np.array(prob.names)[lin], np.array(units_free)[lin],
                 advice=advice_for(lin), Z=null_space(eq_lin, int(lin.sum())))
 
@@ -130,7 +150,7 @@ def fit(runs, model=None, *, fix=None, tilt_known=None, bounds=None, constraints
         z, C, binding, act, method, status = solve(prob, np.sqrt(hw) / sigma, z, notes)
         res = prob.residual(z)
         k_eff = null_space(C, k).shape[1]
-        dof = n + r_prior - k_eff
+        dof = n + r_prior - k_eff - n_pos
         if dof <= 0:
             raise ValueError(f"{runs.source}: no degrees of freedom left ({n} runs, {k_eff} free "
                              "directions)")
@@ -168,7 +188,7 @@ def fit(runs, model=None, *, fix=None, tilt_known=None, bounds=None, constraints
             raise ValueError(f"{runs.source}: every run is beyond the Huber threshold; raise huber_c")
         K = 1 + k_eff / n * dpsi.var() / m_ ** 2
         F_data = F_data / (K ** 2 * np.sum(psi ** 2) / max(n - k_eff, 1) / m_ ** 2)
-    info = analyse(blind_out(F_data, invisible(A * sigma[:, None], prob.ranges)) + L.T @ L,
+    info = field_analyse(blind_out(F_data, invisible(A * sigma[:, None], prob.ranges)) + L.T @ L,
                    prob.names, units_free, advice=advice_for(np.ones(k, bool)), Z=Z)
 
     n_p = len(mm.names)
@@ -193,7 +213,25 @@ def fit(runs, model=None, *, fix=None, tilt_known=None, bounds=None, constraints
         model=model, tilt_known=tilt_known, names=mm.names, units=tuple(q.unit for q in mm.params),
         values=p / mm.scale, std=std, covariance=cov, correlation=corr, free=free, p=p,
         run=np.asarray(runs.run), residuals=res, sigma=sigma, standardized=u,
-        chi2=chi2, dof=int(dof), chi2_red=chi2 / dof, aic=ll_term + 2 * k_eff,
-        bic=ll_term + k_eff * np.log(n), condition=info.condition, weighting=weighting,
+        chi2=chi2, dof=int(dof), chi2_red=chi2 / dof, aic=ll_term + 2 * (k_eff + n_pos),
+        bic=ll_term + (k_eff + n_pos) * np.log(n), condition=info.condition, weighting=weighting,
         method=method, status=status, binding=binding_names, downweighted=down, notes=tuple(notes),
         lower=lower, upper=upper, constraints=kept, active=active, weights=hw, chi2_prior=chi2_prior)
+
+
+def _single_rate_positions(runs, group, positions):
+    """What a field campaign's identifiability error adds: which unsurveyed positions saw one
+    bias rate only (their constant absorbs everything one rate shows)."""
+    single = []
+    for k, label in enumerate(positions):
+        rates = np.unique(np.round(runs.rate[group == k] / units.DEG_PER_S, 1))   # encoder rates: 0.1 deg/s
+        if rates.size == 1:
+            single.append(f"{label!r} ({rates[0]:g} deg/s)")
+    if single:
+        return (f"position{'s' if len(single) > 1 else ''} {', '.join(single)} without a heading reference "
+                f"{'have' if len(single) > 1 else 'has'} one bias rate only: a position's unknown heading "
+                "absorbs everything a single rate shows, so it tells nothing about lambda2; allowed: two or "
+                "more rates (or both senses) at a position, or its azimuth_deg")
+    return ("only differences within each position without a heading reference count (its unknown heading "
+            "absorbs the rest): a parameter that is constant at every such position cannot be fitted; "
+            "allowed: more rates, senses or times per position, or surveyed positions")

@@ -13,10 +13,14 @@ from .result import Constraint, FitResult
 
 class Problem:
     """Data, free set, bounds, constraints and prior of one fit, in display units over the
-    free parameters ``z`` (``p[free] = z * scale``)."""
+    free parameters ``z`` (``p[free] = z * scale``). ``project``: a linear map applied to the
+    residuals and the Jacobian (the elimination of the unsurveyed positions' constants,
+    :func:`position_projector`)."""
 
-    def __init__(self, mm, X, y, p_base, free, lb, ub, A_eq, b_eq, A_in, l_in, u_in, L, Lmu, jit):
+    def __init__(self, mm, X, y, p_base, free, lb, ub, A_eq, b_eq, A_in, l_in, u_in, L, Lmu, jit,
+                 project=None):
         self.mm, self.X, self.y, self.jit = mm, X, y, jit
+        self.project = project
         self.p_base, self.free = p_base, free
         self.scale = mm.scale[free]
         self.k = int(free.sum())
@@ -40,7 +44,10 @@ class Problem:
         z = np.asarray(z, dtype=float)
         if not np.array_equal(self._last[0], z):
             hJ = residual_jacobian(self.mm)(self.p(z), self.X, self.jit)
-            self._last = (z.copy(), self.y - hJ[:, 0], hJ[:, 1:][:, self.free] * self.scale[None, :])
+            r, J = self.y - hJ[:, 0], hJ[:, 1:][:, self.free] * self.scale[None, :]
+            if self.project is not None:
+                r, J = self.project(r), self.project(J)
+            self._last = (z.copy(), r, J)
         return self._last[1], self._last[2]
 
     def residual(self, z):
@@ -154,3 +161,51 @@ def setup(mm, runs, fix, bounds, constraints, prior, notes, start=None):
     arr = lambda rows: np.array(rows, dtype=float).reshape(-1, k)  # noqa: E731
     return (p_base, free, lower, upper, arr(rows_eq), np.array(b_eq, dtype=float), arr(rows_in),
             np.array(l_in, dtype=float), np.array(u_in, dtype=float), L, Lmu, tuple(kept))
+
+
+def position_projector(runs, sigma):
+    """The exact elimination of each unsurveyed position's unknown constant.
+
+    Each position without a heading reference (:meth:`hse_opt.data.Runs.reference_groups`)
+    adds one unknown constant c_g to its runs' heading errors (its true heading, plus the
+    offset). The constants enter linearly, so for any model parameters the best constants
+    are the weighted means of the position's residuals, and the weighted least-squares
+    problem in the model parameters alone is the original one with residuals and Jacobian
+    replaced by their within-position deviations from those means (variable projection:
+    ``P x = x - G (G' W G)^-1 G' W x``, ``G`` the rows' position indicators, ``W`` the
+    weights ``1/sigma^2``). Its minimiser, chi-square and parameter covariance equal those
+    of the problem with the constants as free parameters; the constants are never
+    estimated or reported.
+
+    Parameters
+    ----------
+    runs : hse_opt.data.Runs
+    sigma : numpy.ndarray, shape (n,)
+        Each run's heading sigma, rad (only relative values matter within a position).
+
+    Returns
+    -------
+    project : callable or None
+        ``project(x)`` for x of shape (n,) or (n, k); None when every run is surveyed.
+    n_positions : int
+        The number of constants eliminated.
+    """
+    group, labels = runs.reference_groups()
+    if not labels:
+        return None, 0
+    rows = group >= 0
+    g = group[rows]
+    w = 1.0 / np.asarray(sigma, dtype=float)[rows] ** 2
+    wsum = np.bincount(g, w, len(labels))
+
+    def project(x):
+        x = np.array(x, dtype=float)
+        xr = x[rows]
+        if xr.ndim == 1:
+            mean = np.bincount(g, w * xr, len(labels)) / wsum
+        else:
+            mean = np.stack([np.bincount(g, w * xr[:, j], len(labels)) for j in range(xr.shape[1])], axis=1)
+            mean /= wsum[:, None]
+        x[rows] = xr - mean[g]
+        return x
+    return project, len(labels)

@@ -17,13 +17,17 @@ HUBER_C = 1.345
 def replicate_groups(runs, mm=None, tilt_tol=10 * units.ARCSEC):
     """Replicate groups: runs with the same settings share a label. Returns ``(labels, n_groups)``.
 
-    Settings are the rate, azimuth, duration and latitude, the tilt (pitch and roll within
+    Settings are the rate, azimuth (for an unsurveyed position: the position), duration and
+    latitude, the tilt (pitch and roll within
     ``tilt_tol``: measured tilts carry noise) and -- for a measurement model ``mm`` whose
     heading depends on them (a warm-up, a covariate effect) -- time since power-on and the
     covariate columns: runs the model tells apart are not replicates, or their modelled
     differences would count as noise. Without ``mm`` the tilt counts when the runs have it."""
+    # an unsurveyed position's runs carry their own headings as azimuths: the position is the setting
+    group, _ = runs.reference_groups()
+    azimuth = np.where(group < 0, np.mod(runs.azimuth, 2 * np.pi), 10.0 + group)
     cols = [np.round(np.asarray(a, float) / 1e-9)
-            for a in (runs.rate, np.mod(runs.azimuth, 2 * np.pi), runs.duration, runs.latitude)]
+            for a in (runs.rate, azimuth, runs.duration, runs.latitude)]
     if runs.pitch is not None and (mm is None or mm.tilt_known):
         cols += [np.round(np.asarray(runs.pitch) / tilt_tol), np.round(np.asarray(runs.roll) / tilt_tol)]
     if mm is not None:
