@@ -10,11 +10,10 @@ from dataclasses import dataclass
 import numpy as np
 
 from .. import units
-from ..fit import FitResult
+from ..fit import FitResult, fit_profiled
 from ..information import UnidentifiableError, check_identifiable, weighted_jacobian
 from ..model import CATALOGUE, effect as make_effect
 from ._format import num
-from .profile import fit_profiled
 
 #: a parameter that, at the edge of its bounds, moves no run's heading by this many sigma has
 #: no heading signature in these runs
@@ -160,13 +159,17 @@ def _candidate(null, f0, runs, name, fix, refit):
         fix1 = dict(fix)
         fix1.update({n: mm1.params[mm1.parameter_index(n)].nominal for n in held})
         try:
-            f1 = fit_profiled(runs, model1, fix1, f0.tilt_known, start=known)
+            f1 = fit_profiled(null.scale.refit_runs(runs), model1, fix=fix1, tilt_known=f0.tilt_known,
+                              start=known)
         except (ValueError, RuntimeError, np.linalg.LinAlgError) as err:
             # the null fit validated the runs: this is the candidate not fitting these runs
             cand = dataclasses.replace(cand, reason=f"refit failed: {err}")
         else:
-            cand = dataclasses.replace(cand, delta_bic=float(f1.bic - f0.bic), rms_after=float(
-                np.sqrt(np.mean(f1.residuals ** 2))), chi2_red_after=float(f1.chi2_red), fit=f1)
+            # one likelihood scale: the base model's noise model (statistics.LikelihoodScale)
+            delta_bic = null.scale.bic(f1.residuals, f1.dof) - null.scale.bic(f0.residuals, f0.dof)
+            cand = dataclasses.replace(cand, delta_bic=float(delta_bic), rms_after=float(
+                np.sqrt(np.mean(f1.residuals ** 2))), chi2_red_after=null.scale.chi2_red(f1.residuals, f1.dof),
+                fit=f1)
             nonlinear = [i for i in new if mm1.names[i] in mm1.nonlinear]
             if nonlinear:  # its signature at the fitted nonlinear values, for the comparisons
                 p_nl = p1.copy()

@@ -8,12 +8,11 @@ import dataclasses
 import numpy as np
 from scipy import stats
 
-from ..fit import FitResult
+from ..fit import FitResult, fit_profiled
 from ..model import as_model
 from .candidates import ambiguity, candidate_names, covariate_columns, rank, test_candidates
 from .discrimination import discriminating_runs
 from .factors import factor_tests
-from .profile import fit_profiled, fixed_of
 from .result import Diagnosis
 from .statistics import ALPHA, Null, Test, flag_runs, lack_of_fit
 from .structure import sparse_structure
@@ -64,7 +63,7 @@ def diagnose(runs, model=None, *, fix=None, tilt_known=None, alpha=ALPHA, candid
         if f0.run.shape != runs.run.shape or np.any(f0.run != runs.run):
             raise ValueError("the FitResult given as model was not fitted to these runs (run ids differ)")
     else:
-        f0 = fit_profiled(runs, as_model(model), fix, tilt_known)
+        f0 = fit_profiled(runs, as_model(model), fix=fix, tilt_known=tilt_known)
     fix.update(fixed_of(f0))
     null = Null(f0, runs)
     notes = list(dict.fromkeys(f0.notes))
@@ -124,7 +123,7 @@ def diagnose(runs, model=None, *, fix=None, tilt_known=None, alpha=ALPHA, candid
         influential=influential, chi2_test=chi2_test, lack_of_fit=lof, factors=factor_results,
         candidates=tuple(cands), structure=tuple(structure), ambiguous=tuple(ambiguous),
         proposals=proposals, verdict="missing-effect" if rejected else "adequate", n_tests=m,
-        notes=tuple(notes))
+        notes=tuple(notes), likelihood=null.scale.text)
 
 
 
@@ -142,3 +141,10 @@ def refine(runs, model=None, *, max_steps=4, **kw):
     while steps[-1].verdict != "adequate" and len(steps) <= max_steps and steps[-1].best is not None:
         steps.append(steps[-1].add(steps[-1].best.effect))
     return tuple(steps)
+
+
+def fixed_of(f):
+    """Linear parameters a FitResult held fixed, display units (fixed nonlinear ones were
+    profiled, or given in ``fix``: refits profile them again)."""
+    nonlinear = f.measurement.nonlinear
+    return {n: float(v) for n, v, free in zip(f.names, f.values, f.free) if not free and n not in nonlinear}

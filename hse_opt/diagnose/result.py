@@ -8,7 +8,7 @@ import numpy as np
 
 from .. import units
 from ..data import Runs
-from ..fit import FitResult
+from ..fit import FitResult, fit_profiled
 from ..model import effect as make_effect
 from ._format import cell, f_text, num, p_text, pm, run_text, test_text
 from .factors import factor_columns
@@ -77,6 +77,8 @@ class Diagnosis:
     verdict: str
     n_tests: int
     notes: tuple = field(default_factory=tuple)
+    #: the likelihood every candidate's refit is compared on (:class:`.statistics.LikelihoodScale`)
+    likelihood: str = ""
 
     # -- views -------------------------------------------------------------------------------
     @property
@@ -130,7 +132,13 @@ class Diagnosis:
         if name in self.effects:
             raise ValueError(f"effect {name!r} is already in the model ({', '.join(self.effects)})")
         prior = next((c.fit for c in self.candidates if c.effect == name and c.fit is not None), None)
-        return diagnose(self.runs, prior if prior is not None else self.fit.model + effect, fix=dict(self.fix),
+        model = self.fit.model + effect
+        if prior is not None and prior.weighting != self.fit.weighting:
+            # the refit held this model's sigmas (one likelihood scale); the extended model's own
+            # diagnosis weighs the runs by its own noise model, from the refit's estimates
+            prior = fit_profiled(self.runs, model, fix={k: v for k, v in self.fix if k in prior.names},
+                                 tilt_known=self.fit.tilt_known, start=dict(zip(prior.names, prior.values)))
+        return diagnose(self.runs, prior if prior is not None else model, fix=dict(self.fix),
                         tilt_known=self.fit.tilt_known, alpha=self.alpha, covariates=self.covariates,
                         candidates=[c for c in self.candidate_names if c != name])
 
@@ -157,6 +165,7 @@ class Diagnosis:
             "influential": [int(r) for r in self.influential],
             "fit": self.fit.to_dict(),
             "notes": list(self.notes),
+            "likelihood_scale": self.likelihood,
         }
 
     def plot_data(self):
@@ -207,6 +216,8 @@ class Diagnosis:
             if c.held:
                 out.append(f"  {'':<26} held at nominal (no heading signature here): {', '.join(c.held)}")
         out.append("  (* significant at the family-wise level; RMS in arcsec)")
+        if self.likelihood:
+            out.append(f"  Delta-BIC on one likelihood scale: {self.likelihood}")
         if self.structure:
             out.append("Structure in the residuals, in words (sparse regression over factor functions):")
             out.extend(f"  - {t.text}" for t in self.structure)

@@ -23,6 +23,7 @@ from scipy import stats
 
 from ..fit import replicate_groups
 from ..information import MAX_CONDITION, weighted_jacobian
+from ..units import ARCSEC
 from ._format import num
 
 #: default family-wise significance level of the verdict
@@ -91,6 +92,7 @@ class Null:
         # profiled parameters count as fitted (FitResult.dof already holds that)
         self.k = self.n - int(f.dof)
         self.rss = float(self.r @ self.r)
+        self.scale = LikelihoodScale.of(f)
 
     def basis(self, Z, extra=None):
         """Orthonormal basis (n, q') of the part of span(Z) orthogonal to the model (and to
@@ -182,3 +184,49 @@ def lack_of_fit(null, runs):
                     "not enough replicate groups beyond the model's parameters")
     return Test("lack of fit", f"model against {g} replicate-group means (pure error from "
                 f"{dof[1]} degrees of freedom)", F, dof, p, logp)
+
+
+@dataclass(frozen=True)
+class LikelihoodScale:
+    """The one likelihood on which every candidate's refit is compared with the base model: the
+    base model's noise model.
+
+    ``fixed``: the base fit's sigmas (the runs' own ``heading_std``, or the pure-error sigma of
+    the base model's replicate groups) are held for every refit -- a candidate that changes the
+    replicate grouping (a warm-up, a covariate) cannot change the scale; ``-2 log L = chi2``.
+    ``profiled``: no sigma is known (residual weighting): one common unknown sigma, profiled per
+    model; ``-2 log L = n ln(RSS / n)``. ``BIC = -2 log L + k ln n``, ``k = n - dof``.
+    """
+
+    kind: str
+    sigma: np.ndarray
+    weighting: str
+
+    @classmethod
+    def of(cls, f):
+        kind = "profiled" if f.weighting == "residual" else "fixed"
+        return cls(kind, np.asarray(f.sigma, float), f.weighting)
+
+    def refit_runs(self, runs):
+        """The runs as a candidate is refitted: with the base sigmas as their own when fixed."""
+        return runs.replace(heading_std=self.sigma.copy()) if self.kind == "fixed" else runs
+
+    def bic(self, residuals, dof):
+        r = np.asarray(residuals, float)
+        n = r.size
+        ll = float(np.sum((r / self.sigma) ** 2)) if self.kind == "fixed" else n * math.log(np.sum(r ** 2) / n)
+        return ll + (n - dof) * math.log(n)
+
+    def chi2_red(self, residuals, dof):
+        r = np.asarray(residuals, float)
+        return float(np.sum((r / self.sigma) ** 2)) / dof if self.kind == "fixed" else 1.0
+
+    @property
+    def text(self):
+        if self.kind == "profiled":
+            return ("one unknown sigma profiled per model (no heading_std_arcsec, no replicates): "
+                    "Delta-BIC = n ln(RSS_after / RSS_before) + Delta k ln n")
+        what = ("the runs' own sigmas (heading_std_arcsec)" if self.weighting == "heading_std" else
+                f"the base model's {self.weighting} sigma {float(np.median(self.sigma)) / ARCSEC:.3g} arcsec, "
+                "held for every refit")
+        return f"{what}: Delta-BIC = Delta chi2 + Delta k ln n"

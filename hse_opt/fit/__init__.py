@@ -51,7 +51,7 @@ its rank to the degrees of freedom; for a model linear in its parameters and kno
 updating a fit with new runs this way gives the batch fit of all the runs.
 
 The package: :mod:`~hse_opt.fit.least_squares` (:func:`fit`), :mod:`~hse_opt.fit.problem`
-(the least-squares problem), :mod:`~hse_opt.fit.solvers`, :mod:`~hse_opt.fit.weights`,
+(the least-squares problem), :mod:`~hse_opt.fit.profile` (nonlinear parameters profiled), :mod:`~hse_opt.fit.solvers`, :mod:`~hse_opt.fit.weights`,
 :mod:`~hse_opt.fit.result` (:class:`FitResult`, :class:`Constraint`, :class:`SolverError`) and
 :mod:`~hse_opt.fit.summary` (the fit as a report shows it). Applying a calibration is
 :mod:`hse_opt.compensation`, FIT.json is :mod:`hse_opt.fit_file`; both are re-exported here.
@@ -59,6 +59,7 @@ The package: :mod:`~hse_opt.fit.least_squares` (:func:`fit`), :mod:`~hse_opt.fit
 from ..information import Prior, UnidentifiableError
 from ..model.composition import as_model
 from .least_squares import fit
+from .profile import fit_profiled
 from .result import Constraint, FitResult, SolverError
 from .summary import report_data
 from .weights import HUBER_C, pure_error, replicate_groups, run_sigma
@@ -69,7 +70,7 @@ _LAZY = {name: "hse_opt.compensation" for name in
           "COMPENSATION_STD_COLUMN")}
 _LAZY.update({name: "hse_opt.fit_file" for name in ("save_fit", "load_fit", "FIT_FORMAT", "FIT_VERSION")})
 
-__all__ = ["FitResult", "Constraint", "Prior", "SolverError", "UnidentifiableError", "fit",
+__all__ = ["FitResult", "Constraint", "Prior", "SolverError", "UnidentifiableError", "fit", "fit_profiled",
            "compensate", "compensation", "compensated_parameters", "save_fit", "load_fit", "as_model",
            "replicate_groups", "pure_error", "run_sigma", "report_data", "COMPENSATED_COLUMN",
            "COMPENSATION_STD_COLUMN", "HUBER_C"]

@@ -1,25 +1,18 @@
 """Fits with nonlinear parameters profiled (the warm-up time constant): a Gauss-Newton start
-cannot see them where their heading signature vanishes."""
-from __future__ import annotations
-
+cannot see them where their heading signature vanishes, so :func:`fit_profiled` first searches
+each over its declared range with the other parameters solved linearly, then fits from there."""
 import dataclasses
 import math
 
 import numpy as np
 from scipy import optimize
 
-from ..fit import fit
+from .least_squares import fit
 from ..information import UnidentifiableError
+from ..model.composition import as_model
 
 
-def fixed_of(f):
-    """Linear parameters a FitResult held fixed, display units (fixed nonlinear ones were
-    profiled, or given in ``fix``: refits profile them again)."""
-    nonlinear = f.measurement.nonlinear
-    return {n: float(v) for n, v, free in zip(f.names, f.values, f.free) if not free and n not in nonlinear}
-
-
-def fit_profiled(runs, model, fix, tilt_known, start=None):
+def fit_profiled(runs, model=None, *, fix=None, tilt_known=None, start=None):
     """:func:`hse_opt.fit.fit` from ``start`` (display units; names outside the model are
     ignored). Free nonlinear parameters (the warm-up time constant) are first profiled - a grid
     and Brent search over the parameter, the model's other parameters solved linearly at each
@@ -27,7 +20,11 @@ def fit_profiled(runs, model, fix, tilt_known, start=None):
     vanishes; the fit then starts from the profile optimum with every parameter free. When the
     data cannot estimate a nonlinear parameter jointly with the rest (or the iteration leaves
     its bounds), it is held at its profile optimum: the FitResult's dof, AIC and BIC count it as
-    fitted and a note says so."""
+    fitted and a note says so.
+
+    Parameters and errors as :func:`hse_opt.fit.fit` (``fix``, ``tilt_known``, ``start``)."""
+    model = as_model(model)
+    fix = dict(fix or {})
     tk = runs.pitch is not None if tilt_known is None else bool(tilt_known)
     mm = model.measurement(tk)
     start = {k: v for k, v in (start or {}).items() if k in mm.names and k not in fix}
