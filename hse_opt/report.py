@@ -957,6 +957,8 @@ def diagnosis_section(diagnosis, title=None, residuals=True, derived=()):
     words = [t.text for t in d.structure]
     if d.ambiguous:
         words.append(f"Ambiguous: {', '.join(d.ambiguous)} explain these data equally well.")
+        words += [f"{n}: " + ("; ".join(d.candidate(n).plausibility)
+                              or "every fitted magnitude within its physical range") for n in d.ambiguous]
         words += [f"a run that would tell {r.get('a')} from {r.get('b')}: "
                   + ", ".join(f"{k} = {v:.4g}" if isinstance(v, float) else f"{k} = {v}"
                               for k, v in r.items() if k not in ("a", "b"))
@@ -988,7 +990,8 @@ def diagnosis_section(diagnosis, title=None, residuals=True, derived=()):
         (_embed(plot_residuals(d.fit, d.runs, derived), "Residuals against every factor that varies "
                 "beyond its resolution.", "residuals against every factor")
          or _missing_figure("residual plot", "no factor varies beyond its resolution")) if residuals else "",
-        _notes(list(d.notes) + campaign_factors(d.runs, derived).notes()),
+        _notes(list(d.notes) + campaign_factors(d.runs, derived).notes()
+               + ([f"Delta-BIC on one likelihood scale: {d.likelihood}"] if d.likelihood else [])),
     ]
     return Section(title, tuple(b for b in blocks if b), {"diagnosis": _jsonable(d.to_dict())})
 

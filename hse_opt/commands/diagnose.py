@@ -8,8 +8,11 @@ Fit the model to RUNS.csv and compare it with the measurements: residuals and in
 run, goodness of fit (chi-square with the runs' own sigmas; pure-error lack of fit when
 settings are replicated), residual structure against every factor, every catalogue effect not
 in the model ranked by a score test, Delta-BIC and the residual RMS after refitting, the
-unexplained structure in words, and the verdict (adequate or missing-effect). --refine adds the
-best significant effect and diagnoses again until the verdict is adequate."""
+unexplained structure in words (level shifts and outliers in run order too), and the verdict
+(adequate, missing-effect or unexplained structure). Candidates are compared on one likelihood
+scale, the base model's noise model. --refine adds the best significant effect and diagnoses
+again until the verdict is adequate; it stops, adding nothing, when the best candidates are
+ambiguous or the structure follows no catalogue effect."""
 EXAMPLE = """examples:
   hse-opt diagnose RUNS.csv
   hse-opt diagnose RUNS.csv --effects hse,warmup --json
@@ -59,6 +62,9 @@ def run(args):
     except OSError as err:
         raise ValueError(f"{args.runs}: cannot read the file ({err.strerror or err})") from None
     covariates = None
+    if args.derived:  # the user's own derived columns are never factors or candidates
+        from ..factors import is_derived
+        covariates = [c for c in runs.covariates if not is_derived(c, args.derived)]
     if args.covariates is not None:
         covariates = [] if args.covariates.strip().lower() == "none" else \
             [c.strip() for c in args.covariates.split(",") if c.strip()]
@@ -66,6 +72,9 @@ def run(args):
               alpha=ALPHA if args.alpha is None else args.alpha)
     model = as_model(args.effects)
     steps = refine(runs, model, **kw) if args.refine else (diagnose(runs, model, **kw),)
+    stopped = _stopped(steps[-1]) if args.refine else None
+    if stopped:
+        message(f"--refine stopped: {stopped}")
     if args.report:
         status = write_report(steps, args.report, args.runs, args.derived)
         if status:
@@ -74,6 +83,7 @@ def run(args):
         out = steps[-1].to_dict()
         if args.refine:
             out["added"] = [e for e in steps[-1].effects if e not in steps[0].effects]
+            out["stopped"] = stopped
             out["steps"] = [{"effects": list(s.effects), "rms_arcsec": s.rms_arcsec,
                              "chi2_red": float(s.chi2_red), "lack_of_fit_p": s.lack_of_fit_p,
                              "verdict": s.verdict} for s in steps]
@@ -86,6 +96,17 @@ def run(args):
         print()
         print("\n".join(steps[-1].summary()))
     return 0
+
+
+def _stopped(last):
+    """Why --refine stopped short of an adequate model without adding the best candidate, or
+    None."""
+    if len(last.ambiguous) > 1:
+        return (f"{', '.join(last.ambiguous)} are ambiguous (Delta-BIC within 6 or equally adequate): "
+                "none added; make the proposed runs to tell them apart")
+    if last.verdict == "unexplained structure":
+        return "the strongest structure follows no catalogue effect (see the notes): none added"
+    return None
 
 
 def write_report(steps, directory, source="", derived=()):

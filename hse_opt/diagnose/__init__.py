@@ -27,13 +27,18 @@ Structure in words
     functions, each selected term as a sentence a user can act on, with the catalogue effects
     whose signature it matches.
 Verdict
-    ``adequate`` when no test of the family (chi-square, lack of fit, factors, candidates)
-    rejects at the family-wise level ``alpha`` (Bonferroni: a test rejects when
-    ``p < alpha / m``, ``m`` the number of tests); else ``missing-effect``.
+    ``adequate`` when no test of the family (chi-square, lack of fit, factors, level shift and
+    single run in run order, candidates) rejects at the family-wise level ``alpha``
+    (Bonferroni: a test rejects when ``p < alpha / m``, ``m`` the number of tests); else
+    ``unexplained structure`` when the strongest structure follows no catalogue effect and
+    explains more than any significant candidate, or ``missing-effect``.
 
 :meth:`Diagnosis.add` refits with one more effect and diagnoses again; :func:`compare` puts
 two diagnoses side by side (RMS, chi-square, lack-of-fit p, BIC, parameters); :func:`refine`
-adds the best significant candidate until the verdict is adequate.
+adds the best significant candidate until the verdict is adequate, and stops (without picking)
+on ambiguity or unexplained structure. Every candidate's refit is compared on one likelihood
+scale, the base model's noise model (:class:`.statistics.LikelihoodScale`); fitted magnitudes
+are judged against physical ranges (:mod:`.plausibility`).
 
 Modules: :mod:`.statistics` (the fit as a weighted linear model; score, lack-of-fit and
 chi-square tests; influence), :mod:`.factors`, :mod:`.candidates` (ranking, ambiguity),

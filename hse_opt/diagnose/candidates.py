@@ -10,6 +10,8 @@ from dataclasses import dataclass
 import numpy as np
 
 from .. import units
+from .plausibility import judge
+from ..factors import is_derived
 from ..fit import FitResult, fit_profiled
 from ..information import UnidentifiableError, check_identifiable, weighted_jacobian
 from ..model import CATALOGUE, effect as make_effect
@@ -18,6 +20,9 @@ from ._format import num
 #: a parameter that, at the edge of its bounds, moves no run's heading by this many sigma has
 #: no heading signature in these runs
 _BLIND = 1e-3
+#: candidates whose Delta-BIC is within this of the best's are reported together (Kass &
+#: Raftery 1995: a BIC difference below 6 is at most "positive", not "strong", evidence)
+AMBIGUOUS_DELTA_BIC = 6.0
 
 
 @dataclass(frozen=True, eq=False)
@@ -49,6 +54,9 @@ class Candidate:
         Its score test rejects at the family-wise level.
     ambiguous_with : tuple of str
         Candidates that explain the data equally well (see :class:`Diagnosis`).
+    plausibility : tuple of str
+        The refit's magnitudes beyond their physical range, and base parameters it moves by more
+        than 3 sigma (:mod:`.plausibility`); empty when plausible.
     """
 
     effect: str
@@ -67,6 +75,7 @@ class Candidate:
     fit: FitResult | None = None
     significant: bool = False
     ambiguous_with: tuple = ()
+    plausibility: tuple = ()
 
     @property
     def rms_after_arcsec(self):
@@ -79,13 +88,17 @@ class Candidate:
                 "chi2_red_after": num(self.chi2_red_after), "significant": self.significant,
                 "testable": self.testable, "reason": self.reason, "parameters": list(self.parameters),
                 "held": list(self.held), "ambiguous_with": list(self.ambiguous_with),
+                "plausibility": list(self.plausibility),
                 "description": self.description}
 
 
 
 def covariate_columns(runs, covariates):
+    """The covariate columns used as factors and candidates: by default every column but those
+    derived from the heading error (:func:`hse_opt.factors.is_derived`: an outcome of the
+    alignment, not a setting)."""
     if covariates is None:
-        return list(runs.covariates)
+        return [c for c in runs.covariates if not is_derived(c)]
     covariates = [c.strip() for c in covariates.split(",")] if isinstance(covariates, str) else list(covariates)
     missing = [c for c in covariates if c not in runs.covariates]
     if missing:
@@ -169,7 +182,7 @@ def _candidate(null, f0, runs, name, fix, refit):
             delta_bic = null.scale.bic(f1.residuals, f1.dof) - null.scale.bic(f0.residuals, f0.dof)
             cand = dataclasses.replace(cand, delta_bic=float(delta_bic), rms_after=float(
                 np.sqrt(np.mean(f1.residuals ** 2))), chi2_red_after=null.scale.chi2_red(f1.residuals, f1.dof),
-                fit=f1)
+                fit=f1, plausibility=judge(f1, f0))
             nonlinear = [i for i in new if mm1.names[i] in mm1.nonlinear]
             if nonlinear:  # its signature at the fitted nonlinear values, for the comparisons
                 p_nl = p1.copy()
@@ -198,16 +211,22 @@ def rank(cands):
 
 
 def ambiguity(null, cands, bases, alpha):
-    """The best significant candidate and every significant candidate that makes it redundant
-    (its score test given the other does not reject at ``alpha``): these runs cannot tell them
-    apart."""
+    """The best significant candidate and every candidate these runs cannot tell apart from it:
+    a significant one that makes it redundant (its score test given the other does not reject
+    at ``alpha``: equally adequate fits), or one whose Delta-BIC is within
+    :data:`AMBIGUOUS_DELTA_BIC` of the best's (on the one likelihood scale)."""
     sig = [c for c in cands if c.significant and c.effect in bases]
     if not sig:
         return [], cands
     best = sig[0]
     Ub = bases[best.effect]
     same = []
+    if best.delta_bic is not None:
+        same += [c.effect for c in cands if c is not best and c.testable and c.delta_bic is not None
+                 and c.delta_bic < 0 and c.delta_bic <= best.delta_bic + AMBIGUOUS_DELTA_BIC]
     for c in sig[1:]:
+        if c.effect in same:
+            continue
         Uc = bases[c.effect]
         # the best given c: its part orthogonal to the model and to c
         U_b_given_c = null.basis(Ub, extra=Uc)

@@ -15,7 +15,7 @@ from .discrimination import discriminating_runs
 from .factors import factor_tests
 from .result import Diagnosis
 from .statistics import ALPHA, Null, Test, flag_runs, lack_of_fit
-from .structure import sparse_structure
+from .structure import run_order_tests, sparse_structure
 
 
 def diagnose(runs, model=None, *, fix=None, tilt_known=None, alpha=ALPHA, candidates=None,
@@ -85,6 +85,7 @@ def diagnose(runs, model=None, *, fix=None, tilt_known=None, alpha=ALPHA, candid
 
     # where it fails
     factor_results, library = factor_tests(null, runs, covariates, f0.tilt_known)
+    factor_results += run_order_tests(null, f0.run)
     if runs.t_start is None:
         notes.append("time since power-on unknown: cumulative run durations (run order) stand in")
 
@@ -115,21 +116,41 @@ def diagnose(runs, model=None, *, fix=None, tilt_known=None, alpha=ALPHA, candid
         proposals = tuple(dict(r, a=ambiguous[0], b=b) for b in ambiguous[1:]
                           if by[ambiguous[0]].fit is not None and by[b].fit is not None
                           for r in discriminating_runs(runs, by[ambiguous[0]].fit, by[b].fit, k=2))
-    structure = sparse_structure(null, library, bases, alpha)
+    structure = sparse_structure(null, library, bases, alpha, level=level, run=f0.run)
+    verdict = "missing-effect" if rejected else "adequate"
+    if rejected and structure and _unexplained(structure[0], cands, bases, null):
+        verdict = "unexplained structure"
+        notes.append(f"unexplained structure: the strongest structure in the residuals ({structure[0].function}) "
+                     "follows no catalogue effect and explains more than any candidate. Model it with a covariate "
+                     "column (0/1 for a step) and the effect covariate:<column>, or declare an Effect of your "
+                     "own (README: effects outside the catalogue)")
     factor_results = tuple(sorted(factor_results, key=lambda t: (not t.tested, t.log_p if t.tested else 0.0)))
     return Diagnosis(
         fit=f0, runs=runs, alpha=alpha, fix=tuple(sorted(fix.items())), candidate_names=tuple(names),
         covariates=tuple(covariates), studentized=stud, leverage=lev, cooks=cooks, outliers=outliers,
         influential=influential, chi2_test=chi2_test, lack_of_fit=lof, factors=factor_results,
         candidates=tuple(cands), structure=tuple(structure), ambiguous=tuple(ambiguous),
-        proposals=proposals, verdict="missing-effect" if rejected else "adequate", n_tests=m,
+        proposals=proposals, verdict=verdict, n_tests=m,
         notes=tuple(notes), likelihood=null.scale.text)
 
 
 
+def _unexplained(term, cands, bases, null):
+    """Whether the strongest structure term is one no catalogue effect explains and it explains
+    more of the residual than the best significant candidate's signature does."""
+    if not term.significant or term.explained_by:
+        return False
+    best = max((float(np.sum((bases[c.effect].T @ null.r) ** 2)) for c in cands
+                if c.significant and c.effect in bases), default=0.0)
+    return term.score > best
+
+
 def refine(runs, model=None, *, max_steps=4, **kw):
     """Diagnose, add the best significant candidate, repeat until the verdict is adequate (or no
-    significant candidate is left, or ``max_steps`` effects were added).
+    significant candidate is left, or ``max_steps`` effects were added). It stops without
+    adding when the verdict is ``unexplained structure`` or the best candidates are ambiguous
+    (the last diagnosis says which, and proposes the runs that tell them apart): it never picks
+    one of an ambiguous pair.
 
     Returns
     -------
@@ -138,7 +159,8 @@ def refine(runs, model=None, *, max_steps=4, **kw):
         the error fall.
     """
     steps = [diagnose(runs, model, **kw)]
-    while steps[-1].verdict != "adequate" and len(steps) <= max_steps and steps[-1].best is not None:
+    while steps[-1].verdict == "missing-effect" and len(steps) <= max_steps and steps[-1].best is not None \
+            and len(steps[-1].ambiguous) < 2:
         steps.append(steps[-1].add(steps[-1].best.effect))
     return tuple(steps)
 

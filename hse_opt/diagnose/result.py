@@ -50,7 +50,9 @@ class Diagnosis:
     proposals : tuple of dict
         Runs that would tell the ambiguous candidates apart, best first.
     verdict : str
-        ``adequate`` or ``missing-effect``.
+        ``adequate``; ``missing-effect``; or ``unexplained structure`` when the strongest
+        structure in the residuals (a level shift, an outlier, a function no catalogue effect
+        matches) explains more than any significant candidate.
     n_tests : int
         Size of the test family behind the verdict.
     notes : tuple of str
@@ -213,6 +215,8 @@ class Diagnosis:
                 out.append(f"  {c.effect:<26} not testable: {c.reason}")
             if c.testable and c.reason:
                 out.append(f"  {'':<26} {c.reason}")
+            if c.plausibility and (c.significant or c.ambiguous_with):
+                out.append(f"  {'':<26} implausible: {'; '.join(c.plausibility)}")
             if c.held:
                 out.append(f"  {'':<26} held at nominal (no heading signature here): {', '.join(c.held)}")
         out.append("  (* significant at the family-wise level; RMS in arcsec)")
@@ -222,7 +226,12 @@ class Diagnosis:
             out.append("Structure in the residuals, in words (sparse regression over factor functions):")
             out.extend(f"  - {t.text}" for t in self.structure)
         if self.ambiguous:
-            out.append(f"Ambiguous: {', '.join(self.ambiguous)} explain these data equally well.")
+            out.append(f"Ambiguous: {', '.join(self.ambiguous)} explain these data equally well (Delta-BIC "
+                       f"within 6, or equally adequate fits); do not pick one: run the runs below.")
+            for name in self.ambiguous:
+                c = self.candidate(name)
+                out.append(f"  {name}: " + ("; ".join(c.plausibility) if c.plausibility
+                                            else "every fitted magnitude within its physical range"))
             for r in self.proposals:
                 out.append(f"  run that would tell {r['a']} from {r['b']}: {run_text(r)}")
         if self.influential:
