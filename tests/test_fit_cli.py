@@ -68,10 +68,17 @@ def test_bad_input_exit_2(args, text, capsys):
 
 
 def test_unidentifiable_exit_2_names_parameters(capsys):
-    assert main(["fit", TABLE1, "--json"]) == 2
+    assert main(["fit", TABLE1, "--effects", "hse,sync_delay", "--fix", FIX, "--json"]) == 2
     out, err = capsys.readouterr()
     assert out == ""
-    assert "offset, lambda2*tilt_const cannot be told apart" in err and "--fix" in err
+    assert "offset, delay cannot be told apart" in err and "--fix" in err
+
+
+def test_default_fit_of_table1_works_with_a_note(capsys):
+    assert main(["fit", TABLE1, "--json"]) == 0
+    d = json.loads(capsys.readouterr().out)
+    assert d["parameters"]["lambda2*tilt_const"]["free"] is False
+    assert any("absorbed into the offset" in n for n in d["notes"])
 
 
 def test_help_has_examples():

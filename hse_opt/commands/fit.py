@@ -126,6 +126,7 @@ def format_report(result, source):
 def run(args):
     from ..data import load_runs
     from ..fit import fit
+    from ..fit.checks import check_lines, outliers
     from ..fit_file import load_fit, save_fit
     from ..model import as_model
     from ..information import UnidentifiableError
@@ -153,9 +154,14 @@ def run(args):
         if field:
             from ..field import position_lines
             extra["positions"] = [ln.to_dict() for ln in position_lines(result, runs)]
-        print_json({**result.to_dict(), **extra, "source": args.runs})
+        print_json({**result.to_dict(), **extra, "source": args.runs,
+                    "outliers": [{"run": r, "studentized": t} for r, t in outliers(result, runs)],
+                    "checks": check_lines(result, runs)})
     else:
         lines = format_report(result, args.runs)
+        checks = check_lines(result, runs)
+        if checks:
+            lines += ["  look at:"] + [f"    - {c}" for c in checks]
         if field:
             from ..field import position_summary
             lines += position_summary(result, runs)

@@ -182,6 +182,11 @@ def lack_of_fit(null, runs):
     if p is None:
         return Test("lack of fit", f"{g} replicate groups", None, dof, None, None, "",
                     "not enough replicate groups beyond the model's parameters")
+    pure = null.rss - float(np.sum((U.T @ null.r) ** 2))
+    if pure <= 1e-12 * max(null.rss, 1e-300):  # pure-error scatter below 1e-6 of the total
+        return Test("lack of fit", f"{g} replicate groups", None, dof, None, None, "",
+                    "the replicates are identical (zero pure error): no lack-of-fit test; check "
+                    "that the repeated runs were really measured again")
     return Test("lack of fit", f"model against {g} replicate-group means (pure error from "
                 f"{dof[1]} degrees of freedom)", F, dof, p, logp)
 

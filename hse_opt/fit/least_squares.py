@@ -1,4 +1,6 @@
 """The fit itself: :func:`fit` (solvers and weights as :mod:`hse_opt.fit` describes)."""
+import dataclasses
+
 import numpy as np
 
 from .. import units
@@ -54,7 +56,31 @@ def fit(runs, model=None, *, fix=None, tilt_known=None, bounds=None, constraints
         The solver failed (its status in the message and ``.status``).
     ValueError
         Bad arguments, infeasible constraints, too few runs.
+
+    Notes
+    -----
+    Without tilt columns the tilt-coupled terms are free C23 coefficients the tool creates
+    (``lambda2*tilt_const``, ...); when the runs cannot separate such a constant nuisance from
+    the offset (one bias rate: the paper's Table 1), it is held at 0 -- absorbed into the
+    offset -- and a note says so. Parameters of the user's model are never held silently.
     """
+    kw = dict(fix=fix, tilt_known=tilt_known, bounds=bounds, constraints=constraints, prior=prior,
+              robust=robust, huber_c=huber_c, max_iter=max_iter, jit=jit, start=start)
+    try:
+        return _fit(runs, model, **kw)
+    except UnidentifiableError as err:
+        fix = dict(fix or {})
+        nuisance = [n for n in err.names if n.endswith("*tilt_const") and n not in fix]
+        if not nuisance or "offset" not in err.names or "offset" in fix \
+                or not set(err.names) <= set(nuisance) | {"offset"}:
+            raise
+        f = _fit(runs, model, **{**kw, "fix": {**fix, **{n: 0.0 for n in nuisance}}})
+    return dataclasses.replace(f, notes=f.notes + (
+        f"{', '.join(nuisance)} held at 0, absorbed into the offset: these runs cannot separate the "
+        "constant tilt term the tool adds without tilt columns from the offset (one bias rate)",))
+
+
+def _fit(runs, model, *, fix, tilt_known, bounds, constraints, prior, robust, huber_c, max_iter, jit, start):
     model = as_model(model)
     if tilt_known is None:
         tilt_known = runs.pitch is not None

@@ -61,6 +61,10 @@ def pure_error(runs, mm=None):
     return float(np.sqrt(np.sum((y - mean[labels]) ** 2) / dof)), dof
 
 
+#: replicates whose scatter is below this (arcsec) are copies, not measurements
+IDENTICAL_ARCSEC = 1e-6
+
+
 def run_sigma(runs, robust=False, mm=None):
     """``(sigma (n,) rad, weighting, notes)`` by the rules of the module docstring (replicates
     as :func:`replicate_groups` of the measurement model ``mm``); where sigma is estimated
@@ -73,7 +77,11 @@ def run_sigma(runs, robust=False, mm=None):
     if robust:
         return guess, "robust-scale", []
     s_pe, dof_pe = pure_error(runs, mm)
-    if s_pe is not None and s_pe > 0:
+    if s_pe is not None and s_pe <= IDENTICAL_ARCSEC * units.ARCSEC:
+        return guess, "residual", [
+            f"the replicates are identical (pure-error scatter {s_pe / units.ARCSEC:.2g} arcsec from {dof_pe} "
+            "degrees of freedom): no pure-error sigma; check that the repeated runs were really measured again"]
+    if s_pe is not None:
         return np.full(n, s_pe), "pure-error", [
             f"sigma {s_pe / units.ARCSEC:.3g} arcsec from {dof_pe} replicate degrees of freedom "
             f"(pure error)"]

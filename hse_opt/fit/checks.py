@@ -1,0 +1,68 @@
+"""What a user should look at after a fit: runs far off the model (externally studentised
+residuals, Bonferroni over the runs), a reduced chi-square far from 1 when sigma is known or
+from pure error, and degenerate noise (zero scatter)."""
+import numpy as np
+from scipy import stats
+
+from .. import units
+
+#: family-wise level of the outlier test and two-sided level of the chi-square check
+ALPHA = 0.01
+#: a residual scatter below this (arcsec) is no noise at all
+ZERO_SCATTER_ARCSEC = 1e-6
+
+
+def studentized(result, runs):
+    """Externally studentised residuals and leverages per run: ``t_i = u_i / sqrt(s_(i)^2
+    (1 - h_i))`` with ``h_i`` the diagonal of the weighted hat matrix at the estimate and
+    ``s_(i)^2`` the scale without run i (scale-free: the sigmas' ratios weight the runs)."""
+    mm = result.measurement
+    G = mm.jacobian(result.p, mm.inputs_from_runs(runs)) * mm.scale
+    A = G[:, np.asarray(result.free, bool)] / np.asarray(result.sigma)[:, None]
+    Q, R = np.linalg.qr(A)
+    keep = np.abs(np.diag(R)) > 1e-12 * max(np.abs(np.diag(R)).max(), 1e-300) if R.size else np.zeros(0, bool)
+    h = np.clip(np.sum(Q[:, keep] ** 2, axis=1), 0.0, 1.0)
+    u = np.asarray(result.standardized, float)
+    dof = int(result.dof)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        s2_i = (float(u @ u) - u ** 2 / (1 - h)) / (dof - 1) if dof > 1 else np.full(u.size, np.nan)
+        t = u / np.sqrt(s2_i * (1 - h))
+    t[(1 - h) < 1e-9] = np.nan
+    return t, h
+
+
+def outliers(result, runs, alpha=ALPHA):
+    """``[(run id, studentised residual)]`` rejecting at ``alpha`` (Bonferroni over the runs),
+    largest first."""
+    t, _ = studentized(result, runs)
+    n, dof = t.size, int(result.dof)
+    if dof < 2:
+        return []
+    with np.errstate(invalid="ignore"):
+        p = n * 2 * stats.t.sf(np.abs(t), dof - 1)
+    order = np.argsort(-np.nan_to_num(np.abs(t)))
+    return [(int(result.run[i]), float(t[i])) for i in order if p[i] < alpha]
+
+
+def check_lines(result, runs):
+    """Sentences for the fit's report (empty when nothing needs a look)."""
+    out = []
+    scatter = float(np.sqrt(np.mean(np.asarray(result.residuals) ** 2))) / units.ARCSEC
+    if scatter < ZERO_SCATTER_ARCSEC:
+        out.append(f"the residuals are zero ({scatter:.2g} arcsec RMS): the data carry no noise (generated, "
+                   "or copied values); sigmas, tests and uncertainties mean nothing here")
+        return out
+    if result.weighting in ("heading_std", "pure-error") and result.dof > 0:
+        lo, hi = stats.chi2.ppf([ALPHA / 2, 1 - ALPHA / 2], result.dof) / result.dof
+        if not lo <= result.chi2_red <= hi:
+            why = ("the scatter exceeds the sigmas: a missing effect or outliers (hse-opt diagnose), or "
+                   "optimistic sigmas" if result.chi2_red > hi else "the scatter is below the sigmas: "
+                   "pessimistic sigmas, or replicates that are not independent")
+            out.append(f"chi2_red {result.chi2_red:.3g} is far from 1 (outside [{lo:.2g}, {hi:.2g}] at "
+                       f"{ALPHA:g}): {why}")
+    bad = outliers(result, runs)
+    if bad:
+        out.append("outliers (externally studentised residual, Bonferroni over the runs at "
+                   f"{ALPHA:g}): " + ", ".join(f"run {r} ({t:+.3g})" for r, t in bad)
+                   + ("" if result.downweighted else "; consider --robust (Huber loss) or check those runs"))
+    return out
