@@ -141,7 +141,7 @@ def compensation_function(fit_result, parameters=None):
     (compensated parameters at the estimate, the others at nominal, nonlinear ones as
     fitted) and the covariance factor ``C = L L'`` as constants.
     """
-    from .fit import compensated_parameters
+    from .compensation import compensated_parameters
 
     mm = fit_result.measurement
     names = compensated_parameters(fit_result) if parameters is None else tuple(parameters)
@@ -162,7 +162,8 @@ def compensation_function(fit_result, parameters=None):
     L = covariance_factor(np.asarray(fit_result.covariance)[np.ix_(use, use)], np.array(mm.names)[use])
     JL = ca.mtimes(ca.substitute(ca.jacobian(h, q), q, zero), ca.DM(L))
     sigma = ca.sqrt(ca.sumsqr(JL))
-    return ca.Function(f"{ENTRY_POINT}_model", [x], [-h0, sigma], ["x"], ["correction_rad", "sigma_rad"])
+    outputs = ca.cse([-h0, sigma])  # one evaluation of each shared subexpression (sin/cos of the inputs)
+    return ca.Function(f"{ENTRY_POINT}_model", [x], outputs, ["x"], ["correction_rad", "sigma_rad"])
 
 
 def _input_table(fit_result):
@@ -318,8 +319,10 @@ def _eq14(fit_result, X):
             row = {}
         k = float(grad @ fit_result.values)
         k_std = float(propagated_std(grad[None, :], cov, mm.names)[0])
-        positions.append({"azimuth_deg": float(np.degrees(psi)), "pitch_arcsec": float(theta / units.ARCSEC),
-                          "roll_arcsec": float(gamma / units.ARCSEC), "latitude_deg": float(np.degrees(lat)),
+        if fit_result.tilt_known:
+            row = {"pitch_arcsec": float(theta / units.ARCSEC), "roll_arcsec": float(gamma / units.ARCSEC),
+                   **row}
+        positions.append({"azimuth_deg": float(np.degrees(psi)), "latitude_deg": float(np.degrees(lat)),
                           **row, "k_hse_arcsec_per_radps": k / units.ARCSEC,
                           "k_hse_std_arcsec_per_radps": k_std / units.ARCSEC})
     out = {"equation": "paper's Eq. 14: delta_psi = (Omega - w_ie sin L) lambda2 C23 / (3 w_ie cos L), "
@@ -360,7 +363,7 @@ def export_calibration(fit_result, directory, inputs=None, source="a FitResult",
         The ``calibration.json`` object.
     """
     from .data import write_text_atomic
-    from .fit import compensated_parameters
+    from .compensation import compensated_parameters
 
     X = getattr(fit_result, "inputs", None) if inputs is None else inputs
     if X is None:

@@ -10,6 +10,7 @@ from . import units
 from .fit.result import Constraint, FitResult
 from .model.composition import Model
 from .model.effects import effect as make_effect
+from .model.measurement import RUN_FIELDS
 from .model.symbolic import Geometry
 
 #: FIT.json format tag
@@ -30,6 +31,10 @@ def _fit_json(fit_result):
                  "weight": (fit_result.weights if fit_result.weights is not None
                             else np.ones(fit_result.n_runs)).tolist()},
     })
+    if fit_result.inputs is not None:  # SI, one list per model input (where the calibration holds)
+        mm = fit_result.measurement
+        out["runs"]["inputs"] = {name: row.tolist() for name, row in
+                                 zip(RUN_FIELDS + tuple(mm.covariates), fit_result.inputs)}
     return out
 
 
@@ -95,7 +100,9 @@ def load_fit(path, model=None):
             notes=tuple(d["notes"]), lower=bound("lower", -np.inf), upper=bound("upper", np.inf),
             constraints=constraints,
             active=tuple(str(c) for c, cd in zip(constraints, d.get("constraints", [])) if cd.get("active")),
-            weights=np.array(runs["weight"], dtype=float), chi2_prior=float(d.get("chi2_prior", 0.0)))
+            weights=np.array(runs["weight"], dtype=float), chi2_prior=float(d.get("chi2_prior", 0.0)),
+            inputs=(np.array([runs["inputs"][k] for k in RUN_FIELDS + tuple(mm.covariates)], dtype=float)
+                    if "inputs" in runs else None))
     except (KeyError, TypeError) as err:
         raise ValueError(f"{src}: FIT.json is missing or has a malformed entry {err}; allowed: a file "
                          "written by hse-opt fit -o") from None

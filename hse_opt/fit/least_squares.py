@@ -242,7 +242,8 @@ def _fit(runs, model, *, fix, tilt_known, bounds, constraints, prior, robust, hu
         chi2=chi2, dof=int(dof), chi2_red=chi2 / dof, aic=ll_term + 2 * (k_eff + n_pos),
         bic=ll_term + (k_eff + n_pos) * np.log(n), condition=info.condition, weighting=weighting,
         method=method, status=status, binding=binding_names, downweighted=down, notes=tuple(notes),
-        lower=lower, upper=upper, constraints=kept, active=active, weights=hw, chi2_prior=chi2_prior)
+        lower=lower, upper=upper, constraints=kept, active=active, weights=hw, chi2_prior=chi2_prior,
+        inputs=X)
 
 
 def _single_rate_positions(runs, group, positions):

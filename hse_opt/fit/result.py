@@ -136,6 +136,9 @@ class FitResult:
         Robust weights (1 without ``robust``).
     chi2_prior : float
         The prior's part of chi2 (0 without a prior).
+    inputs : numpy.ndarray, shape (n_x, n), or None
+        The runs' measurement-model inputs (SI, :meth:`MeasurementModel.inputs` order): where
+        the calibration holds (:mod:`hse_opt.export`). None for a FIT.json without them.
     """
 
     model: Model
@@ -170,6 +173,7 @@ class FitResult:
     active: tuple = ()
     weights: np.ndarray = None
     chi2_prior: float = 0.0
+    inputs: np.ndarray = None
 
     def __post_init__(self):
         for f in fields(self):  # frozen all the way down: read-only copies of the arrays
