@@ -1,5 +1,10 @@
 """Field campaigns: what a fit says at each stand position (the paper's Fig. 2 and K_HSE).
 
+:func:`design_field` plans such a campaign for a time budget that counts moving between
+positions: how many positions, which rates and senses, how many repeats, scored by the
+predicted sigma of lambda2 with every position's heading unknown
+(:func:`hse_opt.design.evaluate` with ``field=True``).
+
 In the field (no heading reference; :mod:`hse_opt.data`, "Field campaigns") the fit sees
 only differences between the runs at each position, and the paper reads its calibration off
 one line per position: heading against bias rate, normalised to the line's value at
@@ -20,8 +25,14 @@ from dataclasses import dataclass
 import numpy as np
 
 from . import units
+from .data import Plan
 
-__all__ = ["PositionLine", "position_lines", "position_summary"]
+__all__ = ["PositionLine", "position_lines", "position_summary", "FieldDesign", "field_plan",
+           "design_field", "RATE_PATTERNS_DPS"]
+
+#: rate patterns a field design tries at each position, deg/s, in execution order
+RATE_PATTERNS_DPS = ((20.0, 40.0, 60.0), (20.0, 60.0), (60.0, -60.0), (40.0, -40.0), (20.0, 60.0, -60.0),
+                     (60.0, -60.0, 20.0, -20.0))
 
 
 @dataclass(frozen=True, eq=False)
@@ -156,3 +167,109 @@ def position_summary(fit_result, runs):
                    f"+- {d['k_hse_std_arcsec_per_radps']:.2g} arcsec/(rad/s){c23}; {d['n_runs']} runs at "
                    f"{rates} deg/s")
     return out
+
+
+def field_plan(patterns_dps, repeats, headings, costs, duration=600.0, tilts=None):
+    """A field plan: at position k (heading ``headings[k]``, rad) the rate pattern
+    ``patterns_dps[k]`` repeated ``repeats[k]`` times; start times from ``costs`` (the first
+    run after ``costs.warmup``, a move between positions costs ``costs.azimuth_change``, a
+    rate or sense change ``costs.rate_change``). ``tilts``: each placement's deliberate tilt
+    (x, y), rad (default none)."""
+    rate, az, lab, tx, ty = [], [], [], [], []
+    for k, (pattern, rep) in enumerate(zip(patterns_dps, repeats)):
+        for r in tuple(pattern) * int(rep):
+            rate.append(r * units.DEG_PER_S)
+            az.append(headings[k])
+            lab.append(f"P{k + 1}")
+            t = (0.0, 0.0) if tilts is None else tilts[k]
+            tx.append(t[0])
+            ty.append(t[1])
+    rate, az, tx, ty = map(np.array, (rate, az, tx, ty))
+    dur = np.full(rate.size, float(duration))
+    return Plan(run=np.arange(1, rate.size + 1), rate=rate, azimuth=np.mod(az, 2 * np.pi),
+                t_start=costs.schedule(rate, az, tx, ty, dur), duration=dur, tilt_x=tx, tilt_y=ty,
+                position=np.array(lab))
+
+
+@dataclass(frozen=True, eq=False)
+class FieldDesign:
+    """The best field plan found and what it was chosen from.
+
+    Attributes
+    ----------
+    plan : hse_opt.data.Plan
+    evaluation : hse_opt.design.Evaluation
+    positions, repeats : int
+    pattern_dps : tuple of float
+        The rate pattern at each position, deg/s.
+    tried : tuple of (positions, pattern_dps, repeats, sigma_lambda2_arcsec, hours)
+    """
+
+    plan: Plan
+    evaluation: object
+    positions: int
+    repeats: int
+    pattern_dps: tuple
+    tried: tuple
+
+
+def design_field(budget, model="hse", *, costs=None, stand=None, duration=600.0, max_positions=4,
+                 patterns_dps=RATE_PATTERNS_DPS, heading0=0.0):
+    """The field campaign with the smallest predicted sigma of lambda2 within a time budget.
+
+    Searched: 1 to ``max_positions`` positions at headings spread evenly from ``heading0``
+    (rad; their true headings are unknown to the campaign, only their spread matters through
+    C23), every rate pattern of ``patterns_dps`` at all of them, repeated as often as the
+    budget allows. The time counts the warm-up, every alignment, every rate or sense change
+    and every move between positions (``costs.azimuth_change``).
+
+    Parameters
+    ----------
+    budget : float
+        Time from power-on to the end of the last alignment, s.
+    model : Model, str or sequence of str
+    costs : hse_opt.design.Costs, optional
+    stand : hse_opt.design.Stand, optional
+        The stand's own tilt stands for every placement's.
+    duration : float
+        Alignment length, s.
+
+    Returns
+    -------
+    FieldDesign
+
+    Raises
+    ------
+    ValueError
+        No plan fits the budget, or none identifies lambda2.
+    """
+    from .design import Costs, evaluate
+    from .information import UnidentifiableError
+
+    costs = costs or Costs()
+    best, tried = None, []
+    for n_pos in range(1, int(max_positions) + 1):
+        headings = [heading0 + 2 * np.pi * k / n_pos for k in range(n_pos)]
+        for pattern in patterns_dps:
+            rep = 1
+            while True:
+                plan = field_plan([pattern] * n_pos, [rep] * n_pos, headings, costs, duration)
+                end = float(np.max(plan.t_start + plan.duration))
+                if end > budget:
+                    break
+                try:
+                    ev = evaluate(plan, model, stand=stand, field=True)
+                except UnidentifiableError:
+                    rep += 1
+                    continue
+                s = ev.std_of("lambda2")
+                tried.append((n_pos, tuple(pattern), rep, s, end / units.HOUR))
+                if best is None or s < best[0]:
+                    best = (s, FieldDesign(plan, ev, n_pos, rep, tuple(pattern), ()))
+                rep += 1
+    if best is None:
+        raise ValueError(f"budget {budget / units.HOUR:g} h: no field plan fits it and identifies lambda2; "
+                         f"allowed: at least the warm-up ({costs.warmup / units.HOUR:g} h) and two alignments "
+                         "at different rates")
+    d = best[1]
+    return FieldDesign(d.plan, d.evaluation, d.positions, d.repeats, d.pattern_dps, tuple(tried))

@@ -23,6 +23,7 @@ examples:
   hse-opt design --budget-h 4.5 --effects axis_bias,sync_delay --criterion D --json -o PLAN.csv
   hse-opt design --budget-h 4.5 --reverse --max-tilt-arcsec 1800 --identify axis_bias,sync_delay -o PLAN.csv
   hse-opt design --evaluate PLAN.csv --effects axis_bias,sync_delay --json
+  hse-opt design --field --budget-h 3 --azimuth-change-s 1800 -o FIELD_PLAN.csv
   hse-opt design --budget-h 4.5 --reverse -o PLAN.csv --report design_report   (HTML report)"""
 
 
@@ -78,6 +79,12 @@ def add_arguments(parser):
     parser.add_argument("--no-refine", dest="refine", action="store_false",
                         help="keep rates and azimuths on the candidate grid")
     parser.add_argument("--seed", type=int, default=0, help="seed of the run-order search (default 0)")
+    parser.add_argument("--field", action="store_true",
+                        help="a field campaign: no position has a heading reference (only differences "
+                             "within a position count); with --evaluate, PLAN.csv's position column (else "
+                             "its azimuths) gives the positions; without, the number of positions, rate "
+                             "pattern and repeats with the smallest sigma of lambda2 in --budget-h, a move "
+                             "between positions costing --azimuth-change-s")
     parser.add_argument("--json", action="store_true", help="print one JSON object on stdout")
     add_report_argument(parser)
 
@@ -149,8 +156,9 @@ def run(args):
             raise ValueError("-o with --evaluate: an evaluation writes nothing; allowed: one of them")
         plan = load_plan(args.evaluate, **input_checks(args))
         try:
-            ev = evaluate(plan, model, stand=stand, tilt_known=tilt_known, criterion=args.criterion,
-                          nominal=_nominal(args.nominal), prior=prior)
+            ev = evaluate(plan, model, stand=stand, tilt_known=tilt_known,
+                          criterion=None if args.field else args.criterion,
+                          nominal=_nominal(args.nominal), prior=prior, field=args.field)
         except UnidentifiableError as err:
             raise UnidentifiableError(f"{args.evaluate}: {err}", err.names, err.direction,
                                       err.condition) from None
@@ -172,6 +180,24 @@ def run(args):
                                     ("--seed", args.seed, ">= 0", lambda v: v >= 0)):
         if not (np.isfinite(value) and ok(value)):
             raise ValueError(f"{opt} {value:g} is not allowed; allowed: {allowed}")
+    if args.field:
+        from ..field import design_field
+        fd = design_field(args.budget_h * units.HOUR, model, costs=costs, stand=stand,
+                          duration=float(args.durations_s.split(",")[0]))
+        save_plan(fd.plan, args.output)
+        message(f"hse-opt design: wrote {args.output} ({fd.plan.run.size} runs)")
+        summary = {"criterion": "c:lambda2", "field": True, "n_runs": int(fd.plan.run.size),
+                   "positions": fd.positions, "pattern_dps": list(fd.pattern_dps), "repeats": fd.repeats,
+                   **{k: v for k, v in fd.evaluation.to_dict().items() if k in ("total_time_h", "predicted_std")},
+                   "output": args.output}
+        if args.json:
+            print_json(summary)
+        else:
+            print(f"hse-opt design --field: {fd.positions} position(s) x rates {fd.pattern_dps} deg/s x "
+                  f"{fd.repeats}, sigma(lambda2) {fd.evaluation.std_of('lambda2'):.4g} arcsec, "
+                  f"{summary['total_time_h']:.3f} h")
+            print("\n".join(plan_lines(fd.plan)))
+        return 0
     lo, hi = _pair(args.rates, "--rates", sep=":")
     if not 0 < lo <= hi:
         raise ValueError(f"--rates {args.rates}: allowed LO:HI in deg/s with 0 < LO <= HI")

@@ -91,7 +91,8 @@ class Evaluation:
 
 
 
-def evaluate(plan, model=None, *, stand=None, tilt_known=True, criterion=None, nominal=None, prior=None):
+def evaluate(plan, model=None, *, stand=None, tilt_known=True, criterion=None, nominal=None, prior=None,
+             field=False):
     """Predicted sigmas of a plan for a model.
 
     Parameters
@@ -107,6 +108,12 @@ def evaluate(plan, model=None, *, stand=None, tilt_known=True, criterion=None, n
         Values (display units) at which the model is linearised.
     prior : FitResult, Prior or numpy.ndarray, optional
         Prior information (see :func:`design`).
+    field : bool
+        A field campaign: no position has a heading reference. Positions are the plan's
+        ``position`` labels (else one per stand azimuth); each adds one unknown constant,
+        eliminated as the fit does (:func:`hse_opt.fit.problem.position_projector`), so only
+        the differences within positions count; ``offset`` is then not estimable and left out.
+        The plan's ``tilt_x_arcsec``/``tilt_y_arcsec`` give each placement's own tilt.
 
     Returns
     -------
@@ -132,17 +139,27 @@ def evaluate(plan, model=None, *, stand=None, tilt_known=True, criterion=None, n
     p = mm.vector(own(nominal or {}, mm))
     Aw = weighted_jacobian(mm.jacobian(p, X), sigma, mm.scale)
     F0 = prior_information(prior, mm.names)
+    drift = (plan.t_start + plan.duration / 2) * DRIFT_UNIT / sigma
+    names, units_, keep = mm.names, [q.unit for q in mm.params], np.ones(len(mm.names), bool)
+    if field:
+        labels = plan.position if plan.position is not None else np.round(plan.azimuth, 9).astype(str)
+        G = (labels[:, None] == np.unique(labels)[None, :]) / np.broadcast_to(sigma, labels.shape)[:, None]
+        Q, _ = np.linalg.qr(G)
+        Aw, drift = Aw - Q @ (Q.T @ Aw), drift - Q @ (Q.T @ drift)
+        keep = np.array([nm != "offset" for nm in mm.names])
+        names, units_, Aw = tuple(np.array(names)[keep]), list(np.array(units_)[keep]), Aw[:, keep]
+        F0 = None if F0 is None else F0[np.ix_(keep, keep)]
 
-    info = analyse(Aw.T @ Aw + (0 if F0 is None else F0), mm.names, [q.unit for q in mm.params],
-                   advice=lambda d: separation_advice(mm, p, X, np.ones(len(mm.names), bool), d))
+    info = analyse(Aw.T @ Aw + (0 if F0 is None else F0), names, units_,
+                   advice=lambda d: separation_advice(mm, p, X, keep, d))
     mid = plan.t_start + plan.duration / 2
-    bias = info.covariance @ (Aw.T @ ((mid - mid.mean()) * DRIFT_UNIT / sigma))
+    bias = info.covariance @ (Aw.T @ (drift if field else (mid - mid.mean()) * DRIFT_UNIT / sigma))
     label, value = "", float("nan")
     if criterion is not None:
         crit = as_criterion(criterion)
         spec = criterion_rows(crit, model, tilt_known, [dict(nominal or {})], F0)
         label, value = crit.label, mean_loss(crit, spec.numeric(X, sigma), spec, np.ones(plan.run.size))
-    return Evaluation(label, value, model.effect_names, bool(tilt_known), mm.names, info.units, info.std,
+    return Evaluation(label, value, model.effect_names, bool(tilt_known), tuple(str(n) for n in names), info.units, info.std,
                       info.covariance, info.correlation, info.condition, int(plan.run.size),
                       float(np.max(plan.t_start + plan.duration)), bias)
 

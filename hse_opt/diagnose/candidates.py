@@ -23,6 +23,10 @@ _BLIND = 1e-3
 #: candidates whose Delta-BIC is within this of the best's are reported together (Kass &
 #: Raftery 1995: a BIC difference below 6 is at most "positive", not "strong", evidence)
 AMBIGUOUS_DELTA_BIC = 6.0
+#: a candidate whose signature (each position's tilt at its mean) keeps less than this share
+#: of its norm within the unsurveyed positions is a constant per position, not an effect (a
+#: constant signature keeps ~2e-4 through second-order couplings with lambda2 and the rate)
+_WITHIN = 1e-3
 
 
 @dataclass(frozen=True, eq=False)
@@ -151,6 +155,17 @@ def _candidate(null, f0, runs, name, fix, refit):
     if not tested:
         return Candidate(name, description, params, held, False,
                          "no heading signature in these runs" + _signature_hint(params)), None
+    # at positions without a heading reference only the differences within a position count:
+    # a signature (nearly) constant at each such position is absorbed by its unknown heading
+    if null.positions:
+        Jl = mm1.jacobian(p1, mm1.inputs_from_runs(null.level_runs))
+        share = null.within_share(weighted_jacobian(Jl[:, tested], null.sigma, mm1.scale[tested]))
+        if np.all(share < _WITHIN):
+            return Candidate(name, description, params, held, False,
+                             "its heading signature is constant within each position without a heading "
+                             "reference (that position's unknown heading absorbs it): these runs cannot "
+                             "see it; runs at surveyed positions, or a change of tilt or time within a "
+                             "position, would"), None
     # identifiable jointly with the model? (the same check the fit makes)
     free0 = [mm1.names.index(n) for n, fr in zip(f0.names, f0.free) if fr]
     cols = free0 + tested

@@ -135,6 +135,9 @@ def factor_tests(null, runs, covariates, tilt_known):
         if p is None:
             note = ("every function of it is in the model's span" if U.shape[1] == 0
                     else "too few runs for the test")
+            if U.shape[1] == 0 and null.positions and np.all(null.within_share(Z) < 1e-6):
+                note = ("constant within each position without a heading reference (its unknown "
+                        "heading absorbs it)")
             tests.append(Test(col.factor, desc, None, dof, None, None, "", note))
         else:
             tests.append(Test(col.factor, desc, F, dof, p, logp, best))

@@ -86,13 +86,40 @@ class Null:
         free = np.asarray(f.free, bool)
         self.A = weighted_jacobian(mm.jacobian(f.p, mm.inputs_from_runs(runs))[:, free], self.sigma,
                                    mm.scale[free])
-        d = np.linalg.norm(self.A, axis=0)
-        self.Q, _ = np.linalg.qr(self.A / np.where(d > 0, d, 1.0))
+        # a position without a heading reference has its own unknown constant (the fit
+        # eliminates it): it is part of the model's span, so every test below is a test of
+        # the differences within such positions
+        group, self.positions = runs.reference_groups()
+        self.level_runs = runs
+        if self.positions and runs.pitch is not None:
+            # one placement, one tilt: the leveling's run-to-run noise is no signature
+            pitch, roll = np.array(runs.pitch), np.array(runs.roll)
+            for k in range(len(self.positions)):
+                pitch[group == k], roll[group == k] = pitch[group == k].mean(), roll[group == k].mean()
+            self.level_runs = runs.replace(pitch=pitch, roll=roll)
+        self.G = (group[:, None] == np.arange(len(self.positions))[None, :]) / self.sigma[:, None]
+        M = np.column_stack([self.A, self.G])
+        d = np.linalg.norm(M, axis=0)
+        self.Q, _ = np.linalg.qr(M / np.where(d > 0, d, 1.0))
         self.n = self.r.size
         # profiled parameters count as fitted (FitResult.dof already holds that)
         self.k = self.n - int(f.dof)
         self.rss = float(self.r @ self.r)
         self.scale = LikelihoodScale.of(f)
+
+    def within_share(self, Z):
+        """Per column of Z (n, q; weighted): the share of its norm left after removing each
+        unsurveyed position's mean -- 1 without such positions, 0 for a column constant
+        within every position (a constant per position is not a missing effect). Signatures
+        to test this way come from :attr:`level_runs` (each position's pitch and roll at their
+        means: the same placement)."""
+        Z = np.asarray(Z, float)
+        if not self.positions:
+            return np.ones(Z.shape[1])
+        Gq, _ = np.linalg.qr(self.G)
+        W = Z - Gq @ (Gq.T @ Z)
+        d = np.linalg.norm(Z, axis=0)
+        return np.linalg.norm(W, axis=0) / np.where(d > 0, d, 1.0)
 
     def basis(self, Z, extra=None):
         """Orthonormal basis (n, q') of the part of span(Z) orthogonal to the model (and to
