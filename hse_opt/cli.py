@@ -63,6 +63,81 @@ def json_stdout():
         os.close(real)
 
 
+class Terminated(BaseException):
+    """A termination signal (SIGTERM, SIGHUP) turned into an exception, so that temporary
+    outputs are removed on the way out (like KeyboardInterrupt for SIGINT)."""
+
+    def __init__(self, signum):
+        super().__init__(signum)
+        self.signum = signum
+
+
+def _raise_terminated(signum, frame):
+    raise Terminated(signum)
+
+
+@contextlib.contextmanager
+def _signals_as_exceptions():
+    """SIGTERM and SIGHUP raise :class:`Terminated` while a command runs (main thread only)."""
+    import signal
+    import threading
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+    names = [n for n in ("SIGTERM", "SIGHUP") if hasattr(signal, n)]
+    old = {n: signal.signal(getattr(signal, n), _raise_terminated) for n in names}
+    try:
+        yield
+    finally:
+        for n, handler in old.items():
+            signal.signal(getattr(signal, n), handler)
+
+
+def _message(err):
+    """One line for a bad-input exception."""
+    if isinstance(err, OSError):
+        text = err.strerror or str(err)
+        if err.filename is not None:
+            text = f"{err.filename}: {text}"
+    else:
+        text = str(err)
+    return " ".join(text.split())
+
+
+def _main(argv):
+    command, tx = "hse-opt", None
+    try:
+        with _signals_as_exceptions():
+            parser = build_parser()
+            args, extra = parser.parse_known_args(argv)
+            command = f"hse-opt {args.command}"
+            if extra:  # reported by the command's own parser, so the message names the command
+                args.subparser.error(f"unrecognized arguments: {' '.join(extra)}")
+            from .commands.outputs import Transaction
+            try:
+                # every output checked before the command runs; all written together or none
+                tx = Transaction.from_args(args, sys.modules[args.run.__module__], args.subparser)
+                with tx.check() as args.tx, \
+                        json_stdout() if getattr(args, "json", False) else contextlib.nullcontext():
+                    return args.run(args)
+            except (ValueError, FileNotFoundError, IsADirectoryError, NotADirectoryError,
+                    PermissionError) as err:
+                # bad input: one line naming the file, row, column or parameter and what is allowed
+                print(f"{command}: error: {_message(err)}", file=sys.stderr)
+                return 2
+            except (KeyboardInterrupt, Terminated, BrokenPipeError):
+                raise
+            except Exception as err:  # noqa: BLE001 - the command line reports, never tracebacks
+                print(f"{command}: internal error: {type(err).__name__}: {err}", file=sys.stderr)
+                return 1
+    except (KeyboardInterrupt, Terminated) as err:
+        what = "interrupted" if isinstance(err, KeyboardInterrupt) else f"terminated (signal {err.signum})"
+        written = "" if tx is None or not tx.outputs else \
+            ("; the outputs were written" if tx.committed else "; no output was written")
+        print(f"{command}: {what}{written}", file=sys.stderr)
+        return 130 if isinstance(err, KeyboardInterrupt) else 128 + err.signum
+
+
 def main(argv=None):
     try:
         try:
@@ -77,26 +152,6 @@ def main(argv=None):
             os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
         return 0
     return status
-
-
-def _main(argv):
-    args, extra = build_parser().parse_known_args(argv)
-    if extra:  # reported by the command's own parser, so the message names the command
-        args.subparser.error(f"unrecognized arguments: {' '.join(extra)}")
-    try:
-        with json_stdout() if getattr(args, "json", False) else contextlib.nullcontext():
-            return args.run(args)
-    except (ValueError, FileNotFoundError, IsADirectoryError, NotADirectoryError,
-            PermissionError) as err:
-        # bad input: one line naming the file, row, column or parameter and what is allowed
-        text = str(err) if isinstance(err, ValueError) else f"{err.filename}: {err.strerror}"
-        print(f"hse-opt {args.command}: error: {' '.join(text.split())}", file=sys.stderr)
-        return 2
-    except BrokenPipeError:
-        raise
-    except Exception as err:  # noqa: BLE001 - the command line reports, never tracebacks
-        print(f"hse-opt {args.command}: internal error: {type(err).__name__}: {err}", file=sys.stderr)
-        return 1
 
 
 if __name__ == "__main__":

@@ -578,10 +578,11 @@ def next_plan_text(next_plan):
     return text + "."
 
 
-def write_outputs(result, directory):
+def write_outputs(result, directory, shown=None):
     """Write the report and the data of a demo run into ``directory`` (created when missing;
     each file whole or not at all): :data:`OUTPUT_FILES` (``NEXT_PLAN.csv``, the
-    :attr:`NextPlan.best` plan, only when a design succeeded).
+    :attr:`NextPlan.best` plan, only when a design succeeded). ``shown``: the folder's name in
+    ``summary.json`` when ``directory`` is a temporary folder renamed to it afterwards.
 
     Returns
     -------
@@ -593,13 +594,13 @@ def write_outputs(result, directory):
     from .data import save_plan, save_runs
 
     directory = Path(directory)
-    path = report.write_report(directory, report_sections(result),
-                               f"hse-opt demo, seed {result.seed}", summary_text(result))
+    report.write_report(directory, report_sections(result), f"hse-opt demo, seed {result.seed}",
+                        summary_text(result))
     save_runs(result.runs, directory / "RUNS.csv")
     save_plan(result.plan, directory / "PLAN.csv")
     if result.next_plan.best is not None:
         save_plan(result.next_plan.best.plan, directory / "NEXT_PLAN.csv")
     write_text_atomic(directory / "TRUTH.toml", result.truth.to_toml())
-    data = {**result.to_dict(), "report": str(path)}
+    data = {**result.to_dict(), "report": str(Path(directory if shown is None else shown) / report.REPORT_NAME)}
     write_text_atomic(directory / "summary.json", json.dumps(data, indent=2, allow_nan=False) + "\n")
     return data

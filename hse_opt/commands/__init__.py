@@ -5,6 +5,7 @@ Commands print (the library never does); with ``--json`` stdout carries one JSON
 nothing else, messages go to stderr.
 """
 import json
+import os
 import sys
 
 
@@ -48,8 +49,10 @@ def add_derived_argument(parser):
 
 
 def write_report(args, sections, title):
-    """Write the report when ``--report DIR`` was given; says where on stderr."""
+    """Write the report when ``--report DIR`` was given (with the command's other outputs:
+    :mod:`hse_opt.commands.outputs`); says where on stderr."""
     if getattr(args, "report", None):
+        from ..report import REPORT_NAME
         from ..report import write_report as write
-        path = write(args.report, sections, title)
-        message(f"report: {path}")
+        write(args.tx.path("report"), sections, title)
+        message(f"report: {os.path.join(args.report, REPORT_NAME)}")

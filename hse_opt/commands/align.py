@@ -3,6 +3,7 @@ import os
 import sys
 
 from . import message
+from .outputs import FILE
 
 NAME = "align"
 HELP = "align raw logs (gyro/accelerometer/encoder records) into RUNS.csv, one row per log"
@@ -18,6 +19,8 @@ DESCRIPTION = (
     "temp_c. A directory stands for the raw logs in it. A bad log (truncated, gaps, NaN, a "
     "dead channel, wrong units) is reported on one line naming the file and sample; the "
     "others are still aligned and written, and the exit status is 2.")
+INPUTS = ("logs", "truth")
+OUTPUTS = {"output": FILE}
 EXAMPLE = """examples:
   hse-opt align logs/ -o RUNS.csv --jobs 2
   hse-opt align run_01.npz run_02.csv -o RUNS.csv --truth TRUTH.toml --latitude-deg 28.07"""
@@ -89,7 +92,7 @@ def run(args):
     for note in notes:
         message(f"hse-opt align: note: {note}")
     try:
-        save_runs(runs, args.output)
+        save_runs(runs, args.tx.path("output"))
     except OSError as err:
         raise ValueError(f"{args.output}: cannot write the runs: {err.strerror or err}") from None
     bad = f"; {len(errors)} bad log{'s' if len(errors) != 1 else ''} (above) left out" if errors else ""

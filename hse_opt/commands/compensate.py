@@ -1,9 +1,8 @@
 """``hse-opt compensate``: remove the calibrated error from alignment results."""
-import os
-
 import numpy as np
 
 from . import add_input_checks, input_checks, message, print_json
+from .outputs import FILE
 
 NAME = "compensate"
 HELP = "compensate alignments with a calibration (FIT.json from hse-opt fit -o)"
@@ -14,6 +13,8 @@ write RUNS.csv with two more columns: heading_err_comp_arcsec, the compensated h
 and heading_comp_std_arcsec, the compensation's 1-sigma from the calibration's covariance.
 A calibration fitted with known tilt uses each run's pitch/roll (the paper's Eq. 14); one
 fitted without tilt holds for the stand it was fitted on."""
+INPUTS = ("runs", "fit")
+OUTPUTS = {"output": FILE}
 EXAMPLE = """\
 example:
   hse-opt fit CAL_RUNS.csv -o FIT.json && hse-opt compensate RUNS.csv --fit FIT.json -o OUT.csv"""
@@ -38,12 +39,10 @@ def run(args):
     from ..compensation import COMPENSATED_COLUMN, COMPENSATION_STD_COLUMN, compensate, compensated_parameters
     from ..fit_file import load_fit
 
-    if os.path.exists(args.output) and os.path.samefile(args.output, args.runs):
-        raise ValueError(f"-o {args.output}: is the input file; allowed: another path")
     calibration = load_fit(args.fit)
     runs = load_runs(args.runs, **input_checks(args))
     out = compensate(runs, calibration)
-    save_runs(out, args.output)
+    save_runs(out, args.tx.path("output"))
     message(f"hse-opt compensate: wrote {args.output}")
     before = runs.heading_err / units.ARCSEC
     after = np.array(out.covariates[COMPENSATED_COLUMN])

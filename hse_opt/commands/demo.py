@@ -14,6 +14,15 @@ DESCRIPTION = (
 EXAMPLE = ("example: hse-opt demo --seed 3 --out ./hse_opt_demo\n"
            "         hse-opt demo --json > demo.json")
 DEFAULT_OUT = "hse_opt_demo"
+INPUTS = ()
+
+
+def _files():
+    from ..demo import OUTPUT_FILES
+    return OUTPUT_FILES
+
+
+OUTPUTS = {"out": _files}
 
 
 def add_arguments(parser):
@@ -107,8 +116,6 @@ def run(args):
     if args.seed < 0:
         raise ValueError(f"--seed {args.seed} is not allowed: an integer >= 0")
     out = Path(args.out)
-    if out.exists() and not out.is_dir():
-        raise ValueError(f"--out {args.out}: is a file; allowed: a directory (created when missing)")
     progress, close = _progress_bar(args.progress)
     try:
         result = run_demo(args.seed, progress=progress)
@@ -116,7 +123,7 @@ def run(args):
         close()
     if args.progress:
         message("writing the report ...")
-    data = write_outputs(result, out)
+    data = write_outputs(result, args.tx.path("out"), shown=out)
     if args.json:
         print_json(data)
     else:

@@ -1,9 +1,8 @@
 """``hse-opt design``: the calibration test plan that calibrates best in the stand time."""
-import os
-
 import numpy as np
 
 from . import add_input_checks, add_report_argument, input_checks, message, print_json, write_report
+from .outputs import FILE, REPORT
 
 NAME = "design"
 HELP = "optimise a calibration test plan (PLAN.csv), or evaluate one (--evaluate)"
@@ -17,6 +16,8 @@ before the first run, changing the azimuth, the rate or sense, the tilt fixture.
 gives each parameter's predicted sigma, the efficiency against the approximate optimum, and the
 bias a slow heading drift would cause. With --evaluate an existing PLAN.csv is scored instead;
 a plan that cannot identify the model stops (exit 2) naming the parameters."""
+INPUTS = ("evaluate", "prior")
+OUTPUTS = {"output": FILE, "report": REPORT}
 EXAMPLE = """\
 examples:
   hse-opt design --budget-h 4.5 --reverse -o PLAN.csv
@@ -212,9 +213,7 @@ def run(args):
                     costs=costs, max_runs=args.max_runs, tilt_known=tilt_known, nominal=_nominal(args.nominal),
                     prior=prior, identify=identify, identify_efficiency=args.identify_efficiency,
                     refine=args.refine, order=args.order, rng=np.random.default_rng(args.seed))
-    if os.path.exists(args.output) and args.prior and os.path.samefile(args.output, args.prior):
-        raise ValueError(f"-o {args.output}: is the input file; allowed: another path")
-    save_plan(result.plan, args.output)
+    save_plan(result.plan, args.tx.path("output"))
     message(f"hse-opt design: wrote {args.output} ({result.n_runs} runs)")
     report("design_section", f"hse-opt design {args.output}", result=result)
     if args.json:

@@ -1,5 +1,8 @@
 """``hse-opt diagnose``: compare a model with measured runs and find the missing effect."""
+import os
+
 from . import add_derived_argument, add_input_checks, input_checks, message, print_json
+from .outputs import REPORT
 
 NAME = "diagnose"
 HELP = "compare a model with measured runs: where it fails, which effect is missing"
@@ -13,6 +16,8 @@ unexplained structure in words (level shifts and outliers in run order too), and
 scale, the base model's noise model. --refine adds the best significant effect and diagnoses
 again until the verdict is adequate; it stops, adding nothing, when the best candidates are
 ambiguous or the structure follows no catalogue effect."""
+INPUTS = ("runs",)
+OUTPUTS = {"report": REPORT}
 EXAMPLE = """examples:
   hse-opt diagnose RUNS.csv
   hse-opt diagnose RUNS.csv --effects hse,warmup --json
@@ -76,7 +81,7 @@ def run(args):
     if stopped:
         message(f"--refine stopped: {stopped}")
     if args.report:
-        status = write_report(steps, args.report, args.runs, args.derived)
+        status = write_report(steps, args.tx.path("report"), args.runs, args.derived, args.report)
         if status:
             return status
     if args.json:
@@ -109,7 +114,7 @@ def _stopped(last):
     return None
 
 
-def write_report(steps, directory, source="", derived=()):
+def write_report(steps, directory, source="", derived=(), shown=None):
     """The HTML report of the diagnosis steps (:mod:`hse_opt.report`): the first diagnosis,
     each added effect's before/after, and the last diagnosis; returns the exit status."""
     from .. import report
@@ -119,5 +124,5 @@ def write_report(steps, directory, source="", derived=()):
         sections += [report.comparison_section(compare(a, b), derived=derived) for a, b in zip(steps, steps[1:])]
         sections.append(report.diagnosis_section(steps[-1], derived=derived))
     path = report.write_report(directory, sections, title=f"hse-opt diagnose {source}".rstrip())
-    message(f"report: {path}")
+    message(f"report: {path if shown is None else os.path.join(shown, report.REPORT_NAME)}")
     return 0

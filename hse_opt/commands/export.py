@@ -16,6 +16,15 @@ since power-on at the start of the alignment, duration (s), then the model's cov
 *correction_rad is ADDED to the alignment's heading; *sigma_rad is its 1-sigma from the
 calibration. The return value is 0 inside the range the calibration runs covered (with the
 margin documented in hse_opt/export.py), else bit k is set for each input k outside it."""
+INPUTS = ("fit",)
+
+
+def _files():
+    from ..export import ENTRY_POINT
+    return f"{ENTRY_POINT}.c", f"{ENTRY_POINT}.h", "calibration.json"
+
+
+OUTPUTS = {"output": _files}
 EXAMPLE = """\
 example:
   hse-opt fit RUNS.csv -o FIT.json && hse-opt export FIT.json -o nav
@@ -35,7 +44,7 @@ def run(args):
     from ..fit import load_fit
 
     calibration = load_fit(args.fit)
-    out = export_calibration(calibration, args.output, source=os.path.basename(args.fit))
+    out = export_calibration(calibration, args.tx.path("output"), source=os.path.basename(args.fit))
     message(f"hse-opt export: wrote {args.output}/{ENTRY_POINT}.c, {ENTRY_POINT}.h, calibration.json")
     if args.json:
         print_json(out)

@@ -1,10 +1,9 @@
 """``hse-opt fit``: calibrate a model on alignment results (RUNS.csv)."""
-import os
-
 import numpy as np
 
 from . import (add_derived_argument, add_input_checks, add_report_argument, input_checks, message,
                print_json, write_report)
+from .outputs import FILE, REPORT
 
 NAME = "fit"
 HELP = "calibrate a model on alignment results (RUNS.csv) by weighted least squares"
@@ -16,6 +15,8 @@ else from the scatter of replicated runs (pure error), else from the residuals. 
 pitch/roll get the tilt-coupled terms as free azimuth sinusoids (names like
 lambda2*tilt_cos). When the runs cannot separate two parameters the command stops (exit 2),
 names them and proposes runs that would."""
+INPUTS = ("runs", "prior")
+OUTPUTS = {"output": FILE, "report": REPORT}
 EXAMPLE = """\
 examples:
   hse-opt fit RUNS.csv --effects sync_delay,warmup -o FIT.json
@@ -131,8 +132,6 @@ def run(args):
     from ..model import as_model
     from ..information import UnidentifiableError
 
-    if args.output and os.path.exists(args.output) and os.path.samefile(args.output, args.runs):
-        raise ValueError(f"-o {args.output}: is the input file; allowed: another path")
     runs = load_runs(args.runs, **input_checks(args))
     model = as_model(args.effects or None)
     prior = load_fit(args.prior) if args.prior else None
@@ -143,7 +142,7 @@ def run(args):
         raise UnidentifiableError(f"{args.runs}: {err} (or hold one of them with --fix NAME=VALUE)",
                                   err.names, err.direction, err.condition) from None
     if args.output:
-        save_fit(result, args.output)
+        save_fit(result, args.tx.path("output"))
         message(f"hse-opt fit: wrote {args.output}")
     if args.report:
         from ..report import fit_section

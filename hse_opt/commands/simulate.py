@@ -3,6 +3,7 @@ import os
 import sys
 
 from . import message
+from .outputs import FILE
 
 NAME = "simulate"
 HELP = "simulate the alignments of a test plan (PLAN.csv -> RUNS.csv)"
@@ -16,6 +17,8 @@ DESCRIPTION = (
     "alignment's own heading_deg and the position instead of azimuth_deg and "
     "heading_err_arcsec (kept for the positions named in --surveyed). --raw-logs DIR also writes "
     "every run's raw log, for hse-opt align.")
+INPUTS = ("plan", "truth")
+OUTPUTS = {"output": FILE, "write_truth": FILE, "raw_logs": ()}  # raw logs: a folder, any names
 EXAMPLE = """examples:
   hse-opt simulate PLAN.csv -o RUNS.csv --seed 1 --jobs 2
   hse-opt simulate FIELD_PLAN.csv -o RUNS.csv --field --surveyed A --raw-logs logs/
@@ -77,13 +80,14 @@ def run(args):
         try:
             runs = run_campaign(plan, truth, args.seed, jobs=args.jobs, client=client,
                                 progress=lambda done, total: bar.update(done - bar.n),
-                                field=args.field, surveyed=surveyed, raw_logs=args.raw_logs)
+                                field=args.field, surveyed=surveyed,
+                                raw_logs=args.tx.path("raw_logs") if args.raw_logs else None)
         finally:
             if client is not None:
                 client.close()
-    _io("write", "runs", save_runs, args.output, runs)
+    _io("write", "runs", save_runs, args.tx.path("output"), runs)
     if args.write_truth:
-        _io("write", "truth", truth.to_toml, args.write_truth)
+        _io("write", "truth", truth.to_toml, args.tx.path("write_truth"))
     logs = f"; raw logs in {args.raw_logs}" if args.raw_logs else ""
     message(f"hse-opt simulate: {len(runs)} runs written to {args.output}{logs}")
     return 0

@@ -253,6 +253,14 @@ def _positions(plan):
     return np.array([f"P{keys.index(a) + 1}" for a in plan.azimuth.tolist()])
 
 
+def _worker_signals():
+    """In a worker process: Ctrl-C is the parent's to handle (it stops the workers), SIGTERM ends
+    the worker (not a handler inherited from the parent)."""
+    import signal
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+    signal.signal(signal.SIGTERM, signal.SIG_DFL)
+
+
 def run_campaign(plan, truth, seed, jobs=1, client=None, progress=None, *,
                  align_config=None, chunk_size=None, field=False, surveyed=(), raw_logs=None):
     """Simulate every run of a plan.
@@ -351,10 +359,17 @@ def run_campaign(plan, truth, seed, jobs=1, client=None, progress=None, *,
         for item in items:
             _collect(_simulate_chunk(truth, cfg, seed, [item], logs))
     else:
-        with ProcessPoolExecutor(max_workers=jobs) as pool:
+        pool = ProcessPoolExecutor(max_workers=jobs, initializer=_worker_signals)
+        try:
             futures = [pool.submit(_simulate_chunk, truth, cfg, int(seed), ch, _part(logs, ch)) for ch in chunks]
             for fut in as_completed(futures):
                 _collect(fut.result())
+        except BaseException:  # an error, Ctrl-C or SIGTERM: stop now, not after the queued runs
+            for proc in list((getattr(pool, "_processes", None) or {}).values()):
+                proc.terminate()
+            pool.shutdown(wait=False, cancel_futures=True)
+            raise
+        pool.shutdown()
     res = [results[rid] for rid, _ in items]
     column = lambda name: np.array([getattr(r, name) for r in res])  # noqa: E731
     written = plan.to_columns()              # the plan's values as written, file units
