@@ -103,6 +103,7 @@ import contextlib
 import csv
 import dataclasses
 import decimal
+import io
 import numbers
 import os
 import re
@@ -112,6 +113,8 @@ from typing import ClassVar, Mapping, NamedTuple
 
 import numpy as np
 
+from .ranges import (MAX_COLUMNS, MAX_FILE_BYTES, MAX_ROWS, RANGES, SMALL_TILT_ARCSEC,
+                     SMALL_TILT_FLOOR_ARCSEC)
 from .units import ARCSEC, DEG, DEG_PER_S
 
 __all__ = ["DataError", "Runs", "Plan", "load_runs", "load_plan", "save_runs", "save_plan",
@@ -177,6 +180,8 @@ def _to_si(value, factor):
         x = float(_EXACT.multiply(_decimal(value), decimal.Decimal(factor)))
     except decimal.InvalidOperation:
         raise ValueError(f"{value!r} is not a number") from None
+    except ArithmeticError:  # decimal.Overflow: 1e999999999
+        raise ValueError(f"{value!r} is not finite") from None
     if not np.isfinite(x):
         raise ValueError(f"{value!r} is not finite")
     return x
@@ -456,7 +461,37 @@ class _Table:
                                  "allow_small_azimuths=True (--allow-small-azimuths) for a fine azimuth "
                                  "sweep in degrees",
                             column="azimuth_deg")
+        cls._check_ranges(attrs, values, src)
         return cls(**attrs, covariates=covariates, source=src)
+
+    @classmethod
+    def _check_ranges(cls, attrs, values, src):
+        """The physical ranges of :data:`hse_opt.ranges.RANGES` (file units), a duration of at
+        least one table revolution, and pitch/roll that do not look like radians or degrees."""
+        for col in cls._COLUMNS:
+            r = RANGES.get(col.name)
+            if r is None or col.attr not in attrs:
+                continue
+            x = np.array(attrs[col.attr])
+            bad = ~((x >= _to_si(r.lo, col.factor)) & (x <= _to_si(r.hi, col.factor)))
+            if bad.any():
+                i = int(np.argmax(bad))
+                raise DataError(src, f"value {values[col.name][i]!r} is out of range; allowed: "
+                                     f"{r.allowed(col.name)}", row=i + 1, column=col.name)
+        with np.errstate(divide="ignore"):
+            turn = 2 * np.pi / np.abs(np.array(attrs["rate"]))
+        if np.any(short := np.array(attrs["duration"]) < turn):
+            i = int(np.argmax(short))
+            raise DataError(src, f"value {values['duration_s'][i]!r} is shorter than one table revolution; "
+                                 f"allowed: duration_s >= 360/|rate_dps| = {turn[i]:.4g} s (the model averages "
+                                 "the heading error over whole revolutions)", row=i + 1, column="duration_s")
+        if "pitch" in attrs and "roll" in attrs:
+            tilt = np.abs(np.concatenate([attrs["pitch"], attrs["roll"]])) / ARCSEC
+            if np.all(tilt < SMALL_TILT_ARCSEC) and tilt.max() >= SMALL_TILT_FLOOR_ARCSEC:
+                raise DataError(src, f"all values are below {SMALL_TILT_ARCSEC:g} arcsec: they look like "
+                                     "radians or degrees; allowed: arcsec (no stand is level to "
+                                     f"{SMALL_TILT_ARCSEC:g} arcsec: 1e-3 rad is 206 arcsec)",
+                                column="pitch_arcsec")
 
     # -- helpers ---------------------------------------------------------------------------
     def __len__(self):
@@ -781,13 +816,15 @@ class Plan(_Table):
 def _read(cls, path, min_rate_dps, allow_small_azimuths):
     src = os.fspath(path)
     try:
-        with open(src, newline="", encoding="utf-8-sig") as fh:
-            reader = csv.reader(fh)
-            rows, lines = [], []
-            for fields in reader:
-                if any(f.strip() for f in fields):
-                    rows.append(fields)
-                    lines.append(reader.line_num)
+        reader = csv.reader(io.StringIO(read_text(src, "a UTF-8 CSV file"), newline=""))
+        rows, lines = [], []
+        for fields in reader:
+            if any(f.strip() for f in fields):
+                rows.append(fields)
+                lines.append(reader.line_num)
+            if len(rows) > MAX_ROWS + 1:
+                raise DataError(src, f"has more than {MAX_ROWS} data rows; allowed: at most {MAX_ROWS}",
+                                line=reader.line_num)
     except UnicodeDecodeError as e:
         raise DataError(src, f"is not UTF-8 text ({e.reason} at byte {e.start}); allowed: a UTF-8 CSV "
                              "file") from None
@@ -797,6 +834,9 @@ def _read(cls, path, min_rate_dps, allow_small_azimuths):
         need = ", ".join(c.name for c in cls._COLUMNS if c.required)
         raise DataError(src, f"the file is empty; allowed: a header row with {need}, then data rows")
     header = [h.strip() for h in rows[0]]
+    if len(header) > MAX_COLUMNS:
+        raise DataError(src, f"the header has {len(header)} columns; allowed: at most {MAX_COLUMNS}",
+                        line=lines[0])
     if len(header) == 1 and any(sep in header[0] for sep in ";\t"):
         raise DataError(src, "the header has one column; allowed: comma-separated columns", line=lines[0])
     for j, name in enumerate(header):
@@ -810,6 +850,18 @@ def _read(cls, path, min_rate_dps, allow_small_azimuths):
                                  "value per column", row=k + 1, line=lines[k + 1])
     columns = {name: [fields[j] for fields in rows[1:]] for j, name in enumerate(header)}
     return cls._build(columns, src, lines[1:], min_rate_dps, allow_small_azimuths, header_line=lines[0])
+
+
+def read_text(path, allowed, limit=MAX_FILE_BYTES):
+    """The text of a UTF-8 input file (a BOM is dropped), at most ``limit`` bytes; DataError
+    beyond (``/dev/zero`` too) or for bytes that are no UTF-8. ``allowed`` names the file kind."""
+    src = os.fspath(path)
+    with open(src, "rb") as fh:
+        data = fh.read(limit + 1)
+    if len(data) > limit:
+        raise DataError(src, f"is larger than {limit / 2**20:g} MiB; allowed: {allowed} of at most "
+                             f"{limit / 2**20:g} MiB")
+    return data.decode("utf-8-sig")
 
 
 def load_runs(path, *, min_rate_dps=DEFAULT_MIN_RATE_DPS, allow_small_azimuths=False) -> Runs:

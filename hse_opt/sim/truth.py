@@ -385,11 +385,19 @@ def _display(x, unit, decimals):
     return Decimal(text) if decimals else float(text)
 
 
+def _finite(v):
+    """Whether a TOML number is a finite float (a 400-digit integer is not)."""
+    try:
+        return math.isfinite(float(v))
+    except OverflowError:
+        return False
+
+
 def _check_bounds(where, value, meta):
     lo, hi = meta["lo"], meta["hi"]
     vals = value if isinstance(value, (list, tuple)) else [value]
     for v in vals:
-        if not math.isfinite(v) or (lo is not None and v < lo) or (hi is not None and v > hi):
+        if not _finite(v) or (lo is not None and v < lo) or (hi is not None and v > hi):
             rng = f"[{lo}, {hi}]" if lo is not None and hi is not None else (
                 f">= {lo}" if lo is not None else f"<= {hi}" if hi is not None else "finite")
             raise ValueError(f"{where} = {_shown(value)!r} is not allowed: each value must be finite "
@@ -401,7 +409,7 @@ def _parse_value(where, raw, meta):
     if n is None:
         if not _is_number(raw):
             raise ValueError(f"{where} = {_shown(raw)!r} is not allowed: a number in {meta['unit']} is required")
-        if meta["integer"] and (not float(raw).is_integer()):
+        if meta["integer"] and (not _finite(raw) or not float(raw).is_integer()):
             raise ValueError(f"{where} = {_shown(raw)!r} is not allowed: an integer is required")
         _check_bounds(where, raw, meta)
         return int(raw) if meta["integer"] else _si(raw, meta["unit"])
@@ -428,11 +436,11 @@ def _parse_harmonics(where, raw):
             if k not in h:
                 raise ValueError(f"{w}.{k} is missing; required keys: order, amplitude_arcsec")
         order = h["order"]
-        if isinstance(order, bool) or not isinstance(order, int) or order < 1:
-            raise ValueError(f"{w}.order = {order!r} is not allowed: an integer >= 1 is required")
+        if isinstance(order, bool) or not isinstance(order, int) or not 1 <= order <= 1000:
+            raise ValueError(f"{w}.order = {_shown(order)!r} is not allowed: an integer in [1, 1000] is required")
         amp, ph = h["amplitude_arcsec"], h.get("phase_deg", 0.0)
         for k, v in (("amplitude_arcsec", amp), ("phase_deg", ph)):
-            if not _is_number(v) or not math.isfinite(v):
+            if not _is_number(v) or not _finite(v):
                 raise ValueError(f"{w}.{k} = {_shown(v)!r} is not allowed: a finite number is required")
         if abs(amp) > 3600.0:
             raise ValueError(f"{w}.amplitude_arcsec = {_shown(amp)!r} is not allowed: |amplitude| <= 3600 arcsec")
@@ -592,11 +600,17 @@ class TruthConfig:
     @classmethod
     def from_toml(cls, path):
         """Load ``TRUTH.toml``; missing keys take the default system's values."""
-        with open(path, "rb") as fh:
-            try:
-                d = tomllib.load(fh, parse_float=Decimal)    # exact: see _si
-            except tomllib.TOMLDecodeError as exc:
-                raise ValueError(f"{path}: not valid TOML: {exc}") from None
+        from hse_opt.data import read_text
+        try:
+            d = tomllib.loads(read_text(path, "a UTF-8 TOML file"), parse_float=Decimal)  # exact: see _si
+        except tomllib.TOMLDecodeError as exc:
+            raise ValueError(f"{path}: not valid TOML: {exc}") from None
+        except UnicodeDecodeError as exc:
+            raise ValueError(f"{path}: is not UTF-8 text ({exc.reason} at byte {exc.start}); allowed: a "
+                             "UTF-8 TOML file") from None
+        except RecursionError:
+            raise ValueError(f"{path}: arrays or tables nested too deeply; allowed: the sections of "
+                             "TRUTH.toml (two levels)") from None
         try:
             return cls.from_dict(d)
         except ValueError as exc:
