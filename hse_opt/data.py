@@ -461,32 +461,33 @@ class _Table:
                                  "allow_small_azimuths=True (--allow-small-azimuths) for a fine azimuth "
                                  "sweep in degrees",
                             column="azimuth_deg")
-        cls._check_ranges(attrs, values, src)
-        return cls(**attrs, covariates=covariates, source=src)
+        table = cls(**attrs, covariates=covariates, source=src)  # the structure first
+        table._check_ranges(values)
+        return table
 
-    @classmethod
-    def _check_ranges(cls, attrs, values, src):
+    def _check_ranges(self, values):
         """The physical ranges of :data:`hse_opt.ranges.RANGES` (file units), a duration of at
-        least one table revolution, and pitch/roll that do not look like radians or degrees."""
-        for col in cls._COLUMNS:
-            r = RANGES.get(col.name)
-            if r is None or col.attr not in attrs:
+        least one table revolution, and pitch/roll that do not look like radians or degrees;
+        ``values`` are the columns as given (for the message)."""
+        src = self.source
+        for col in self._COLUMNS:
+            r, x = RANGES.get(col.name), getattr(self, col.attr)
+            if r is None or x is None:
                 continue
-            x = np.array(attrs[col.attr])
             bad = ~((x >= _to_si(r.lo, col.factor)) & (x <= _to_si(r.hi, col.factor)))
             if bad.any():
                 i = int(np.argmax(bad))
                 raise DataError(src, f"value {values[col.name][i]!r} is out of range; allowed: "
                                      f"{r.allowed(col.name)}", row=i + 1, column=col.name)
         with np.errstate(divide="ignore"):
-            turn = 2 * np.pi / np.abs(np.array(attrs["rate"]))
-        if np.any(short := np.array(attrs["duration"]) < turn):
+            turn = 2 * np.pi / np.abs(self.rate)
+        if np.any(short := (self.duration < turn) & (self.rate != 0)):  # rate 0: min_rate_dps=0
             i = int(np.argmax(short))
             raise DataError(src, f"value {values['duration_s'][i]!r} is shorter than one table revolution; "
                                  f"allowed: duration_s >= 360/|rate_dps| = {turn[i]:.4g} s (the model averages "
                                  "the heading error over whole revolutions)", row=i + 1, column="duration_s")
-        if "pitch" in attrs and "roll" in attrs:
-            tilt = np.abs(np.concatenate([attrs["pitch"], attrs["roll"]])) / ARCSEC
+        if getattr(self, "pitch", None) is not None:
+            tilt = np.abs(np.concatenate([self.pitch, self.roll])) / ARCSEC
             if np.all(tilt < SMALL_TILT_ARCSEC) and tilt.max() >= SMALL_TILT_FLOOR_ARCSEC:
                 raise DataError(src, f"all values are below {SMALL_TILT_ARCSEC:g} arcsec: they look like "
                                      "radians or degrees; allowed: arcsec (no stand is level to "

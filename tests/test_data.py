@@ -76,8 +76,9 @@ def test_round_trip_is_bitwise_for_edge_values(tmp_path):
     vals = np.array([-0.0, 0.0, 5e-324, -5e-324, 2.2250738585072014e-308, 1.7976931348623157e308,
                      0.1 + 0.2, np.nextafter(1.0, 2.0), np.nextafter(1.0, 0.0), -1 / 3])
     n = vals.size
-    plan = Plan(run=np.arange(n), rate=np.full(n, 0.7), azimuth=vals, t_start=np.abs(vals),
-                duration=np.full(n, 600.0), tilt_x=vals, tilt_y=-vals, covariates={"c": vals})
+    phys = np.where(np.abs(vals) > 1, -1e-3, vals)  # the physical columns within their ranges (hse_opt.ranges)
+    plan = Plan(run=np.arange(n), rate=np.full(n, 0.7), azimuth=phys, t_start=np.abs(phys),
+                duration=np.full(n, 600.0), tilt_x=phys * 1e-2, tilt_y=-phys * 1e-2, covariates={"c": vals})
     path = tmp_path / "plan.csv"
     save_plan(plan, path)
     back = load_plan(path, allow_small_azimuths=True)
