@@ -128,7 +128,11 @@ def _main(argv):
             except (KeyboardInterrupt, Terminated, BrokenPipeError):
                 raise
             except Exception as err:  # noqa: BLE001 - the command line reports, never tracebacks
-                print(f"{command}: internal error: {type(err).__name__}: {err}", file=sys.stderr)
+                from .fit.result import SolverError
+                if isinstance(err, SolverError):  # a numerical failure: the status and what to try
+                    print(f"{command}: error: {_message(err)}", file=sys.stderr)
+                else:
+                    print(f"{command}: internal error: {type(err).__name__}: {err}", file=sys.stderr)
                 return 1
     except (KeyboardInterrupt, Terminated) as err:
         what = "interrupted" if isinstance(err, KeyboardInterrupt) else f"terminated (signal {err.signum})"

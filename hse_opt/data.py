@@ -203,7 +203,7 @@ def _to_text(x, factor):
 
 def _to_run_id(value):
     d = _decimal(value)
-    if not d.is_finite() or d != d.to_integral_value() or abs(d) >= 2**63:
+    if not d.is_finite() or d.adjusted() > 18 or abs(d) >= 2**63 or d != d.to_integral_value():
         raise ValueError(f"{value!r} is not an integer in the int64 range")
     return int(d)
 
@@ -455,7 +455,9 @@ class _Table:
                                      f"allowed: |rate_dps| >= {min_rate_dps:g} deg/s (min_rate_dps, or "
                                      "--min-rate-dps, sets the limit; a rate in rad/s also lands here)",
                                 row=i + 1, column="rate_dps")
-        if not allow_small_azimuths and _looks_like_radians(np.array(attrs["azimuth"]) / DEG):
+        with np.errstate(over="ignore"):  # 1e308 rad is no azimuth either: the ranges say so below
+            azimuth_deg = np.array(attrs["azimuth"]) / DEG
+        if not allow_small_azimuths and _looks_like_radians(azimuth_deg):
             raise DataError(src, f"the values of rows 1-{n} look like radians (all within +-2 pi, spread "
                                  "over at least 1, not whole numbers); allowed: degrees, or "
                                  "allow_small_azimuths=True (--allow-small-azimuths) for a fine azimuth "

@@ -52,12 +52,18 @@ def load_fit(path, model=None):
     The model is rebuilt from the file's effect names (catalogue effects and
     ``covariate:<column>``); pass ``model`` for effects of your own with the same names.
     """
+    from .data import read_text
     src = os.fspath(path)
     try:
-        with open(src, encoding="utf-8") as fh:
-            d = json.load(fh)
+        d = json.loads(read_text(src, "a FIT.json written by hse-opt fit -o"))
     except json.JSONDecodeError as err:
         raise ValueError(f"{src}: not JSON ({err}); allowed: a FIT.json written by hse-opt fit -o") from None
+    except UnicodeDecodeError as err:
+        raise ValueError(f"{src}: not UTF-8 text ({err.reason} at byte {err.start}); allowed: a FIT.json "
+                         "written by hse-opt fit -o") from None
+    except RecursionError:
+        raise ValueError(f"{src}: arrays or objects nested too deeply; allowed: a FIT.json written by "
+                         "hse-opt fit -o") from None
     if not isinstance(d, dict) or d.get("format") != FIT_FORMAT:
         raise ValueError(f"{src}: not a FIT.json (no \"format\": \"{FIT_FORMAT}\"); allowed: a file "
                          "written by hse-opt fit -o")
@@ -86,6 +92,18 @@ def load_fit(path, model=None):
         constraints = tuple(Constraint(c["coefficients"], -math.inf if c["lower"] is None else c["lower"],
                                        math.inf if c["upper"] is None else c["upper"])
                             for c in d.get("constraints", []))
+        n, n_runs = len(names), len(runs["run"])
+        for key, value, shape in (("covariance", d["covariance"], (n, n)), ("correlation", d["correlation"], (n, n)),
+                                  ("p_si", d["p_si"], (n,)), ("residual_arcsec", residuals, (n_runs,)),
+                                  ("sigma_arcsec", sigma, (n_runs,)), ("weight", runs["weight"], (n_runs,))):
+            x = np.array(value, dtype=float)
+            if x.shape != shape or not np.all(np.isfinite(x)):
+                raise ValueError(f"{src}: \"{key}\" has shape {x.shape}{'' if x.shape != shape else ' and values that are not finite'}; "
+                                 f"allowed: finite numbers of shape {shape} ({n} parameters, {n_runs} runs), "
+                                 "as hse-opt fit -o writes them")
+        if not np.all(sigma > 0) or not np.all(np.isfinite(get("value"))) or not np.all(get("std") >= 0):
+            raise ValueError(f"{src}: values, sigmas or standard deviations that are not finite or not positive; "
+                             "allowed: a FIT.json written by hse-opt fit -o")
         return FitResult(
             model=model, tilt_known=tilt_known, names=names, units=tuple(par[nm]["unit"] for nm in names),
             values=get("value"), std=get("std"), covariance=np.array(d["covariance"], dtype=float),
@@ -103,6 +121,11 @@ def load_fit(path, model=None):
             weights=np.array(runs["weight"], dtype=float), chi2_prior=float(d.get("chi2_prior", 0.0)),
             inputs=(np.array([runs["inputs"][k] for k in RUN_FIELDS + tuple(mm.covariates)], dtype=float)
                     if "inputs" in runs else None))
-    except (KeyError, TypeError) as err:
+    except (KeyError, TypeError, IndexError, OverflowError, AttributeError) as err:
         raise ValueError(f"{src}: FIT.json is missing or has a malformed entry {err}; allowed: a file "
                          "written by hse-opt fit -o") from None
+    except ValueError as err:  # a value that is no number, an unknown effect: named with the file
+        if str(err).startswith(src):
+            raise
+        allowed = "" if "allowed" in str(err) else "; allowed: a FIT.json written by hse-opt fit -o"
+        raise ValueError(f"{src}: {err}{allowed}") from None

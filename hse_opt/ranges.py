@@ -85,10 +85,10 @@ MAX_COLUMNS = 1000
 MAX_NESTING = 20
 
 
-def check_option(option, value):
-    """``value`` (a float in the option's unit) against ``RANGES[option]``; ValueError naming the
-    option and what is allowed."""
-    r = RANGES[option]
+def check_option(option, value, key=None):
+    """``value`` (a float in the option's unit) against ``RANGES[key or option]``; ValueError
+    naming the option and what is allowed."""
+    r = RANGES[key or option]
     if not bool(r.contains(value)):
-        raise ValueError(f"{option} {value:g} is not allowed; allowed: {r.allowed(option.lstrip('-'))}")
+        raise ValueError(f"{option} {value:g} is not allowed; allowed: {r.allowed(key or option.lstrip('-'))}")
     return value

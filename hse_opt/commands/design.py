@@ -106,7 +106,9 @@ def _stand(args):
     from ..design import Stand
     from ..information import DEFAULT_ARW
 
+    from ..ranges import check_option
     tilt = _pair(args.stand_tilt_arcsec, "--stand-tilt-arcsec")
+    check_option("--latitude-deg", args.latitude_deg, "latitude_deg")
     arw = DEFAULT_ARW if args.arw_dph_rthz is None else args.arw_dph_rthz * units.DEG_PER_H
     return Stand(latitude=args.latitude_deg * units.DEG, tilt=tuple(v * units.ARCSEC for v in tilt), arw=arw,
                  floor=args.floor_arcsec * units.ARCSEC)
@@ -176,7 +178,9 @@ def run(args):
 
     if not args.output:
         raise ValueError("-o PLAN.csv is required to design a plan (or use --evaluate PLAN.csv)")
-    for opt, value, allowed, ok in (("--budget-h", args.budget_h, "> 0 h", lambda v: v > 0),
+    from ..ranges import RANGES
+    budget = RANGES["--budget-h"]
+    for opt, value, allowed, ok in (("--budget-h", args.budget_h, budget.allowed("H"), budget.contains),
                                     ("--max-tilt-arcsec", args.max_tilt_arcsec, ">= 0 arcsec", lambda v: v >= 0),
                                     ("--seed", args.seed, ">= 0", lambda v: v >= 0)):
         if not (np.isfinite(value) and ok(value)):

@@ -12,6 +12,30 @@ from .solvers import gauss_newton, solve
 from .weights import HUBER_C, huber_weights, mad_scale, run_sigma
 
 
+def _profile_start(prob, w, z, A_eq, b_eq, lin, points=25):
+    """Start values of the nonlinear parameters from their profiles: each in turn on a grid over
+    its range (log-spaced for a positive one, e.g. a time constant), the linear parameters solved
+    exactly at every point (they enter linearly), the point of the smallest objective kept. A
+    start far from the optimum of a time constant otherwise leaves the solvers on a plateau
+    (IPOPT's Maximum_Iterations_Exceeded on a warm-up campaign)."""
+    for j in np.flatnonzero(prob.nonlinear):
+        lo, hi = prob.lb[j], prob.ub[j]
+        if not (np.isfinite(lo) and np.isfinite(hi) and lo < hi):
+            continue
+        grid = np.geomspace(lo, hi, points) if lo > 0 else np.linspace(lo, hi, points)
+        best, f_best = z, prob.objective(z, w)
+        for value in grid:
+            trial = z.copy()
+            trial[j] = value
+            trial, _ = gauss_newton(prob, w, trial, A_eq, b_eq, max_iter=1, mask=lin)
+            trial = np.clip(trial, prob.lb, prob.ub)
+            f = prob.objective(trial, w)
+            if f < f_best:
+                best, f_best = trial, f
+        z = best
+    return z
+
+
 def fit(runs, model=None, *, fix=None, tilt_known=None, bounds=None, constraints=(), prior=None,
         robust=False, huber_c=HUBER_C, max_iter=100, jit=None, start=None):
     """Calibrate ``model`` on ``runs`` by weighted least squares.
@@ -110,8 +134,6 @@ def _fit(runs, model, *, fix, tilt_known, bounds, constraints, prior, robust, hu
     (p_base, free, lower, upper, A_eq, b_eq, A_in, l_in, u_in, L, Lmu,
      kept) = setup(mm, runs, fix, bounds, constraints, prior, notes, start)
     k = int(free.sum())
-    if k == 0:
-        raise ValueError("every parameter is fixed: nothing to fit")
     sigma, weighting, more = run_sigma(runs, robust, mm)
     notes += more
     project, n_pos = position_projector(runs, sigma)
@@ -164,7 +186,7 @@ def _fit(runs, model, *, fix, tilt_known, bounds, constraints, prior, robust, hu
     if prob.nonlinear.any():  # start: the linear parameters solved with the nonlinear ones held
         eq_rows = ~np.any(A_eq[:, ~lin] != 0, axis=1) if A_eq.size else np.zeros(0, bool)
         z, _ = gauss_newton(prob, 1 / sigma, z, A_eq[eq_rows], b_eq[eq_rows], max_iter=1, mask=lin)
-        z = np.clip(z, prob.lb, prob.ub)
+        z = _profile_start(prob, 1 / sigma, np.clip(z, prob.lb, prob.ub), A_eq[eq_rows], b_eq[eq_rows], lin)
 
     # solve; with robust weights or a sigma estimated from the residuals, re-solve until the
     # weights settle (the sigma matters to the solution only against a prior, and to IPOPT's

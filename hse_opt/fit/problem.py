@@ -112,6 +112,9 @@ def setup(mm, runs, fix, bounds, constraints, prior, notes, start=None):
     lower[~free] = upper[~free] = values[~free]
 
     k = int(free.sum())
+    if k == 0:
+        raise ValueError(f"every parameter is held ({', '.join(names)}: fix, --fix); nothing is left to "
+                         "fit; allowed: at least one free parameter")
     idx = {nm: j for j, nm in enumerate(np.array(names)[free])}
     rows_eq, b_eq, rows_in, l_in, u_in, kept = [], [], [], [], [], []
     for c in constraints or ():

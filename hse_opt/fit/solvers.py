@@ -117,6 +117,17 @@ def _nlp_solver(mm, n, free_key, m, r, linear, jit):
     return ca.nlpsol(f"fit_{n}", "ipopt", nlp, opts)
 
 
+def _hint(prob):
+    """What to try when the solver fails: the free nonlinear parameters and a bound on them."""
+    names = [q for q, free in zip(prob.mm.params, prob.free) if free and q.name in prob.mm.nonlinear]
+    if not names:
+        return "; hold a parameter (--fix NAME=VALUE) or add runs that separate the parameters"
+    q = names[0]
+    return (f"; nonlinear parameters {', '.join(f'{p.name} ({p.unit})' for p in names)} did not settle: "
+            f"bound them nearer the data, e.g. --bound {q.name}=LO:HI within [{q.lower:g}, {q.upper:g}] "
+            f"{q.unit}, or --fix {q.name}=VALUE")
+
+
 def _ipopt(prob, w, z0):
     """Solve with IPOPT; return ``(z, lam_x, lam_g)``. Raises :class:`SolverError`."""
     mm, n = prob.mm, prob.y.size
@@ -144,7 +155,7 @@ def _ipopt(prob, w, z0):
         if status in ("Infeasible_Problem_Detected", "Restoration_Failed") and m:
             raise ValueError(f"the bounds and constraints cannot all hold (IPOPT: {status}); check "
                              f"them against each other")
-        raise SolverError("IPOPT did not solve the fit", status)
+        raise SolverError("IPOPT did not solve the fit" + _hint(prob), status)
     return (np.array(sol["x"]).ravel() * D, np.array(sol["lam_x"]).ravel() / D,
             np.array(sol["lam_g"]).ravel()[prob.A_eq.shape[0]:], stats["return_status"], D)
 
