@@ -12,13 +12,16 @@ from .solvers import gauss_newton, solve
 from .weights import HUBER_C, huber_weights, mad_scale, run_sigma
 
 
-def _profile_start(prob, w, z, A_eq, b_eq, lin, points=25):
+def _profile_start(prob, w, z, A_eq, b_eq, lin, given=(), points=25):
     """Start values of the nonlinear parameters from their profiles: each in turn on a grid over
     its range (log-spaced for a positive one, e.g. a time constant), the linear parameters solved
     exactly at every point (they enter linearly), the point of the smallest objective kept. A
     start far from the optimum of a time constant otherwise leaves the solvers on a plateau
-    (IPOPT's Maximum_Iterations_Exceeded on a warm-up campaign)."""
+    (IPOPT's Maximum_Iterations_Exceeded on a warm-up campaign). ``given``: names whose start
+    the caller chose (kept)."""
     for j in np.flatnonzero(prob.nonlinear):
+        if prob.names[j] in given:
+            continue
         lo, hi = prob.lb[j], prob.ub[j]
         if not (np.isfinite(lo) and np.isfinite(hi) and lo < hi):
             continue
@@ -186,7 +189,8 @@ def _fit(runs, model, *, fix, tilt_known, bounds, constraints, prior, robust, hu
     if prob.nonlinear.any():  # start: the linear parameters solved with the nonlinear ones held
         eq_rows = ~np.any(A_eq[:, ~lin] != 0, axis=1) if A_eq.size else np.zeros(0, bool)
         z, _ = gauss_newton(prob, 1 / sigma, z, A_eq[eq_rows], b_eq[eq_rows], max_iter=1, mask=lin)
-        z = _profile_start(prob, 1 / sigma, np.clip(z, prob.lb, prob.ub), A_eq[eq_rows], b_eq[eq_rows], lin)
+        z = _profile_start(prob, 1 / sigma, np.clip(z, prob.lb, prob.ub), A_eq[eq_rows], b_eq[eq_rows], lin,
+                           given=set(start or ()))
 
     # solve; with robust weights or a sigma estimated from the residuals, re-solve until the
     # weights settle (the sigma matters to the solution only against a prior, and to IPOPT's
