@@ -140,3 +140,17 @@ def test_a_solver_failure_exits_1_with_its_status_and_a_hint(monkeypatch, tmp_pa
         solvers._nlp_solver.cache_clear()
     assert code == 1 and "status: Maximum_Iterations_Exceeded" in err and "--bound warmup_tau=" in err, err
     assert "internal error" not in err and err.count("\n") == 1 and not (tmp_path / "F.json").exists()
+
+
+def test_simulate_refuses_rates_its_sampling_cannot_represent(tmp_path):
+    """A table-rate ripple of order 1000 per revolution at 2 ms sampling: its Nyquist limit is
+    1000 * 0.002 s * |rate| < 180 deg, |rate| < 90 deg/s; 60 deg/s simulates, 100 deg/s does not."""
+    truth = tmp_path / "T.toml"
+    truth.write_text("[table]\nripple_order = 1000\n")
+    plan = tmp_path / "P.csv"
+    plan.write_text("run,rate_dps,azimuth_deg,t_start_s,duration_s\n1,60,0,0,60\n")
+    assert cli(["simulate", plan, "--truth", truth, "-o", tmp_path / "S.csv", "--no-progress"])[0] == 0
+    plan.write_text("run,rate_dps,azimuth_deg,t_start_s,duration_s\n1,100,0,0,60\n")
+    code, err = cli(["simulate", plan, "--truth", truth, "-o", tmp_path / "S2.csv", "--no-progress"])
+    assert code == 2 and "rate_dps" in err and "allowed |rate_dps| < 90" in err and "500 Hz" in err, err
+    assert not (tmp_path / "S2.csv").exists()

@@ -724,7 +724,9 @@ def validate_run(truth, run):
     allowed.
 
     Checks: a finite non-zero rate outside the gyros' lock-in zone (each gyro's input rate
-    ``|Omega r_g . r_zb^s|``, less the Earth rate, must exceed ``gyro.lockin_dps``), a duration
+    ``|Omega r_g . r_zb^s|``, less the Earth rate, must exceed ``gyro.lockin_dps``) and below what
+    the sampling represents (the highest periodic error of the table angle, ``ripple_order`` or
+    an encoder harmonic's order per revolution, under the Nyquist rate), a duration
     of at least one table revolution plus one sample (and at most one day), ``t_start >= 0`` and each
     total tilt component within :data:`MAX_TILT`.
     """
@@ -742,6 +744,14 @@ def validate_run(truth, run):
             "rate_dps", f"rate_dps = {run.rate / units.DEG_PER_S:g} is inside the gyros' lock-in zone "
             f"(gyro.lockin_dps = {truth.gyro.lockin / units.DEG_PER_S:g} on each gyro's input "
             f"rate): allowed |rate_dps| > {min_rate / units.DEG_PER_S:.4g}")
+    # the sampling must represent the table's periodic errors: the highest order per revolution
+    # (rate ripple, encoder harmonics; the turn itself) below the Nyquist rate of the samples
+    order = max([1, truth.table.ripple_order, *(h.order for h in truth.encoder.harmonics)])
+    max_rate = math.pi / (order * truth.timing.sample_period)
+    if abs(run.rate) >= max_rate:
+        raise RunError("rate_dps", f"rate_dps = {run.rate / units.DEG_PER_S:g} turns the table too far per "
+                       f"sample for {1 / truth.timing.sample_period:g} Hz sampling (periodic errors up to "
+                       f"order {order} per revolution); allowed |rate_dps| < {max_rate / units.DEG_PER_S:.6g}")
     # one revolution of encoder span: the first sample's increment has no angle at its start
     t_min = 2 * math.pi / abs(run.rate) + truth.timing.sample_period
     if run.duration < t_min:
