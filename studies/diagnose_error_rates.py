@@ -23,6 +23,13 @@ diagnosis' tests):
   ``refine`` (adding the suggested effects until adequate) the fraction ending ``adequate``
   with the hidden effect(s) in the model.
 
+* held-back cases (issue 14, item 7): a 25-arcsec level shift after run 23 and one run 200
+  arcsec off (right answer: verdict ``unexplained structure``), a campaign without
+  ``heading_std`` and no hidden effect (``adequate``), a 150-us sync delay beside a recorded
+  column that follows the rotation sense (both reported ambiguous). At the CI size (6 seeds,
+  this session): 100 %, 100 %, 100 % and 67 % (4/6) right; ``--full`` was not yet measured
+  for them, and the ambiguous pair may fall short of 90 % there.
+
 Sizes are stated as the parameter value and as the effect's signature on the plan: its peak
 in arcsec and noise sigmas, and the RMS (in sigmas) of the part the paper's model cannot
 absorb (what the data can see: noncentrality = n x RMS^2).
@@ -118,6 +125,44 @@ def clopper_pearson(k, n, conf=0.95):
     return lo, hi
 
 
+def _step(runs_for, plan, seed):       # +25 arcsec from run 24 on (a re-mount)
+    runs = runs_for({}, seed, model=["hse"])
+    return runs.replace(heading_err=runs.heading_err + 25 * units.ARCSEC * (np.arange(len(runs)) >= 24))
+
+
+def _outlier(runs_for, plan, seed):    # one run 200 arcsec off
+    runs = runs_for({}, seed, model=["hse"])
+    h = runs.heading_err.copy()
+    h[17] += 200 * units.ARCSEC
+    return runs.replace(heading_err=h)
+
+
+def _no_std(runs_for, plan, seed):     # Table-1-like: no heading_std, no hidden effect
+    return runs_for({}, seed, model=["hse"]).replace(heading_std=None)
+
+
+def _pair(runs_for, plan, seed):       # a recorded column that follows the rotation sense
+    p2 = diagnostic_plan(sessions=2, runs_per_session=24, rates_dps=(40.0,))
+    fan = (p2.rate > 0).astype(float) + np.random.default_rng(seed).normal(0, 0.02, len(p2))
+    return model_runs(p2, {**BASE, "delay": 150.0}, np.random.default_rng(seed), base_tilt=BASE_TILT,
+                      covariates={"fan": fan})
+
+
+HELD_BACK = {
+    "level shift of 25 arcsec after run 23": (
+        _step, lambda r, a: diagnose(r, alpha=a, refit=False).verdict == "unexplained structure",
+        "verdict unexplained structure"),
+    "one run 200 arcsec off": (
+        _outlier, lambda r, a: diagnose(r, alpha=a, refit=False).verdict == "unexplained structure",
+        "verdict unexplained structure"),
+    "no heading_std, no hidden effect": (
+        _no_std, lambda r, a: diagnose(r, alpha=a, refit=False).verdict == "adequate", "verdict adequate"),
+    "sync delay beside a sense-following column": (
+        _pair, lambda r, a: set(diagnose(r, alpha=a).ambiguous) == {"sync_delay", "covariate:fan"},
+        "both reported ambiguous"),
+}
+
+
 def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--null", type=int, default=100, help="no-effect campaigns (default 100)")
@@ -180,10 +225,18 @@ def main(argv=None):
     print(f"\n({args.seeds} seeds per effect; for the combination 'ranks 1st' means both effects are the "
           f"two best candidates; {time.process_time() - t_start:.0f} s CPU)")
 
+    # held-back cases (issue 14): the right answer is an effect, an ambiguity or "unexplained
+    # structure"; a campaign without heading_std must not raise a false alarm
+    print(f"\n{'held-back case':<44}{'right answer':<44}{'right':>8}")
+    for name, (make, right, what) in HELD_BACK.items():
+        k = sum(right(make(runs_for, plan, 20_000 + seed), args.alpha) for seed in range(args.seeds))
+        firsts[f"held back: {name}"] = k
+        print(f"{name:<44}{what:<44}{100 * k / args.seeds:>7.0f}%")
+
     # the rates against their targets: one-sided binomial tests at the family-wise level
     # CHECK_ALPHA (Bonferroni over the 1 + len(HIDDEN) rates), so that a diagnosis meeting the
     # targets fails this study with probability < CHECK_ALPHA at any size
-    level = CHECK_ALPHA / (1 + len(HIDDEN))
+    level = CHECK_ALPHA / (1 + len(firsts))
     p_fa = float(stats.binom.sf(alarms - 1, args.null, args.alpha))
     print(f"\nchecks (one-sided binomial, level {level:.2g} each): false-alarm rate <= alpha = "
           f"{args.alpha:g}: p = {p_fa:.3g}; ranks first >= 90 %: smallest p = "
