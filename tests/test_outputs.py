@@ -65,6 +65,8 @@ REFUSED = [
     (["fit", "T1.csv", *FIX, "-o", "/dev/null"], "-o /dev/null", "not a regular file"),
     (["compensate", "T1.csv", "--fit", "F.json", "-o", "F.json"], "-o F.json", "would overwrite the input"),
     (["compensate", "T1.csv", "--fit", "F.json", "-o", "nodir/X.csv"], "-o nodir/X.csv", "does not exist"),
+    (["compensate", "T1.csv", "--fit", "F.json", "-o", ""], "-o ''", "allowed: a file path"),
+    (["simulate", "P.csv", "-o", "S.csv", "--write-truth", ""], "--write-truth ''", "allowed: a file path"),
     (["simulate", "P.csv", "-o", "P.csv"], "-o P.csv", "would overwrite the input"),
     (["simulate", "P.csv", "-o", "S.csv", "--write-truth", "S.csv"], "--write-truth S.csv",
      "also the output of -o"),

@@ -85,7 +85,7 @@ class Transaction:
                 if path:
                     inputs.append((_label(parser, dest), path))
         outputs = [(dest, _label(parser, dest), getattr(args, dest), files() if callable(files) else files)
-                   for dest, files in getattr(module, "OUTPUTS", {}).items() if getattr(args, dest, None)]
+                   for dest, files in getattr(module, "OUTPUTS", {}).items() if getattr(args, dest, None) is not None]
         return cls(inputs, outputs)
 
     # -- before the command runs ---------------------------------------------------------
