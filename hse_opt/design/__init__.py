@@ -60,11 +60,12 @@ space), :mod:`.problem` (information rows, the problem object), :mod:`.approxima
 import sys
 import types
 
-from .approximate import SUPPORT_TOL, ApproximateDesign, DesignError, approximate_design
+from .approximate import ApproximateDesign, DesignError, approximate_design
 from .criteria import A, C, Criterion, D, Discrimination, E, LackOfFit, as_criterion
 from .evaluation import DRIFT_UNIT, Evaluation, evaluate
 from .pipeline import DesignResult, design
 from .plans import paper_plan, plan_lines
+from .reduction import SUPPORT_TOL
 from .rounding import apportion
 from .space import Candidates, Costs, DesignSpace, Stand
 

@@ -20,11 +20,12 @@ import numpy as np
 from ..information import UnidentifiableError
 from .criteria import CASADI, CvxOps, NotSmooth, Scaled, as_criterion
 from .problem import Problem, Rows
+from .reduction import SUPPORT_TOL
 from .space import Candidates, positive
 
-#: approximate-design weights below this fraction of the largest are solver noise
-SUPPORT_TOL = 1e-4
 SOLVERS = ("CLARABEL", "SCS")
+#: a certified efficiency that ends the column generation when another round does not raise it
+ENOUGH = 0.9999
 
 
 class DesignError(RuntimeError):
@@ -71,25 +72,29 @@ class ApproximateDesign:
         return np.flatnonzero(self.runs > SUPPORT_TOL * self.runs.max())
 
 
-def solve_approximate(prob, batch=128, polish=True):
+def solve_approximate(prob, batch=128, polish=True, target=1 - 1e-7, enough=ENOUGH):
     """The approximate design of ``prob`` by column generation: convex programs over a
     growing active set until the equivalence theorem certifies the solution over every
-    candidate (``polish``: each solution re-solved on its support by :func:`polish_weights`)."""
+    candidate to ``target``, or to ``enough`` when a round raises the certificate by less than
+    1e-5 (the conic solver's accuracy, not the active set, then limits it); ``polish``: each
+    solution re-solved on its support by :func:`polish_weights`."""
     t0 = time.perf_counter()
     n, slot = prob.n, prob.slot
     active = _initial_active(prob)
+    last = -np.inf
     for it in range(1, 100):
-        w_a, mus, status, used = _convex(prob.take(active))
+        w_a, mus, status, used, sup_grads = _convex(prob.take(active))
         w = np.zeros(n)
         w[active] = w_a
-        loss, h, cert = certify(prob, w, mus)
+        loss, h, cert = certify(prob, w, mus, sup_grads)
         polished = polish_weights(prob, w, loss) if polish else None
         if polished is not None:
             trial = certify(prob, *polished)
             if trial[2] > cert:
                 (w, mus), (loss, h, cert) = polished, trial
-        if active.size == n or cert >= 1 - 1e-7:
+        if active.size == n or cert >= target or (cert >= enough and cert - last < 1e-5):
             break
+        last = max(last, cert)
         # a candidate enters when spending its slot's share of the budget on it beats the slot's runs
         value = h * np.minimum(prob.budget / prob.cost / prob.n_slots,
                                np.inf if prob.max_runs is None else prob.max_runs)
@@ -106,11 +111,23 @@ def solve_approximate(prob, batch=128, polish=True):
                              int(active.size))
 
 
-def certify(prob, w, mus):
-    """Loss, Lagrangian gradient and certified efficiency of the weights ``w``."""
+def certify(prob, w, mus, sup_grads=None):
+    """Loss, Lagrangian gradient and certified efficiency of the weights ``w``.
+
+    ``sup_grads`` (E-optimality): a supergradient ``G_s`` of lambda_min per sample (PSD, trace
+    1; the conic program's dual). lambda_min(F) <= <G, F> for every F, so the linear model
+    ``-mean <G_s, F_s>`` bounds the loss from below everywhere: its Frank-Wolfe gap certifies
+    ``w`` also where the smallest eigenvalue is multiple (where -v v^T of one eigenvector
+    would not)."""
     loss = prob.loss(w)
-    h = prob.lagrangian_gradient(w, mus)
-    return loss, h, certificate(prob, loss, h, w, mus)
+    if sup_grads is None:
+        h = prob.lagrangian_gradient(w, mus)
+        return loss, h, certificate(prob, loss, h, w, mus)
+    F = prob.spec.information(prob.rows, w)
+    h = prob.lagrangian_gradient(w, mus, np.mean([np.einsum("ni,ij,nj->n", r, G, r)
+                                                  for r, G in zip(prob.rows, sup_grads)], axis=0))
+    tangent = -float(np.mean([np.sum(G * Fs) for G, Fs in zip(sup_grads, F)]))
+    return loss, h, certificate(prob, loss, h, w, mus, tangent)
 
 
 def polish_weights(prob, w, loss0):
@@ -126,13 +143,21 @@ def polish_weights(prob, w, loss0):
     crit, spec, cost, slot, max_runs = prob.criterion, prob.spec, prob.cost, prob.slot, prob.max_runs
     sup = np.flatnonzero(w > 1e-6 * w.max())
     m, n_slots = sup.size, prob.n_slots
-    u = ca.MX.sym("u", m)  # runs of each support candidate
+    u = ca.SX.sym("u", m)  # runs of each support candidate
+    # each information matrix is a variable tied to the runs by linear equalities: the Hessian
+    # of the Lagrangian is then k^2 x k^2 per matrix, not a dense m x m one
+    infos, links, values = [], [], []
 
     def mean_loss_of(r, sp, fun):
         total = 0
         for s in range(r.shape[0]):
-            a = ca.DM(r[s][sup])
-            total = total + fun(ca.DM(sp.prior) + ca.mtimes(a.T, a * ca.repmat(u, 1, sp.k)))
+            a = r[s][sup]
+            Q = np.einsum("ni,nj->ijn", a, a).reshape(sp.k * sp.k, m)
+            F = ca.SX.sym(f"F{len(infos)}", sp.k * sp.k)
+            infos.append(F)
+            links.append((F - ca.mtimes(ca.DM(Q), u), sp.prior.ravel()))
+            values.append(sp.prior.ravel() + Q @ w[sup])
+            total = total + fun(ca.reshape(F, sp.k, sp.k))
         return total / r.shape[0]
 
     try:
@@ -148,18 +173,23 @@ def polish_weights(prob, w, loss0):
     ub = [np.full(n_slots, prob.budget / n_slots)] + ([[max_runs]] if max_runs is not None else [])
     g = ([ca.mtimes(ca.DM(np.vstack(lin)), u)]
          + [mean_loss_of(gd.rows, gd.spec, CASADI.log_det) for gd in prob.guards])
-    solver = ca.nlpsol("weights", "ipopt", {"x": u, "f": (f - loss0) / scale, "g": ca.vertcat(*g)}, {
+    g += [e for e, _ in links]
+    x = ca.vertcat(u, *infos)
+    solver = ca.nlpsol("weights", "ipopt", {"x": x, "f": (f - loss0) / scale, "g": ca.vertcat(*g)}, {
         "ipopt.print_level": 0, "print_time": 0, "ipopt.sb": "yes", "ipopt.max_iter": 200,
         "ipopt.tol": 1e-12, "ipopt.bound_push": 1e-12, "ipopt.bound_frac": 1e-12, "ipopt.mu_init": 1e-8})
-    n_lin = n_slots + len(lin) - 1
-    sol = solver(x0=w[sup], lbx=0.0, ubx=np.inf,
-                 lbg=np.concatenate([np.full(n_lin, -np.inf), [gd.bound for gd in prob.guards]]),
-                 ubg=np.concatenate([np.concatenate(ub), np.full(len(prob.guards), np.inf)]))
+    n_lin, n_g = n_slots + len(lin) - 1, len(prob.guards)
+    eq = np.concatenate([v for _, v in links])
+    n_f = eq.size
+    sol = solver(x0=np.concatenate([w[sup], *values]),
+                 lbx=np.concatenate([np.zeros(m), np.full(n_f, -np.inf)]), ubx=np.inf,
+                 lbg=np.concatenate([np.full(n_lin, -np.inf), [gd.bound for gd in prob.guards], eq]),
+                 ubg=np.concatenate([np.concatenate(ub), np.full(n_g, np.inf), eq]))
     if not solver.stats()["success"]:
         return None
     out = np.zeros_like(w)
-    out[sup] = np.clip(np.array(sol["x"]).ravel(), 0.0, None)
-    lam = np.array(sol["lam_g"]).ravel()[n_lin:]
+    out[sup] = np.clip(np.array(sol["x"]).ravel()[:m], 0.0, None)
+    lam = np.array(sol["lam_g"]).ravel()[n_lin:n_lin + n_g]
     return out, [max(0.0, -float(v) * scale) for v in lam]
 
 
@@ -210,14 +240,31 @@ def _convex(prob):
     problem = cp.Problem(cp.Minimize(objective), cons + ops.constraints + guard_cons)
     status, used = _solve(problem, prob.solver)
     mus = [max(0.0, float(c.dual_value)) if c.dual_value is not None else 0.0 for c in guard_cons]
-    return np.clip(u.value, 0.0, None) * scale, mus, status, used
+    return np.clip(u.value, 0.0, None) * scale, mus, status, used, _supergradients(ops.eigen_bounds)
+
+
+def _supergradients(eigen_bounds):
+    """Supergradients of lambda_min in display units from the duals ``Z`` of the constraints
+    ``F' - t D^-2 >= 0`` (``F' = D^-1 F D^-1``): ``G = D^-1 Z D^-1``, made PSD with trace 1;
+    None when the criterion has no such constraint or a dual is missing."""
+    out = []
+    for con, d in eigen_bounds:
+        Z = con.dual_value
+        if Z is None:
+            return None
+        G = np.asarray(Z, float) / np.outer(d, d)
+        lam, vec = np.linalg.eigh((G + G.T) / 2)
+        G = (vec * np.clip(lam, 0.0, None)) @ vec.T
+        if not np.trace(G) > 0:
+            return None
+        out.append(G / np.trace(G))
+    return out or None
 
 
 def _solve(problem, solver):
-    """Solve with the first solver that reaches ``optimal``; else the first
-    ``optimal_inaccurate`` (its certificate decides, in :func:`solve_approximate`); else raise
-    with every status."""
-    tried, inaccurate = [], None
+    """Solve with the first solver that reaches ``optimal`` or ``optimal_inaccurate`` (its
+    certificate decides, in :func:`solve_approximate`); else raise with every status."""
+    tried = []
     for name in ((solver,) if solver else SOLVERS):
         try:
             with warnings.catch_warnings():  # an inaccurate solution is judged by its certificate
@@ -226,19 +273,9 @@ def _solve(problem, solver):
         except cp.error.SolverError as err:
             tried.append(f"{name}: solver error ({str(err).splitlines()[0]})")
             continue
-        if problem.status == cp.OPTIMAL:
+        if problem.status in (cp.OPTIMAL, cp.OPTIMAL_INACCURATE):
             return problem.status, name
         tried.append(f"{name}: status {problem.status}")
-        if problem.status == cp.OPTIMAL_INACCURATE and inaccurate is None:
-            inaccurate = (problem.status, name, [v.value for v in problem.variables()],
-                          [c.dual_value for c in problem.constraints])
-    if inaccurate is not None:  # put the first inaccurate solution back
-        for v, val in zip(problem.variables(), inaccurate[2]):
-            v.value = val
-        for c, val in zip(problem.constraints, inaccurate[3]):
-            if val is not None:
-                c.dual_variables[0].value = val
-        return inaccurate[0], inaccurate[1]
     raise DesignError("the approximate design's convex program was not solved: " + "; ".join(tried))
 
 
@@ -251,10 +288,11 @@ def _run_solver(problem, name):
         problem.solve(solver=name)
 
 
-def certificate(prob, loss, h, w, mus):
+def certificate(prob, loss, h, w, mus, tangent=None):
     """Efficiency lower bound of ``w`` from weak duality: the optimum is at most the
     Lagrangian's maximum over the feasible set, itself at most its value at ``w`` plus the
-    Frank-Wolfe gap (a concave function lies below its tangent)."""
+    Frank-Wolfe gap (a concave function lies below its tangent). ``tangent``: the value at
+    ``w`` of the linear lower bound of the loss whose gradient ``h`` is (default: the loss)."""
     cost, slot, n_slots, budget, max_runs = prob.cost, prob.slot, prob.n_slots, prob.budget, prob.max_runs
     if max_runs is None:
         per_slot = np.full(n_slots, -np.inf)
@@ -276,7 +314,8 @@ def certificate(prob, loss, h, w, mus):
         return float(np.exp(-gap / k))
     if crit.degree < 0:
         return float(max(0.0, 1.0 - gap / loss))
-    return float(abs(loss) / (abs(loss) + gap)) if loss < 0 else 0.0
+    tangent = loss if tangent is None else tangent
+    return float(abs(loss) / (abs(tangent) + gap)) if loss < 0 and tangent < 0 else 0.0
 
 
 def approximate_design(features, criterion="D", *, cost=None, budget=1.0, max_runs=None, names=None,

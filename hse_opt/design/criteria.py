@@ -81,6 +81,7 @@ class CvxOps:
 
     def __init__(self):
         self.constraints = []
+        self.eigen_bounds = []  # (constraint, column scales) of each lambda_min: its dual is a supergradient
 
     @staticmethod
     def log_det(S):
@@ -103,6 +104,7 @@ class CvxOps:
         # lambda_min(D F' D) >= t  <=>  F' - t D^-2 >= 0
         t = cp.Variable()
         self.constraints.append(S.F - t * np.diag(S.d ** -2.0) >> 0)
+        self.eigen_bounds.append((self.constraints[-1], S.d))
         return t
 
     def schur(self, S):

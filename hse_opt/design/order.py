@@ -69,7 +69,13 @@ def min_time(settings, counts, costs, cache=None):
     time slot that is its setups (which depend only on which settings are used, so ``cache``
     keeps them by that pattern) plus its alignments; with slots, waits count too."""
     if np.ptp(settings.not_before) > 0:
-        return min(total_time(settings, seq, costs) for seq in orders(settings, counts, costs))
+        key = ("waits", np.asarray(counts).tobytes())
+        if cache is None or key not in cache:
+            value = min(total_time(settings, seq, costs) for seq in orders(settings, counts, costs))
+            if cache is None:
+                return value
+            cache[key] = value
+        return cache[key]
     used = counts > 0
     key = used.tobytes()
     if cache is None or key not in cache:

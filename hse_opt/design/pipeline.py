@@ -17,6 +17,7 @@ from .order import pick_order
 from .problem import Guard, Problem, criterion_rows, model_rows, prior_information, samples_of
 from .refine import refine as refine_plan
 from .rounding import prune as prune_plan
+from .reduction import caratheodory
 from .rounding import round_design
 from .space import Costs, DesignSpace, Stand, positive
 
@@ -231,9 +232,11 @@ def design(model=None, criterion="c:lambda2", *, budget, space=None, stand=None,
     if approx.certified_efficiency < 0.999:
         notes.append(f"the approximate design is certified only to efficiency "
                      f"{approx.certified_efficiency:.4f}")
-    exact = round_design(prob, approx.runs)
+    reduced = caratheodory(prob, approx.runs)
+    exact = round_design(prob, reduced)
     if prune:
-        exact = prune_plan(prob, approx.runs, exact)
+        exact, note = prune_plan(prob, reduced, exact)
+        notes += [note] if note else []
     if not np.isfinite(exact.loss):
         raise UnidentifiableError(f"{int(exact.counts.sum())} whole runs within the budget cannot identify "
                                   f"the model for criterion {crit.label}", spec.names)

@@ -174,9 +174,10 @@ class Problem:
         """Criterion loss (mean over the samples) of the run numbers ``w``."""
         return mean_loss(self.criterion, self.rows, self.spec, w)
 
-    def lagrangian_gradient(self, w, mus):
-        """Gradient in w of ``-loss + sum mu_j (mean log det_j - bound_j)``."""
-        h = -directional(self.criterion, self.rows, self.spec, w)
+    def lagrangian_gradient(self, w, mus, h=None):
+        """Gradient in w of ``-loss + sum mu_j (mean log det_j - bound_j)`` (``h``: the
+        criterion's part, when given)."""
+        h = -directional(self.criterion, self.rows, self.spec, w) if h is None else np.array(h, float)
         for g, mu in zip(self.guards, mus):
             if mu > 0:
                 h -= mu * directional(D(), g.rows, g.spec, w)

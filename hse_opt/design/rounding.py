@@ -14,9 +14,13 @@ import numpy as np
 
 from .. import units
 from .approximate import SOLVERS, SUPPORT_TOL, DesignError, solve_approximate
+from .reduction import caratheodory
 from .order import min_time
 from .problem import directional
 from .space import Candidates
+
+#: re-solves the setup-aware pruning may spend (a cap on the work; the design notes when it is reached)
+MAX_PRUNE_TRIALS = 30
 
 
 def apportion(weights, n):
@@ -65,45 +69,6 @@ class Exact:
     guards: tuple
     loss: float
     proportions: np.ndarray  # the approximate design's proportions that were rounded (same order)
-
-
-def caratheodory(prob, w):
-    """A design with the same information matrices (every sample, every guard), alignment
-    time, number of runs and time per slot as ``w`` on as few candidates as that allows
-    (Caratheodory: move along a null direction of those linear maps until a weight is 0).
-    Interior-point solvers return the most spread-out optimum when it is not unique; fewer
-    support points round to whole runs with less loss and fewer setups."""
-    cost, slot, n_slots = prob.cost, prob.slot, prob.n_slots
-    all_rows = [prob.rows, *[g.rows for g in prob.guards]]
-    sup = np.flatnonzero(w > SUPPORT_TOL * w.max())
-    w = w.copy()
-    w[np.setdiff1d(np.arange(w.size), sup)] = 0.0
-    iu = [np.triu_indices(r.shape[2]) for r in all_rows]
-
-    def maps(idx):
-        cols = [r[:, idx][:, :, i] * r[:, idx][:, :, j] for r, (i, j) in zip(all_rows, iu)]
-        parts = [c.transpose(1, 0, 2).reshape(idx.size, -1) for c in cols]
-        parts += [cost[idx, None], np.ones((idx.size, 1)), (slot[idx, None] == np.arange(n_slots)[None, :])]
-        A = np.hstack(parts).T
-        return A / np.maximum(np.abs(A).max(axis=1, keepdims=True), 1e-300)
-
-    while sup.size > 1:
-        A = maps(sup)
-        _, s, vt = np.linalg.svd(A, full_matrices=True)
-        rank = int(np.sum(s > 1e-10 * s.max()))
-        if rank >= sup.size:
-            break
-        v = vt[rank]
-        if not np.any(v < 0):
-            v = -v
-        neg = v < 0
-        t = np.min(w[sup][neg] / -v[neg])
-        w[sup] = np.maximum(w[sup] + t * v, 0.0)
-        w[sup[np.argmin(np.where(neg, w[sup] / -np.where(neg, v, -1), np.inf))]] = 0.0
-        sup = sup[w[sup] > SUPPORT_TOL * w.max()]
-    out = np.zeros_like(w)
-    out[sup] = w[sup]
-    return out
 
 
 def round_design(prob, w):
@@ -173,34 +138,39 @@ def exchange(prob, counts, cache, max_iter=500, screen=24):
     return counts
 
 
-def prune(prob, w, exact):
+def prune(prob, w, exact, max_trials=MAX_PRUNE_TRIALS):
     """Greedy setup-aware search: remove one stand position (time slot, tilt, azimuth) of the
-    approximate design's support at a time -- the lightest first -- re-solve on the
-    candidates of the others and round; keep the first removal that gives a better rounded
-    plan, and go on until none does."""
+    approximate design ``w`` (reduced by :func:`caratheodory`, so at most as many positions as
+    the design has linear maps) at a time -- the lightest first -- re-solve on the candidates
+    of the others and round; keep the first removal that gives a better rounded plan, and go
+    on until none does, or ``max_trials`` re-solves are spent. Returns the best plan and a
+    note when the cap stopped the search."""
     cand = prob.candidates
     pos = np.unique(np.column_stack([cand.not_before, cand.tilt_x, cand.tilt_y, np.mod(cand.azimuth, 2 * np.pi)])
                     .round(9), axis=0, return_inverse=True)[1].ravel()
     weight = np.bincount(pos, w)
     keep = set(np.flatnonzero(weight > SUPPORT_TOL * w.max()).tolist())
     prob = replace(prob, solver=prob.solver or SOLVERS[0])  # the trials: one solver, no fallback
-    improved = True
+    trials, improved = 0, True
     while improved and len(keep) > 1:
         improved = False
-        for g in sorted(keep, key=lambda g: weight[g]):
+        for g in sorted(keep, key=lambda g: (weight[g], g)):
+            if trials >= max_trials:
+                return exact, (f"setup-aware pruning stopped at its cap of {max_trials} re-solves; the plan keeps "
+                               f"{len(keep)} stand positions (prune=False skips the search)")
+            trials += 1
             idx = np.flatnonzero(np.isin(pos, sorted(keep - {g})))
             sub = prob.take(idx)
             try:
-                approx = solve_approximate(sub, polish=False)
-                trial = round_design(sub, approx.runs)
+                reduced = caratheodory(sub, solve_approximate(sub, polish=False, target=0.999).runs)
+                trial = round_design(sub, reduced)
             except (ValueError, DesignError):  # the others cannot identify the model, or meet a guard
                 continue
             if trial.loss < exact.loss:
                 exact, improved = trial, True
                 keep.discard(g)
                 full = np.zeros(pos.size)
-                full[idx] = approx.runs
+                full[idx] = reduced
                 weight = np.bincount(pos, full, minlength=weight.size)
                 break
-    return exact
-
+    return exact, None
