@@ -27,11 +27,26 @@ def demo_run(tmp_path_factory):
     return data, out, summary_lines(result, "hse_opt_demo")
 
 
+#: the designed plans' sigma and gain reproduce to this relative tolerance on any machine: the
+#: c-optimum is flat, and rounding to whole runs (efficiency >= 0.99 in variance against the
+#: certified approximate optimum) picks one of several plans within about 2% in sigma
+DESIGN_RTOL = 0.03
+
+
 @pytest.mark.slow
 def test_the_readme_shows_what_the_demo_prints(demo_run):
     readme = (Path(__file__).resolve().parents[1] / "README.md").read_text(encoding="utf-8")
-    shown = re.search(r"```text\n(hse-opt demo, seed 0:.*?)```", readme, re.S).group(1)
-    assert shown.splitlines() == demo_run[2]
+    shown = re.search(r"```text\n(hse-opt demo, seed 0:.*?)```", readme, re.S).group(1).splitlines()
+    printed = demo_run[2]
+    assert len(shown) == len(printed)
+    number = r"[-+]?\d+(?:\.\d+)?(?:e[-+]?\d+)?"
+    for a, b in zip(shown, printed):
+        if "optimised" not in a:
+            assert a == b
+            continue
+        assert re.sub(number, "#", a) == re.sub(number, "#", b)  # the same words
+        for x, y in zip(re.findall(number, a), re.findall(number, b)):
+            assert float(x) == pytest.approx(float(y), rel=DESIGN_RTOL), (a, b)
 
 
 def test_json_is_the_summary_file_and_the_reports_numbers(demo_run):

@@ -200,7 +200,7 @@ def test_efficient_rounding_keeps_the_pukelsheim_rieder_efficiency_bound(rng):
 
 @pytest.fixture(scope="module")
 def plan_b():
-    return design("hse", "c:lambda2", budget=16380.0, space=DesignSpace(reverse=True))
+    return design("hse", "c:lambda2", budget=16380.0, space=DesignSpace(reverse=True), resolution=None)
 
 
 def test_design_meets_budget_and_counts_setups_independently(plan_b):
@@ -505,3 +505,109 @@ def test_a_nonlinear_parameter_without_information_at_its_nominal_value_is_named
     with pytest.raises(UnidentifiableError, match=r"--nominal NAME=VALUE") as err:
         design("hse,warmup", "c:lambda2", budget=18000.0, space=DesignSpace(time_slots=4))
     assert err.value.names == ("warmup_tau",)
+
+
+# ------------------------------------------------------ plans a stand can run (issue 15)
+def _one_line_naming_an_option(err):
+    lines = [ln for ln in err.strip().splitlines() if ln]
+    return len(lines) == 1 and "--" in lines[0] and "Traceback" not in err
+
+
+def test_plans_from_random_design_options_pass_simulate_and_evaluate(tmp_path, capsys):
+    """Whatever options a user gives, ``design`` either writes a plan that the loader,
+    ``simulate`` and ``design --evaluate`` accept, or exits 2 naming the option."""
+    from hse_opt.cli import main
+    from hse_opt.data import load_plan
+    rng = np.random.default_rng(15)
+    written = 0
+    for k in range(8):
+        lo = float(rng.choice([2.0, 10.0, 20.0, 33.3, 33.3]))
+        hi = lo + float(rng.choice([0.0, 7.77, 40.0]))
+        dur = str(rng.choice(["5", "60", "45,90", "120", "120"]))
+        effects = str(rng.choice(["", "axis_bias"]))
+        opts = ["design", "--budget-h", "1.4", "--warmup-s", "600", "--rates", f"{lo:g}:{hi:g}",
+                "--durations-s", dur, "--n-rates", str(rng.integers(1, 4)),
+                "--azimuth-step-deg", str(rng.choice([7.3, 45.0, 90.0])),
+                "--max-tilt-arcsec", str(rng.choice([0.0, 0.0, 1000.0, 3599.0]))]
+        opts += ["--reverse"] if rng.random() < 0.5 else []
+        opts += ["--effects", effects] if effects else []
+        plan = tmp_path / f"P{k}.csv"
+        code = main(opts + ["-o", str(plan)])
+        out = capsys.readouterr()
+        assert code in (0, 1, 2), (opts, out.err)
+        if code == 2:
+            assert _one_line_naming_an_option(out.err) and not plan.exists(), (opts, out.err)
+            continue
+        if code == 1:  # a numerical failure: one line with the solver's status, nothing written
+            assert len(out.err.strip().splitlines()) == 1 and ("status" in out.err or "ended" in out.err)
+            assert not plan.exists()
+            continue
+        written += 1
+        p = load_plan(plan)
+        assert np.all(np.abs(p.rate) >= lo * units.DEG_PER_S - 1e-12)
+        assert main(["simulate", str(plan), "-o", str(tmp_path / f"R{k}.csv"), "--no-progress"]) == 0, opts
+        assert main(["design", "--evaluate", str(plan)] + (["--effects", effects] if effects else [])) == 0
+        capsys.readouterr()
+    assert written >= 2
+
+
+@pytest.mark.parametrize("opts,option", [
+    (["--rates", "1:3"], "--rates"),
+    (["--durations-s", "5"], "--durations-s"),
+    (["--max-tilt-arcsec", "3599"], "--max-tilt-arcsec"),
+])
+def test_options_that_would_give_plans_simulate_rejects_exit_2(opts, option, tmp_path, capsys):
+    from hse_opt.cli import main
+    out = tmp_path / "P.csv"
+    assert main(["design", "--budget-h", "2"] + opts + ["-o", str(out)]) == 2
+    err = capsys.readouterr().err
+    assert option in err and len(err.strip().splitlines()) == 1 and not out.exists()
+
+
+def test_evaluate_names_an_unknown_nominal_parameter(tmp_path, capsys):
+    from hse_opt.cli import main
+    from hse_opt.data import save_plan
+    p = tmp_path / "PAPER.csv"
+    save_plan(paper_plan(), p)
+    assert main(["design", "--evaluate", str(p), "--nominal", "x=1"]) == 2
+    assert "x is not a parameter" in capsys.readouterr().err
+
+
+def test_the_plan_is_on_the_stands_resolution_and_recertified(tmp_path):
+    from hse_opt.data import save_plan
+    space = DesignSpace(reverse=True, max_tilt=1800 * units.ARCSEC, azimuth_step=30 * units.DEG)
+    exact = design(EXT, "D", budget=5 * 3600.0, space=space, resolution=None)
+    r = design(EXT, "D", budget=5 * 3600.0, space=space)
+    save_plan(r.plan, tmp_path / "P.csv")
+    text = (tmp_path / "P.csv").read_text().splitlines()
+    head = text[0].split(",")
+    for line in text[1:]:  # the decimals an operator types: 0.1 deg/s, 0.01 deg, 1 arcsec steps
+        row = dict(zip(head, line.split(",")))
+        for col, digits in (("rate_dps", 1), ("azimuth_deg", 2), ("tilt_x_arcsec", 0), ("tilt_y_arcsec", 0)):
+            decimals = row[col].partition(".")[2]
+            assert len(decimals) <= digits and "e" not in row[col] and row[col] != "-0", row
+        assert 0 <= float(row["azimuth_deg"]) < 360 and abs(float(row["rate_dps"])) <= 60
+        assert np.hypot(float(row["tilt_x_arcsec"]), float(row["tilt_y_arcsec"])) <= 1800
+    # re-certified: the efficiency moved by what the independent evaluation's -log det moved
+    k = len(r.evaluation.names)
+    loss_exact, loss_rounded = exact.evaluation.criterion_value, r.evaluation.criterion_value
+    assert r.efficiency / exact.efficiency == pytest.approx(math.exp((loss_exact - loss_rounded) / k), rel=1e-6)
+    assert r.efficiency >= 0.99 and abs(loss_rounded - loss_exact) < 1e-2
+
+
+def test_the_text_output_warns_when_the_criterion_gives_up_parameters(tmp_path, capsys):
+    import json
+    from hse_opt.cli import main
+    opts = ["design", "--budget-h", "5", "--reverse", "--effects", "axis_bias,sync_delay", "--criterion", "c:delay",
+            "--identify-efficiency", "0.001", "-o", str(tmp_path / "P.csv")]
+    assert main(opts + ["--json"]) == 0
+    d = json.loads(capsys.readouterr().out)
+    # independent: the paper's plan and a D-optimal plan for the same budget, by the library
+    refs = [evaluate(paper_plan(), EXT), design(EXT, "D", budget=5 * 3600.0, space=DesignSpace(reverse=True)).evaluation]
+    best = {n: min(e.std_of(n) for e in refs) for n in refs[0].names}
+    given_up = {n for n, v in d["predicted_std"].items() if v["value"] > 3 * best[n]}
+    assert set(d["sacrificed"]) == given_up and "lambda2" in given_up
+    assert main(opts) == 0
+    text = capsys.readouterr().out
+    assert "warning: criterion c:delay gives up" in text and "--identify-efficiency" in text
+    assert all(n in text.split("warning:")[1] for n in given_up)

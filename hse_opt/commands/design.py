@@ -79,6 +79,12 @@ def add_arguments(parser):
                         help="run order (default trend-robust)")
     parser.add_argument("--no-refine", dest="refine", action="store_false",
                         help="keep rates and azimuths on the candidate grid")
+    parser.add_argument("--resolution-rate-dps", type=float, default=0.1, metavar="R",
+                        help="the stand's rate step: the plan's rates are multiples of it (default 0.1)")
+    parser.add_argument("--resolution-azimuth-deg", type=float, default=0.01, metavar="A",
+                        help="the stand's azimuth step, deg (default 0.01)")
+    parser.add_argument("--resolution-tilt-arcsec", type=float, default=1.0, metavar="T",
+                        help="the tilt fixture's step, arcsec (default 1)")
     parser.add_argument("--seed", type=int, default=0, help="seed of the run-order search (default 0)")
     parser.add_argument("--field", action="store_true",
                         help="a field campaign: no position has a heading reference (only differences "
@@ -114,6 +120,36 @@ def _stand(args):
                  floor=args.floor_arcsec * units.ARCSEC)
 
 
+def _references(args, model, result, kw):
+    """Plans whose sigmas say what the criterion gave up: the paper's plan and, for another
+    criterion than D, the D-optimal plan for the same budget (None where one cannot be had)."""
+    from ..design import DesignError, design, evaluate, paper_plan
+    from ..information import UnidentifiableError
+
+    out = []
+    try:
+        out.append(evaluate(paper_plan(costs=kw["costs"]), model, stand=kw["stand"], tilt_known=kw["tilt_known"],
+                            nominal=kw["nominal"], prior=kw["prior"]))
+    except UnidentifiableError:
+        pass
+    if result.criterion != "D":
+        try:
+            out.append(design(model, "D", **kw, prune=False, refine=False, resolution=None).evaluation)
+        except (UnidentifiableError, DesignError):
+            pass
+    return out
+
+
+def _numbers(text, option):
+    try:
+        values = tuple(float(v) for v in text.split(","))
+    except ValueError:
+        raise ValueError(f"{option} {text!r}: allowed numbers separated by ','") from None
+    if not all(np.isfinite(values)):
+        raise ValueError(f"{option} {text!r}: allowed finite numbers separated by ','")
+    return values
+
+
 def _nominal(items):
     out = {}
     for item in items:
@@ -130,7 +166,9 @@ def _nominal(items):
 def run(args):
     from .. import units
     from ..data import load_plan, save_plan
-    from ..design import Costs, DesignSpace, design, evaluate, plan_lines
+    from ..design import Costs, DesignSpace, Resolution, design, evaluate, plan_lines
+    from ..design.evaluation import sacrificed
+    from ..design.space import SAMPLE_PERIOD
     from ..fit_file import load_fit
     from ..model import as_model
     from ..information import UnidentifiableError
@@ -147,7 +185,6 @@ def run(args):
         if not args.report:
             return
         from .. import report as rep
-        from ..design import paper_plan
         try:
             base, note = evaluate(paper_plan(costs=costs), model, stand=stand, tilt_known=tilt_known,
                                   nominal=_nominal(args.nominal), prior=prior), None
@@ -206,24 +243,46 @@ def run(args):
     lo, hi = _pair(args.rates, "--rates", sep=":")
     if not 0 < lo <= hi:
         raise ValueError(f"--rates {args.rates}: allowed LO:HI in deg/s with 0 < LO <= HI")
+    if lo < args.min_rate_dps:
+        raise ValueError(f"--rates {args.rates}: {lo:g} deg/s is inside the lock-in limit; allowed: LO >= "
+                         f"{args.min_rate_dps:g} deg/s (--min-rate-dps)")
+    durations = _numbers(args.durations_s, "--durations-s")
+    shortest = 360.0 / lo + SAMPLE_PERIOD
+    if min(durations) < shortest or max(durations) > 86400:
+        raise ValueError(f"--durations-s {args.durations_s}: allowed {shortest:.6g} s (one table revolution at "
+                         f"{lo:g} deg/s, the lowest rate, plus one sample) to 86400 s")
+    resolution = Resolution(rate=args.resolution_rate_dps * units.DEG_PER_S,
+                            azimuth=args.resolution_azimuth_deg * units.DEG,
+                            tilt=args.resolution_tilt_arcsec * units.ARCSEC)
     space = DesignSpace(rates=(lo * units.DEG_PER_S, hi * units.DEG_PER_S), n_rates=args.n_rates,
                         reverse=args.reverse, sense=-1 if args.negative else 1,
                         azimuth_step=args.azimuth_step_deg * units.DEG,
-                        max_tilt=args.max_tilt_arcsec * units.ARCSEC,
-                        durations=tuple(float(d) for d in args.durations_s.split(",")),
-                        time_slots=args.time_slots)
+                        max_tilt=args.max_tilt_arcsec * units.ARCSEC, durations=durations,
+                        time_slots=args.time_slots, min_rate=args.min_rate_dps * units.DEG_PER_S)
     identify = None if args.identify is None else as_model(args.identify)
-    result = design(model, args.criterion, budget=args.budget_h * units.HOUR, space=space, stand=stand,
-                    costs=costs, max_runs=args.max_runs, tilt_known=tilt_known, nominal=_nominal(args.nominal),
-                    prior=prior, identify=identify, identify_efficiency=args.identify_efficiency,
-                    refine=args.refine, order=args.order, rng=np.random.default_rng(args.seed))
+    if args.max_tilt_arcsec > 0 and args.max_tilt_arcsec + max(abs(v) for v in stand.tilt) / units.ARCSEC > 3600:
+        raise ValueError(f"--max-tilt-arcsec {args.max_tilt_arcsec:g} with --stand-tilt-arcsec "
+                         f"{args.stand_tilt_arcsec}: allowed |fixture + stand tilt| <= 3600 arcsec in each axis")
+    kw = dict(budget=args.budget_h * units.HOUR, space=space, stand=stand, costs=costs, max_runs=args.max_runs,
+              tilt_known=tilt_known, nominal=_nominal(args.nominal), prior=prior)
+    result = design(model, args.criterion, **kw, identify=identify, identify_efficiency=args.identify_efficiency,
+                    refine=args.refine, order=args.order, rng=np.random.default_rng(args.seed),
+                    resolution=resolution)
     save_plan(result.plan, args.tx.path("output"))
     message(f"hse-opt design: wrote {args.output} ({result.n_runs} runs)")
     report("design_section", f"hse-opt design {args.output}", result=result)
+    given_up = sacrificed(result.evaluation, *_references(args, model, result, kw))
     if args.json:
-        print_json({**result.to_dict(), "output": args.output})
+        print_json({**result.to_dict(), "output": args.output,
+                    "sacrificed": {n: {"std": s, "reference_std": r, "unit": u} for n, s, r, u in given_up}})
     else:
         print(f"hse-opt design: {'+'.join(model.effect_names)}, budget {args.budget_h:g} h")
         print("\n".join(result.summary()))
         print("\n".join(plan_lines(result.plan)))
+        if given_up:
+            print(f"warning: criterion {result.criterion} gives up "
+                  + ", ".join(f"{n} (sigma {s:.3g} {u}, {s / r:.1f}x the {r:.3g} of the paper's plan or a "
+                              f"D-optimal plan)" for n, s, r, u in given_up)
+                  + "; to protect every parameter: --identify-efficiency 0.7 (the criterion with a "
+                    "D-efficiency bound on the whole model) or --criterion D")
     return 0

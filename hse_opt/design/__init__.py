@@ -53,8 +53,8 @@ of the test. The final plan is always evaluated at its real start times.
 
 The package's modules, one step each: :mod:`.criteria`, :mod:`.space` (stand, costs, design
 space), :mod:`.problem` (information rows, the problem object), :mod:`.approximate`,
-:mod:`.rounding`, :mod:`.refine`, :mod:`.order`, :mod:`.evaluation`, :mod:`.plans` and
-:mod:`.pipeline` (:func:`design`). Monte Carlo validation of a plan with the simulator is
+:mod:`.reduction`, :mod:`.rounding`, :mod:`.refine`, :mod:`.resolution`, :mod:`.order`,
+:mod:`.evaluation`, :mod:`.plans` and :mod:`.pipeline` (:func:`design`). Monte Carlo validation of a plan with the simulator is
 :func:`hse_opt.validation.monte_carlo.monte_carlo` (validation sits above design and sim).
 """
 import sys
@@ -67,10 +67,10 @@ from .pipeline import DesignResult, design
 from .plans import paper_plan, plan_lines
 from .reduction import SUPPORT_TOL
 from .rounding import apportion
-from .space import Candidates, Costs, DesignSpace, Stand
+from .space import Candidates, Costs, DesignSpace, Resolution, Stand
 
 __all__ = ["A", "ApproximateDesign", "C", "Candidates", "Costs", "Criterion", "D", "DRIFT_UNIT", "DesignError",
-           "DesignResult", "DesignSpace", "Discrimination", "E", "Evaluation", "LackOfFit", "SUPPORT_TOL", "Stand",
+           "DesignResult", "DesignSpace", "Discrimination", "E", "Evaluation", "LackOfFit", "Resolution", "SUPPORT_TOL", "Stand",
            "apportion", "approximate_design", "as_criterion", "design", "evaluate", "paper_plan", "plan_lines"]
 
 

@@ -11,7 +11,7 @@ from __future__ import annotations
 
 import time
 import warnings
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import casadi as ca
 import cvxpy as cp
@@ -83,15 +83,28 @@ def solve_approximate(prob, batch=128, polish=True, target=1 - 1e-7, enough=ENOU
     active = _initial_active(prob)
     last = -np.inf
     for it in range(1, 100):
-        w_a, mus, status, used, sup_grads = _convex(prob.take(active))
-        w = np.zeros(n)
-        w[active] = w_a
-        loss, h, cert = certify(prob, w, mus, sup_grads)
-        polished = polish_weights(prob, w, loss) if polish else None
-        if polished is not None:
-            trial = certify(prob, *polished)
-            if trial[2] > cert:
-                (w, mus), (loss, h, cert) = polished, trial
+        best, failures = None, []
+        for solver in (prob.solver,) if prob.solver else SOLVERS:
+            try:
+                w_a, mus, status, used, sup_grads = _convex(replace(prob.take(active), solver=solver))
+            except DesignError as err:  # the next solver
+                failures.append(str(err).partition("not solved: ")[2] or str(err))
+                continue
+            w = np.zeros(n)
+            w[active] = w_a
+            loss, h, cert = certify(prob, w, mus, sup_grads)
+            polished = polish_weights(prob, w, loss) if polish else None
+            if polished is not None:
+                trial = certify(prob, *polished)
+                if trial[2] > cert:
+                    (w, mus), (loss, h, cert) = polished, trial
+            if best is None or cert > best[2]:
+                best = (w, mus, cert, loss, h, status, used)
+            if status == cp.OPTIMAL or cert >= 0.99:  # else the next solver (an inaccurate end, judged)
+                break
+        if best is None:
+            raise DesignError("the approximate design's convex program was not solved: " + "; ".join(failures))
+        w, mus, cert, loss, h, status, used = best
         if active.size == n or cert >= target or (cert >= enough and cert - last < 1e-5):
             break
         last = max(last, cert)
@@ -176,7 +189,7 @@ def polish_weights(prob, w, loss0):
     g += [e for e, _ in links]
     x = ca.vertcat(u, *infos)
     solver = ca.nlpsol("weights", "ipopt", {"x": x, "f": (f - loss0) / scale, "g": ca.vertcat(*g)}, {
-        "ipopt.print_level": 0, "print_time": 0, "ipopt.sb": "yes", "ipopt.max_iter": 200,
+        "ipopt.print_level": 0, "print_time": 0, "show_eval_warnings": False, "ipopt.sb": "yes", "ipopt.max_iter": 200,
         "ipopt.tol": 1e-12, "ipopt.bound_push": 1e-12, "ipopt.bound_frac": 1e-12, "ipopt.mu_init": 1e-8})
     n_lin, n_g = n_slots + len(lin) - 1, len(prob.guards)
     eq = np.concatenate([v for _, v in links])
@@ -262,8 +275,9 @@ def _supergradients(eigen_bounds):
 
 
 def _solve(problem, solver):
-    """Solve with the first solver that reaches ``optimal`` or ``optimal_inaccurate`` (its
-    certificate decides, in :func:`solve_approximate`); else raise with every status."""
+    """Solve with ``solver`` (or the first of :data:`SOLVERS` that ends ``optimal`` or
+    ``optimal_inaccurate``; the certificate judges the latter, in :func:`solve_approximate`);
+    else raise with every status."""
     tried = []
     for name in ((solver,) if solver else SOLVERS):
         try:

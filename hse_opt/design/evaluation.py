@@ -134,6 +134,10 @@ def evaluate(plan, model=None, *, stand=None, tilt_known=True, criterion=None, n
         raise ValueError(f"{plan.source}: columns tilt_x_arcsec/tilt_y_arcsec vary the tilt, but with the tilt "
                          "unknown the model assumes one tilt fixed in b0; allowed: tilt_known=True")
     mm = model.measurement(tilt_known)
+    unknown = sorted(set(nominal or {}) - set(mm.names))
+    if unknown:
+        raise ValueError(f"nominal: {', '.join(unknown)} {'is not a parameter' if len(unknown) == 1 else 'are not parameters'} "
+                         f"of {'+'.join(model.effect_names)}; allowed: {', '.join(mm.names)}")
     X = stand.inputs(mm, plan.rate, plan.azimuth, tx, ty, plan.duration, plan.t_start)
     sigma = stand.sigma(plan.duration)
     p = mm.vector(own(nominal or {}, mm))
@@ -163,3 +167,19 @@ def evaluate(plan, model=None, *, stand=None, tilt_known=True, criterion=None, n
                       info.covariance, info.correlation, info.condition, int(plan.run.size),
                       float(np.max(plan.t_start + plan.duration)), bias)
 
+
+
+#: a parameter is given up when its sigma exceeds this multiple of the reference plans' best
+SACRIFICE_RATIO = 3.0
+
+
+def sacrificed(evaluation, *references):
+    """Parameters a plan gives up: ``(name, sigma, best reference sigma, unit)`` for each whose
+    predicted sigma exceeds :data:`SACRIFICE_RATIO` times the smallest of the reference
+    evaluations' (e.g. the paper's plan, the current plan; None entries are skipped)."""
+    out = []
+    for i, name in enumerate(evaluation.names):
+        refs = [r.std_of(name) for r in references if r is not None and name in r.names]
+        if refs and evaluation.std[i] > SACRIFICE_RATIO * min(refs):
+            out.append((name, float(evaluation.std[i]), float(min(refs)), evaluation.units[i]))
+    return out

@@ -16,10 +16,11 @@ from .evaluation import Evaluation, evaluate
 from .order import pick_order
 from .problem import Guard, Problem, criterion_rows, model_rows, prior_information, samples_of
 from .refine import refine as refine_plan
-from .rounding import prune as prune_plan
 from .reduction import caratheodory
+from .resolution import stand_plan, to_resolution
+from .rounding import prune as prune_plan
 from .rounding import round_design
-from .space import Costs, DesignSpace, Stand, positive
+from .space import Costs, DesignSpace, Resolution, Stand, positive
 
 
 @dataclass(frozen=True)
@@ -118,7 +119,7 @@ class DesignResult:
 def design(model=None, criterion="c:lambda2", *, budget, space=None, stand=None, costs=None,
            max_runs=None, tilt_known=True, nominal=None, prior_sample=None, prior=None,
            identify=None, identify_efficiency=0.25, prune=True, refine=True,
-           order="trend-robust", rng=None, solver=None):
+           order="trend-robust", rng=None, solver=None, resolution=Resolution()):
     """The test plan that minimises ``criterion`` within the stand-time ``budget``.
 
     Parameters
@@ -163,6 +164,10 @@ def design(model=None, criterion="c:lambda2", *, budget, space=None, stand=None,
         For the run-order search (default: seeded, reproducible).
     solver : str, optional
         cvxpy solver (default: Clarabel, then SCS).
+    resolution : Resolution or None
+        The stand's setting steps: the final plan's rates, azimuths and tilts are rounded to
+        them and the plan re-certified (its efficiency is the rounded plan's); None keeps the
+        optimiser's values.
 
     Returns
     -------
@@ -186,6 +191,10 @@ def design(model=None, criterion="c:lambda2", *, budget, space=None, stand=None,
         raise ValueError(f"max_runs = {max_runs!r}; allowed: an integer >= 1")
     if not 0 < identify_efficiency < 1:
         raise ValueError(f"identify_efficiency = {identify_efficiency!r}; allowed: 0 < value < 1")
+    if space.max_tilt + max(abs(v) for v in stand.tilt) > 1.0 * units.DEG:
+        raise ValueError(f"max_tilt {space.max_tilt / units.ARCSEC:g} arcsec with the stand's tilt "
+                         f"{', '.join(f'{v / units.ARCSEC:g}' for v in stand.tilt)} arcsec is not allowed; allowed: "
+                         "|fixture + stand tilt| <= 3600 arcsec in each axis (the model is first order in the tilt)")
     if not tilt_known and space.max_tilt > 0:
         raise ValueError("a tilt fixture (max_tilt > 0) needs tilt_known=True: with the tilt unknown the model "
                          "assumes one tilt fixed in b0 for every run")
@@ -255,16 +264,21 @@ def design(model=None, criterion="c:lambda2", *, budget, space=None, stand=None,
             status = refine_plan(prob, exact, stand, mm, space)
         except NotSmooth as err:
             status = f"none: criterion {crit.label} is not smooth ({err})"
+    if resolution is not None:
+        before = crit.efficiency(exact.loss, loss_same, spec.k)
+        for g in to_resolution(prob, exact, stand, mm, space, resolution):
+            notes.append(f"rounded to the stand's resolution, the plan's D-efficiency for "
+                         f"{'+'.join(g.model.effect_names)} is below the {identify_efficiency:g} required")
+        if crit.efficiency(exact.loss, loss_same, spec.k) < before - 1e-4:
+            notes.append(f"rounding the settings to the stand's resolution lowered the efficiency from "
+                         f"{before:.4f} to {crit.efficiency(exact.loss, loss_same, spec.k):.4f}")
     efficiency = crit.efficiency(exact.loss, loss_same, spec.k)
     budget_eff = crit.efficiency(exact.loss, approx.loss, spec.k)
 
     seq = pick_order(exact, prob, stand, order, rng)
     s = exact.settings.take(seq)
-    fixture = space.max_tilt > 0
-    plan = Plan(run=np.arange(1, seq.size + 1), rate=s.rate, azimuth=np.mod(s.azimuth, 2 * np.pi),
-                t_start=costs.schedule(s.rate, s.azimuth, s.tilt_x, s.tilt_y, s.duration, s.not_before),
-                duration=s.duration,
-                tilt_x=s.tilt_x if fixture else None, tilt_y=s.tilt_y if fixture else None)
+    t_start = costs.schedule(s.rate, s.azimuth, s.tilt_x, s.tilt_y, s.duration, s.not_before)
+    plan = stand_plan(s, t_start, space, resolution, space.max_tilt > 0)
     evaluation = evaluate(plan, model, stand=stand, tilt_known=tilt_known, criterion=crit, nominal=nominal,
                           prior=prior)
     guard_out = []

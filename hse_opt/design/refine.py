@@ -49,7 +49,7 @@ def refine(prob, exact, stand, mm, space):
     if g:
         nlp["g"] = ca.vertcat(*g)
     solver = ca.nlpsol("refine", "ipopt", nlp, {
-        "ipopt.print_level": 0, "print_time": 0, "ipopt.sb": "yes", "ipopt.max_iter": 200,
+        "ipopt.print_level": 0, "print_time": 0, "show_eval_warnings": False, "ipopt.sb": "yes", "ipopt.max_iter": 200,
         "ipopt.bound_push": 1e-10, "ipopt.bound_frac": 1e-10, "ipopt.mu_init": 1e-6})
     args = {"x0": np.concatenate([az_u, r_u]), "lbx": lbx, "ubx": ubx}
     if g:

@@ -12,7 +12,11 @@ from dataclasses import dataclass
 import numpy as np
 
 from .. import units
+from ..data import DEFAULT_MIN_RATE_DPS
 from ..information import DEFAULT_ARW, heading_sigma
+
+#: the alignments' sampling period, s (500 Hz, the paper's)
+SAMPLE_PERIOD = 0.002
 
 
 def positive(name, value, allow_zero=False):
@@ -192,6 +196,12 @@ class DesignSpace:
         approximate design spends at most its share of the budget in each, and the runs follow
         slot by slot. Needed for effects that depend on time (``warmup``); with 1 every
         candidate is seen at the middle of the test.
+    min_rate : float
+        Lock-in limit, rad/s (default :data:`hse_opt.data.DEFAULT_MIN_RATE_DPS`): the rate
+        limits may not go below it (a plan's loader rejects such rates).
+
+    Every duration must cover one table revolution at the lowest rate plus one sample
+    (:data:`SAMPLE_PERIOD`), as an alignment needs, and at most a day.
     """
 
     rates: tuple = (20.0 * units.DEG_PER_S, 60.0 * units.DEG_PER_S)
@@ -204,9 +214,15 @@ class DesignSpace:
     n_tilt_directions: int = 8
     durations: tuple = (600.0,)
     time_slots: int = 1
+    min_rate: float = DEFAULT_MIN_RATE_DPS * units.DEG_PER_S
 
     def __post_init__(self):
         lo, hi = (float(v) for v in self.rates)
+        if not (np.isfinite(self.min_rate) and self.min_rate >= 0):
+            raise ValueError(f"min_rate = {self.min_rate!r} rad/s; allowed: a finite number >= 0")
+        if lo < self.min_rate * (1 - 1e-12):
+            raise ValueError(f"rate limit {lo / units.DEG_PER_S:g} deg/s is inside the lock-in limit; allowed: "
+                             f">= {self.min_rate / units.DEG_PER_S:g} deg/s (min_rate, --min-rate-dps)")
         if not (np.isfinite(lo) and np.isfinite(hi) and 0 < lo <= hi):
             raise ValueError(f"rate limits {self.rates!r} rad/s; allowed: 0 < low <= high")
         if hi > 400 * units.DEG_PER_S:
@@ -234,6 +250,11 @@ class DesignSpace:
         d = tuple(float(v) for v in np.atleast_1d(self.durations))
         if not d or not all(np.isfinite(d)) or min(d) <= 0:
             raise ValueError(f"durations = {self.durations!r}; allowed: positive seconds")
+        shortest = 2 * np.pi / lo + SAMPLE_PERIOD
+        if min(d) < shortest or max(d) > 86400.0:
+            raise ValueError(f"duration {min(d) if min(d) < shortest else max(d):g} s is not allowed; allowed: "
+                             f"{shortest:.6g} s (one table revolution at the lowest rate, "
+                             f"{lo / units.DEG_PER_S:g} deg/s, plus one sample) to 86400 s")
         object.__setattr__(self, "durations", d)
         if isinstance(self.time_slots, bool) or int(self.time_slots) != self.time_slots or self.time_slots < 1:
             raise ValueError(f"time_slots = {self.time_slots!r}; allowed: an integer >= 1")
@@ -273,3 +294,26 @@ class DesignSpace:
         return Candidates(g[:, 1], g[:, 2], t[:, 0], t[:, 1], g[:, 4], np.maximum(start, centre - g[:, 4] / 2),
                           start)
 
+
+
+@dataclass(frozen=True)
+class Resolution:
+    """The settings a stand can set: the final plan is rounded to these steps and re-certified.
+
+    Attributes
+    ----------
+    rate : float
+        rad/s (default 0.1 deg/s).
+    azimuth : float
+        rad (default 0.01 deg).
+    tilt : float
+        Tilt-fixture step, rad (default 1 arcsec; rounded towards zero, inside the fixture's limit).
+    """
+
+    rate: float = 0.1 * units.DEG_PER_S
+    azimuth: float = 0.01 * units.DEG
+    tilt: float = 1.0 * units.ARCSEC
+
+    def __post_init__(self):
+        for name in ("rate", "azimuth", "tilt"):
+            object.__setattr__(self, name, positive(f"resolution.{name}", getattr(self, name)))
