@@ -185,6 +185,7 @@ def run(args):
         if not args.report:
             return
         from .. import report as rep
+        from ..design import paper_plan
         try:
             base, note = evaluate(paper_plan(costs=costs), model, stand=stand, tilt_known=tilt_known,
                                   nominal=_nominal(args.nominal), prior=prior), None
