@@ -1,7 +1,9 @@
 """Simulator benchmark (issue 3, item 7): prints its figures.
 
 One 10-minute run at 500 Hz (the paper-like default system, 40 deg/s): time to generate the
-raw data, time to align it, peak memory; then runs per second of a 1,000-run campaign with
+raw data, time to align it, peak memory; generate + align of a 10-minute and a 1-minute run
+against the time of drawing their Gaussian noise in float64 (``rng.standard_normal``), side by
+side (issue 19: <= 1.5x and <= 2x); then runs per second of a 1,000-run campaign with
 ``--jobs`` local processes.
 
     python benchmarks/simulator.py            # full: 1,000-run campaign with --jobs 2
@@ -68,6 +70,41 @@ def one_run(repeats):
           f"({rss_before:.0f} MB before the first run)   (target <= 150 MB)")
 
 
+def noise_count(truth, n):
+    """Gaussian draws of one run of ``n`` samples: 3 per sample for the gyros' angle random
+    walk, 3 for the accelerometers' white noise, 1 for the table's jitter (when present)."""
+    return n * (3 * bool(truth.gyro.arw) + 3 * bool(truth.accel.vrw) + bool(truth.table.jitter))
+
+
+def floor_ratio(repeats):
+    """generate + align against the float64 noise-draw floor, side by side in this process:
+    each repeat times one run and then ``rng.standard_normal`` of the run's noise count
+    (float64, numpy's ziggurat) in CPU time of this process, and the ratio is taken pair by
+    pair (a drifting or shared machine moves both)."""
+    truth = TruthConfig.default()
+    cfg = AlignConfig.from_truth(truth)
+    rng = np.random.default_rng(0)
+    print("generate + align / float64 noise-draw floor (median of per-repeat ratios [min]):")
+    for duration, target, reps in ((600.0, 1.5, repeats), (60.0, 2.0, 10 * repeats)):
+        run = RunSpec(rate=40 * DEG_PER_S, azimuth=0.3, duration=duration, t_start=7200.0)
+        k = noise_count(truth, int(round(duration / truth.timing.sample_period)))
+        align(generate(truth, run, rng), cfg)
+        rng.standard_normal(k)
+        ratios, sims, floors = [], [], []
+        for _ in range(reps):
+            t0 = time.process_time()
+            align(generate(truth, run, rng), cfg)
+            t1 = time.process_time()
+            rng.standard_normal(k)
+            t2 = time.process_time()
+            ratios.append((t1 - t0) / (t2 - t1))
+            sims.append(t1 - t0)
+            floors.append(t2 - t1)
+        print(f"  {duration / 60:4.0f}-minute run: {statistics.median(ratios):5.2f} [{min(ratios):.2f}]"
+              f"   (target <= {target}; CPU: generate + align {1e3 * statistics.median(sims):.2f} ms, "
+              f"floor {1e3 * statistics.median(floors):.2f} ms for {k} draws)")
+
+
 def campaign(runs, jobs):
     truth = TruthConfig.default()
     plan = [{"run": i, "rate_dps": 40.0 * (1 if i % 2 else -1), "azimuth_deg": 90.0 * (i % 4),
@@ -87,6 +124,7 @@ def main(argv=None):
     p.add_argument("--jobs", type=int, default=2)
     a = p.parse_args(argv)
     one_run(a.repeats)
+    floor_ratio(a.repeats)
     if a.runs:
         campaign(a.runs, a.jobs)
 

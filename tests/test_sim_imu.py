@@ -194,6 +194,23 @@ def test_fast_cos_sin_matches_numpy():
     assert np.abs(c - np.cos(ph)).max() < 1e-13 and np.abs(s - np.sin(ph)).max() < 1e-13
 
 
+def test_doubled_tables_match_extended_precision():
+    """The phase and exponential tables built by doubling against numpy's long double
+    cos/sin/exp of the same arguments, at sizes that are and are not powers of two."""
+    from hse_opt.sim._fastmath import PhaseTable, exp_linear
+    if np.finfo(np.longdouble).eps >= np.finfo(float).eps:
+        pytest.skip("numpy's long double is double on this platform: no extended reference")
+    for n in (1, 63, 64, 65, 1000, 16385):
+        k = np.arange(n, dtype=np.longdouble)
+        for dphi in (0.0014, -0.3, 2.5):
+            t = PhaseTable(dphi, n)
+            assert np.abs(t.c - np.cos(k * dphi)).max() < 4e-15
+            assert np.abs(t.s - np.sin(k * dphi)).max() < 4e-15
+        for rate in (-1e-5, -2e-3, 1e-4):
+            e = exp_linear(rate, n)
+            assert np.abs(e / np.exp(k * rate) - 1).max() < 4e-15
+
+
 def test_fast_normal_is_standard_normal():
     """The Box-Muller noise source against the normal distribution (KS test, moments) and
     its independence from sample to sample."""

@@ -22,14 +22,33 @@ import numpy as np
 MAX_DEVIATION = 1e-3
 
 
+#: entries of a table computed directly; the rest follow by doubling
+_SEED = 64
+
+
 class PhaseTable:
-    """cos and sin of ``phi0 + k * dphi`` for ``k = 0 .. m-1``, ``m <= n`` (rad)."""
+    """cos and sin of ``phi0 + k * dphi`` for ``k = 0 .. m-1``, ``m <= n`` (rad).
+
+    Built by doubling: the first :data:`_SEED` entries with ``np.cos``/``np.sin``, then each
+    block ``k + j`` from the block ``k`` by the angle-addition formula with ``cos(j dphi)``,
+    ``sin(j dphi)`` (about a tenth of the cost of ``np.cos``/``np.sin`` on the whole table,
+    and a few 1e-16 from the exact values at every size)."""
 
     def __init__(self, dphi, n):
-        k = dphi * np.arange(n, dtype=float)
-        self.dphi = float(dphi)
-        self.c = np.cos(k)
-        self.s = np.sin(k)
+        self.dphi = dphi = float(dphi)
+        c, s = self.c, self.s = np.empty(n), np.empty(n)
+        j = min(n, _SEED)
+        k = dphi * np.arange(j, dtype=float)
+        np.cos(k, out=c[:j])
+        np.sin(k, out=s[:j])
+        while j < n:
+            m = min(j, n - j)
+            cj, sj = math.cos(j * dphi), math.sin(j * dphi)
+            np.multiply(c[:m], cj, out=c[j:j + m])
+            c[j:j + m] -= s[:m] * sj
+            np.multiply(s[:m], cj, out=s[j:j + m])
+            s[j:j + m] += c[:m] * sj
+            j += m
 
     def cos_sin(self, phi0, m):
         """Arrays (m,) of ``cos`` and ``sin`` of ``phi0 + k dphi``."""
@@ -46,6 +65,19 @@ class PhaseTable:
         s = self.s[:m] * math.cos(phi0)
         s += self.c[:m] * math.sin(phi0)
         return s
+
+
+def exp_linear(rate, n):
+    """``exp(rate * k)`` for ``k = 0 .. n-1``, by doubling (as :class:`PhaseTable`): the
+    relative error stays within a few 1e-16 for ``|rate| n`` up to tens."""
+    out = np.empty(n)
+    j = min(n, _SEED)
+    np.exp(rate * np.arange(j, dtype=float), out=out[:j])
+    while j < n:
+        m = min(j, n - j)
+        np.multiply(out[:m], math.exp(rate * j), out=out[j:j + m])
+        j += m
+    return out
 
 
 def rotate_small(c, s, d, out=None):

@@ -38,7 +38,7 @@ import math
 import numpy as np
 
 from hse_opt.sim.rotations import dcm_to_zyx, earth_rate_n, rot_x, rot_y, rot_z, rotvec_to_dcm
-from hse_opt.sim._fastmath import MAX_DEVIATION, PhaseTable, normal_f32, rotate_small
+from hse_opt.sim._fastmath import MAX_DEVIATION, PhaseTable, exp_linear, normal_f32, rotate_small
 from hse_opt.sim.rawlog import RawLog
 from hse_opt.sim.truth import gyro_matrices, temperature, validate_run
 
@@ -235,7 +235,7 @@ def generate(truth, run, rng=None):
     if need_temp:
         taus["temp"] = thermal.tau
     ktab = dt * np.arange(min(n, CHUNK) + 1, dtype=float)
-    tables = {name: np.exp(-ktab / tau) for name, tau in taus.items()}
+    tables = {name: exp_linear(-dt / tau, ktab.size) for name, tau in taus.items()}
     tb = truth.table
     W = run.rate * (1.0 + tb.rate_error)             # true mean table rate
     nu = _ripple_nu(tb, run.rate) if tb.ripple else 0.0

@@ -76,12 +76,11 @@ def earth_rate_n(latitude):
 
 
 def c_b_s(r_zb_s):
-    """C_b^s from the unit rotation axis in s: columns ``r_xb^s, r_yb^s, r_zb^s`` with
-    ``r_yb^s`` along ``r_zb^s x (1, 0, 0)`` (gyro x) and ``r_xb^s = r_yb^s x r_zb^s``."""
-    z = np.asarray(r_zb_s, dtype=float)
-    y = np.cross(z, [1.0, 0.0, 0.0])
-    y = y / np.linalg.norm(y, axis=-1, keepdims=True)
-    return np.stack([np.cross(y, z), y, z], axis=-1)
+    """C_b^s from the unit rotation axis in s (3,): columns ``r_xb^s, r_yb^s, r_zb^s`` with
+    ``r_yb^s`` along ``r_zb^s x (1, 0, 0)`` (normal to gyro x) and ``r_xb^s = r_yb^s x r_zb^s``."""
+    x, y, z = (float(v) for v in r_zb_s)
+    k = math.hypot(y, z)                     # |r_zb^s x (1, 0, 0)|
+    return np.array([[k, 0.0, x], [-x * y / k, z / k, y], [-x * z / k, -y / k, z]])
 
 
 def wrap_angle(a):
