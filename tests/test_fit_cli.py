@@ -105,3 +105,16 @@ def test_input_checks_are_options(tmp_path, capsys, command):
     assert "--allow-small-azimuths" in capsys.readouterr().err
     assert main(base + ["--min-rate-dps", "3", "--allow-small-azimuths"]) == 0
     assert json.loads(capsys.readouterr().out)["n_runs"] == 12
+
+
+def test_report_p_value_matches_scipy():
+    """The fit report's chi2 p-value (numpy/math, kept free of scipy for start-up time)
+    against scipy.stats over even and odd dof, both tails."""
+    from scipy.stats import chi2
+
+    from hse_opt.commands.fit import chi2_sf
+    for dof in (1, 2, 3, 10, 11, 96, 97, 9996, 9997):
+        for x in np.concatenate([[0.0, 1e-8], dof * np.array([0.05, 0.5, 0.9, 1.0, 1.1, 1.5, 3.0])]):
+            assert chi2_sf(x, dof) == pytest.approx(chi2.sf(x, dof), rel=1e-8, abs=1e-300)
+    with pytest.raises(ValueError, match="dof 2.5"):
+        chi2_sf(1.0, 2.5)

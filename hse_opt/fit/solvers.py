@@ -4,7 +4,6 @@ from functools import lru_cache
 
 import casadi as ca
 import numpy as np
-from scipy.linalg import solve_triangular
 
 from ..information import null_space
 from .result import SolverError
@@ -43,9 +42,13 @@ def gauss_newton(prob, w, z, C, d, max_iter=50, mask=None, tol=1e-6, box=False):
         R_aug = np.linalg.qr(np.column_stack([M, rhs]), mode="r")  # Q' rhs in the last column
         R = R_aug[:m, :m]
         with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
-            step = Z @ solve_triangular(R, R_aug[:m, m], check_finite=False)
+            try:  # R is triangular: LU does back substitution (numpy's: no scipy import at start)
+                X = np.linalg.solve(R, np.column_stack([R_aug[:m, m], np.eye(m)]))
+            except np.linalg.LinAlgError:
+                return z, False
+            step = Z @ X[:, 0]
             # converged when the step is a negligible fraction of each parameter's sigma
-            std = np.linalg.norm(Z @ solve_triangular(R, np.eye(m), check_finite=False), axis=1)
+            std = np.linalg.norm(Z @ X[:, 1:], axis=1)
         if not np.all(np.isfinite(step)) or (box and not prob.inside(z + step)):
             return z, False
         if np.all(np.abs(step) <= tol * std + 1e-14 * np.abs(z)):
