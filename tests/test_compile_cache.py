@@ -198,6 +198,36 @@ def test_batch_evaluator_compiled_path_matches_the_virtual_machine(cache, rng):
         vm = mm.jacobian(p, X, jit=False)
         np.testing.assert_allclose(mm.jacobian(p, X, jit=True), vm, rtol=1e-13, atol=1e-20)
         P, XS = ca.MX.sym("p", p.size), ca.MX.sym("X", *X.shape)
-        graph = ca.Function("g", [P, XS], [mm.predict_graph(P, XS, jit=True)])
-        np.testing.assert_allclose(np.array(graph(p, X)).ravel(), mm.predict(p, X, jit=False),
-                                   rtol=1e-13, atol=1e-20)
+        h = mm.predict_graph(P, XS, jit=True)
+        graph = ca.Function("g", [P, XS], [h, ca.gradient(ca.sumsqr(h), P)])  # solvers differentiate it
+        value, grad = graph(p, X)
+        np.testing.assert_allclose(np.array(value).ravel(), mm.predict(p, X, jit=False), rtol=1e-13, atol=1e-20)
+        np.testing.assert_allclose(np.array(grad).ravel(), 2 * vm.T @ mm.predict(p, X, jit=False),
+                                   rtol=1e-10, atol=1e-30)
+
+
+def test_bounded_fit_of_many_runs_goes_through_ipopt(cache, rng):
+    """A binding bound on 1,500 runs (the size rule compiles the numeric batches) sends the fit
+    through IPOPT, whose problem CasADi differentiates; the bound holds and the other
+    parameters are the bounded least-squares optimum (equality-constrained refit)."""
+    import hse_opt
+    from hse_opt.data import Runs
+    from hse_opt.units import ARCSEC, DEG
+
+    n = 1500
+    rate = rng.choice([-60.0, -20.0, 20.0, 60.0], n)
+    azimuth = rng.choice(np.arange(0.0, 360.0, 45.0), n)
+    pitch, roll = rng.uniform(-400, 400, (2, n))  # arcsec
+    mm = Model(["hse"]).measurement()
+    X = mm.inputs(rate * DEG, azimuth * DEG, 0.49, 600.0, pitch=pitch * ARCSEC, roll=roll * ARCSEC)
+    err = mm.predict(mm.vector(offset=-3.0, lambda2=4.0), X) / ARCSEC + rng.normal(0, 2.0, n)
+    runs = Runs.from_columns({"run": np.arange(1, n + 1), "rate_dps": rate, "azimuth_deg": azimuth,
+                              "duration_s": np.full(n, 600.0), "latitude_deg": np.full(n, np.degrees(0.49)),
+                              "pitch_arcsec": pitch, "roll_arcsec": roll,
+                              "heading_err_arcsec": err, "heading_std_arcsec": np.full(n, 2.0)})
+    bounded = hse_opt.fit(runs, Model(["hse"]), bounds={"offset": (-2.0, None)})
+    fixed = hse_opt.fit(runs, Model(["hse"]), fix={"offset": -2.0})
+    values = {k: v["value"] for k, v in bounded.to_dict()["parameters"].items()}
+    assert bounded.method == "ipopt" and "offset" in bounded.binding
+    assert values["offset"] == pytest.approx(-2.0, abs=1e-9)
+    assert values["lambda2"] == pytest.approx(fixed.to_dict()["parameters"]["lambda2"]["value"], rel=1e-6)

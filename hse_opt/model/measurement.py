@@ -353,11 +353,12 @@ class BatchEvaluator:
 
     def symbolic(self, p, X, jit=None):
         """The same evaluation inside a CasADi graph: ``p`` (n_p x 1) and ``X`` (n_x x n) MX
-        -> MX (n_out x n), through the chunked mapped Functions (shared with numeric calls)."""
+        -> MX (n_out x n), through the chunked mapped Functions (shared with numeric calls).
+        The graph keeps CasADi's virtual machine whatever ``jit`` says: solvers differentiate
+        it, and a compiled library has no derivatives."""
         n = X.shape[1]
-        jit = n >= self.jit_above if jit is None else bool(jit)
-        chunk = self._chunk(n, jit)
-        f = self.function(chunk, jit)
+        chunk = self._chunk(n)
+        f = self.function(chunk)
         cols = []
         for i in range(0, n, chunk):
             m = min(chunk, n - i)
