@@ -66,7 +66,7 @@ def bench(n, target, repeats, rng, **kw):
     label = ", jit" if kw.get("jit") else ""
     ms = lambda x: f"{x * 1e3:.1f} ms"  # noqa: E731
     print(f"{n:6d} runs{label}: {k} free parameters, {f.method} ({f.status})\n"
-          f"        first fit (builds the Functions{', compiles' if kw.get('jit') or n >= 5000 else ''}): "
+          f"        first fit (builds the Functions{', compiles or loads C' if kw.get('jit') or n >= 1000 else ''}): "
           f"CPU {ms(cpu1)}, wall {ms(wall1)}\n"
           f"        warm ({repeats} new campaigns): CPU median {ms(np.median(cpu))}, best {ms(cpu.min())}; "
           f"wall median {ms(np.median(wall))}; target < {ms(target)}: "

@@ -64,9 +64,10 @@ def fit(runs, model=None, *, fix=None, tilt_known=None, bounds=None, constraints
     max_iter : int
         Iterations of the robust reweighting.
     jit : bool, optional
-        Compile the model's batch Functions with the C compiler (a one-off ~1 s per model and
-        batch size, then several times faster): default for 5000 runs and more; worth it for
-        repeated fits of the same model, such as on-line updates.
+        Evaluate the model's batches with compiled C (compiled once per machine and kept in
+        :mod:`hse_opt.compile_cache`; about half a second the first time, then ten times
+        faster than the virtual machine): default from 1,000 runs; worth it for repeated fits
+        of the same model, such as on-line updates.
     start : mapping name -> value (display unit), optional
         Where the iteration starts for free parameters (default: their nominal values); needed
         when a parameter's signature vanishes at the nominal values of the others.
