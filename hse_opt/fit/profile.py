@@ -5,7 +5,6 @@ import dataclasses
 import math
 
 import numpy as np
-from scipy import optimize
 
 from .least_squares import fit
 from ..information import UnidentifiableError
@@ -23,6 +22,7 @@ def fit_profiled(runs, model=None, *, fix=None, tilt_known=None, start=None):
     fitted and a note says so.
 
     Parameters and errors as :func:`hse_opt.fit.fit` (``fix``, ``tilt_known``, ``start``)."""
+    from scipy import optimize  # here: the plain fit command loads no scipy
     model = as_model(model)
     fix = dict(fix or {})
     tk = runs.pitch is not None if tilt_known is None else bool(tilt_known)
