@@ -43,12 +43,12 @@ def test_fit_loads_casadi_but_not_cvxpy_or_matplotlib():
     assert "casadi" in mods and not _roots(mods) & {"cvxpy", "matplotlib"}
 
 
-def test_fit_command_loads_neither_scipy_nor_cvxpy_nor_matplotlib():
+def test_fit_command_loads_neither_cvxpy_nor_matplotlib():
     table = ROOT / "hse_opt" / "datasets" / "paper_table1.csv"
     mods = _loaded("import contextlib, io, hse_opt.cli\n"
                    "with contextlib.redirect_stdout(io.StringIO()):\n"
                    f"    assert hse_opt.cli.main(['fit', {str(table)!r}, '--fix', 'lambda2*tilt_const=0']) == 0")
-    assert "casadi" in mods and not _roots(mods) & {"scipy", "cvxpy", "matplotlib"}
+    assert "casadi" in mods and not _roots(mods) & {"cvxpy", "matplotlib"}
 
 
 def test_api_names_stay_functions_after_their_modules_are_imported():
