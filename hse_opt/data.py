@@ -3,12 +3,18 @@
 Both files are CSV with one header row and units in the column names (README, "Data
 formats"). In memory a table is a frozen dataclass of read-only float64 arrays in SI units
 (rad, rad/s, s); the run id is int64. Every extra numeric column is kept as a covariate, in
-the file's own unit and under its own name (``temp_c``).
+the file's own unit and under its own name (``temp_c``). An extra column with a cell that is
+not a finite number (a date, an operator, a serial number, an empty cell) is text: kept as
+metadata (:attr:`Runs.metadata`, strings), passed through to every table written from it
+(``hse-opt compensate``, ``hse-opt simulate``) and never an error; :attr:`Runs.notes` names
+the first cell that made it text.
 
 ``RUNS.csv`` (:class:`Runs`): ``run, rate_dps, azimuth_deg, heading_err_arcsec,
 latitude_deg, duration_s`` and optionally ``t_start_s``, ``pitch_arcsec`` with
-``roll_arcsec``, ``heading_std_arcsec``, ``heading_deg`` and ``position`` (field campaigns,
-below: then ``azimuth_deg`` and ``heading_err_arcsec`` may be empty or absent).
+``roll_arcsec``, ``heading_std_arcsec``, ``azimuth_std_arcsec`` (the stand reference's own
+1-sigma; the fit adds it to each run's sigma in quadrature, :mod:`hse_opt.fit.weights`),
+``heading_deg`` and ``position`` (field campaigns, below: then ``azimuth_deg`` and
+``heading_err_arcsec`` may be empty or absent).
 
 Field campaigns (positions without a heading reference)
 -------------------------------------------------------
@@ -254,6 +260,17 @@ def _looks_like_radians(azimuth_deg):
                 and np.any(np.abs(u - np.round(u)) > 1e-9))
 
 
+def _first_not_number(values):
+    """Index of the first value that is not a finite number (an empty cell counts), or None."""
+    for i, v in enumerate(values):
+        try:
+            if not _decimal(v).is_finite():
+                return i
+        except ValueError:
+            return i
+    return None
+
+
 def _sequence(values, source, name):
     if isinstance(values, np.ndarray):
         if values.ndim != 1:
@@ -301,6 +318,19 @@ class _Table:
             self._check_covariate_name(name, src)
             covariates[name] = self._array(value, name, n, first)
         set_("covariates", covariates)
+        if not isinstance(self.metadata, Mapping):
+            raise TypeError("metadata must be a mapping name -> 1-D sequence of text")
+        metadata = {}
+        for name, value in self.metadata.items():
+            self._check_covariate_name(name, src)
+            if name in covariates:
+                raise DataError(src, "is both a covariate and a text column; allowed: one of them", column=name)
+            text = np.array(["" if v is None else str(v) for v in _sequence(value, src, name)], dtype=str)
+            if text.shape != (n,):
+                raise DataError(src, f"has shape {text.shape}; allowed: ({n},) like '{first}'", column=name)
+            text.setflags(write=False)
+            metadata[name] = text
+        set_("metadata", metadata)
         if getattr(self, "position", None) is not None:
             pos = np.array(self.position, dtype=object)
             if pos.shape != (n,):
@@ -429,11 +459,14 @@ class _Table:
         if n == 0:
             raise DataError(src, "no data rows; allowed: at least one row below the header", line=header_line)
         by_name = {c.name: c for c in cls._COLUMNS}
-        attrs, covariates = {}, {}
+        attrs, covariates, metadata = {}, {}, {}
         for name, seq in values.items():
             col = by_name.get(name)
             if col is None:
                 cls._check_covariate_name(name, src, header_line)
+                if _first_not_number(seq) is not None:  # text: metadata, passed through
+                    metadata[name] = ["" if v is None else str(v) for v in seq]
+                    continue
                 factor = 1.0
                 allowed = "a finite number (a column outside the contract is a numeric covariate)"
             else:
@@ -463,7 +496,7 @@ class _Table:
                                  "allow_small_azimuths=True (--allow-small-azimuths) for a fine azimuth "
                                  "sweep in degrees",
                             column="azimuth_deg")
-        table = cls(**attrs, covariates=covariates, source=src)  # the structure first
+        table = cls(**attrs, covariates=covariates, metadata=metadata, source=src)  # the structure first
         table._check_ranges(values)
         return table
 
@@ -502,8 +535,15 @@ class _Table:
 
     @property
     def notes(self):
-        """tuple of str: what the tools should tell the user about missing optional columns."""
-        return tuple(note for attr, note in self._NOTES.items() if getattr(self, attr) is None)
+        """tuple of str: what the tools should tell the user about missing optional columns and
+        columns kept as text."""
+        out = tuple(note for attr, note in self._NOTES.items() if getattr(self, attr) is None)
+        for name, text in self.metadata.items():
+            cells = text.tolist()
+            i = _first_not_number(cells)
+            out += (f"column '{name}' is text (row {i + 1}: {cells[i]!r} is not a number): kept as "
+                    "metadata and passed through to output tables, not a covariate",)
+        return out
 
     def subset(self, index):
         """The rows selected by a boolean mask of shape (n,) or by integer indices, as a new table."""
@@ -515,7 +555,8 @@ class _Table:
                              f"of shape ({len(self)},) or 1-D integer indices")
         take = {a: getattr(self, a)[idx] for a in (*(c.attr for c in self._COLUMNS), *self._ROW_FIELDS)
                 if getattr(self, a) is not None}
-        return dataclasses.replace(self, **take, covariates={k: v[idx] for k, v in self.covariates.items()})
+        return dataclasses.replace(self, **take, covariates={k: v[idx] for k, v in self.covariates.items()},
+                                   metadata={k: v[idx] for k, v in self.metadata.items()})
 
     def replace(self, **changes):
         """A new, validated table with some attributes (SI) or covariates (file unit) replaced.
@@ -546,6 +587,8 @@ class _Table:
             cols["position"] = self.position.tolist()
         for name, x in self.covariates.items():
             cols[name] = [_to_text(v, 1.0) for v in x]
+        for name, x in self.metadata.items():
+            cols[name] = x.tolist()
         return cols
 
     def to_columns(self):
@@ -556,7 +599,7 @@ class _Table:
         ``from_columns(t.to_columns())`` may differ from ``t`` in the last bit; files round-trip
         exactly.
         """
-        return {name: (np.array(col) if name in self._TEXT else np.array(
+        return {name: (np.array(col) if name in self._TEXT or name in self.metadata else np.array(
                        [v if v != "" else "nan" for v in col], np.int64 if name == "run" else np.float64))
                 for name, col in self._text_columns().items()}
 
@@ -602,8 +645,12 @@ class Runs(_Table):
         mean heading (the system's own) and ``heading_err`` the heading minus it, known
         up to the position's unknown constant (see "Field campaigns" in the module
         docstring). None: every row is surveyed.
+    azimuth_std : numpy.ndarray, shape (n,), or None
+        The stand reference's own 1-sigma (``azimuth_std_arcsec``), rad.
     covariates : dict[str, numpy.ndarray]
         Other numeric columns, shape (n,), in the file's unit, under the file's name.
+    metadata : dict[str, numpy.ndarray of str]
+        Text columns (date, operator, serial number), shape (n,), as written: passed through.
     source : str
         The file the table came from, or ``'<memory>'``.
 
@@ -624,19 +671,23 @@ class Runs(_Table):
     heading: np.ndarray | None = None
     position: np.ndarray | None = None
     surveyed: np.ndarray | None = None
+    azimuth_std: np.ndarray | None = None
     covariates: dict = field(default_factory=dict)
+    metadata: dict = field(default_factory=dict)
     source: str = "<memory>"
 
     _COLUMNS = (_RUN, _RATE, _AZIMUTH, _Col("heading_err_arcsec", "heading_err", ARCSEC, True),
                 _Col("latitude_deg", "latitude", DEG, True), _DURATION, _T_START._replace(required=False),
                 _Col("pitch_arcsec", "pitch", ARCSEC, False), _Col("roll_arcsec", "roll", ARCSEC, False),
                 _Col("heading_std_arcsec", "heading_std", ARCSEC, False),
-                _Col("heading_deg", "heading", DEG, False))
+                _Col("heading_deg", "heading", DEG, False),
+                _Col("azimuth_std_arcsec", "azimuth_std", ARCSEC, False))
     _ROW_FIELDS = ("position", "surveyed")
     _TEXT = ("position",)
     _PAIRS = (("pitch", "roll"),)
     _RULES = (("latitude", lambda x: np.abs(x) <= 90 * DEG, "|latitude_deg| <= 90"), _POSITIVE_DURATION,
-              _NONNEGATIVE_T_START, ("heading_std", lambda x: x > 0, "heading_std_arcsec > 0"))
+              _NONNEGATIVE_T_START, ("heading_std", lambda x: x > 0, "heading_std_arcsec > 0"),
+              ("azimuth_std", lambda x: x >= 0, "azimuth_std_arcsec >= 0"))
     _NOTES = {
         "t_start": "no t_start_s column: run order stands in for time since power-on",
         "pitch": "no pitch_arcsec/roll_arcsec columns: tilt-coupled terms are fitted as azimuth "
@@ -792,6 +843,8 @@ class Plan(_Table):
         of the system (a field campaign, :func:`hse_opt.sim.run_campaign`).
     covariates : dict[str, numpy.ndarray]
         Other numeric columns, shape (n,), in the file's unit, under the file's name.
+    metadata : dict[str, numpy.ndarray of str]
+        Text columns, shape (n,), as written: passed through to the simulated runs.
     source : str
         The file the plan came from, or ``'<memory>'``.
     """
@@ -805,6 +858,7 @@ class Plan(_Table):
     tilt_y: np.ndarray | None = None
     position: np.ndarray | None = None
     covariates: dict = field(default_factory=dict)
+    metadata: dict = field(default_factory=dict)
     source: str = "<memory>"
 
     _ROW_FIELDS = ("position",)

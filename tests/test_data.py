@@ -179,7 +179,6 @@ ROW_ERRORS = [  # (lines, row, column, words in the message)
     (edit(1, "duration_s", "-600"), 1, "duration_s", ["-600"]),
     (edit(2, "rate_dps", "2"), 2, "rate_dps", ["lock-in", "allowed: |rate_dps| >= 5 deg/s"]),
     (edit(1, "rate_dps", "0.6981"), 1, "rate_dps", ["lock-in", "rad/s"]),
-    (edit(2, "temp_c", "warm"), 2, "temp_c", ["'warm' is not a number", "numeric covariate"]),
 ]
 
 
@@ -266,8 +265,8 @@ def test_from_columns_errors_name_source_row_and_column():
         Runs.from_columns(cols, source="sim")
     with pytest.raises(DataError, match=r"column 'duration_s': has 1 values but 'run' has 2"):
         Runs.from_columns({**cols, "duration_s": [600]})
-    with pytest.raises(DataError, match=r"'note': value 'x' is not a number"):
-        Runs.from_columns({**cols, "latitude_deg": [28, 28], "note": ["x", "y"]})
+    # a text column is metadata, not an error (tests/test_data_text.py)
+    assert Runs.from_columns({**cols, "latitude_deg": [28, 28], "note": ["x", "y"]}).metadata["note"].tolist() == ["x", "y"]
 
 
 def test_plan_requires_t_start(tmp_path):

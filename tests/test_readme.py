@@ -1,14 +1,19 @@
 """Every code block in the README runs.
 
-The blocks run top to bottom in one temporary working directory, as a reader would run them:
-python blocks in one namespace (the tutorial builds on itself), bash blocks line by line with
-this interpreter's ``python`` and ``hse-opt`` first on the PATH; a line may end with
-``# exit N`` to state the exit status it shows. The quick-start block is what ``.ci/run``
-runs on a fresh clone; a block preceded by ``<!-- not run: REASON -->`` is skipped here
-(the reason says which test covers it).
+The blocks run top to bottom in one temporary working directory, as a reader would run them.
+Each python block runs on its own, as if pasted alone into a new interpreter: a fresh
+namespace (it imports and loads what it needs; files the blocks above wrote are there, as
+in the reader's directory). Bash blocks run line by line with this interpreter's
+``python`` and ``hse-opt`` first on the PATH. A bash line may end with ``# exit N`` to state the exit status it shows, or with
+``# needs a C compiler`` (skipped when there is none). A C block whose first line is a
+comment naming a file (``/* NAME.c: ...``) is written to that file in the shared directory,
+for the bash lines that follow to compile and run. The quick-start block is what
+``.ci/run`` runs on a fresh clone; a block preceded by ``<!-- not run: REASON -->`` is
+skipped here (the reason says which test covers it).
 """
 import os
 import re
+import shutil
 import subprocess
 import sys
 from pathlib import Path
@@ -16,7 +21,8 @@ from pathlib import Path
 import pytest
 
 README = Path(__file__).resolve().parents[1] / "README.md"
-_BLOCK = re.compile(r"(<!-- [^>]*-->\s*)?```(python|bash)\n(.*?)```", flags=re.S)
+_BLOCK = re.compile(r"(<!-- [^>]*-->\s*)?```(python|bash|c)\n(.*?)```", flags=re.S)
+COMPILER = shutil.which("cc")
 
 
 def _blocks():
@@ -34,19 +40,24 @@ def test_readme_blocks_run_top_to_bottom(tmp_path, monkeypatch):
     blocks = _blocks()
     assert sum(lang == "python" for lang, _ in blocks) >= 4
     assert any(lang == "bash" and "hse-opt" in code for lang, code in blocks)
-    monkeypatch.chdir(tmp_path)
+    shared = tmp_path
+    monkeypatch.chdir(shared)
     bindir = Path(sys.executable).parent
     env = {**os.environ, "PATH": f"{bindir}{os.pathsep}{os.environ.get('PATH', '')}"}
-    namespace = {}
-    for lang, code in blocks:
-        if lang == "python":
-            exec(compile(code, str(README), "exec"), namespace)
+    for k, (lang, code) in enumerate(blocks):
+        if lang == "python":  # on its own: a fresh namespace
+            exec(compile(code, f"{README} (block {k})", "exec"), {"__name__": "__main__"})
+            continue
+        if lang == "c":
+            name = re.match(r"/\*\s*(\w+\.c):", code)
+            assert name, f"a C block must start with /* NAME.c: ...\n{code[:200]}"
+            (shared / name.group(1)).write_text(code, encoding="utf-8")
             continue
         for line in (ln.strip() for ln in code.splitlines()):
-            if not line or line.startswith("#"):
+            if not line or line.startswith("#") or (COMPILER is None and line.endswith("# needs a C compiler")):
                 continue
             m = re.search(r"#\s*exit\s+(\d+)\s*$", line)
-            out = subprocess.run(["bash", "-c", line], cwd=tmp_path, env=env, capture_output=True,
+            out = subprocess.run(["bash", "-c", line], cwd=shared, env=env, capture_output=True,
                                  text=True, timeout=300)
             assert out.returncode == (int(m.group(1)) if m else 0), f"{line}\n{out.stderr[-2000:]}"
 

@@ -70,22 +70,37 @@ def run_sigma(runs, robust=False, mm=None):
     as :func:`replicate_groups` of the measurement model ``mm``); where sigma is estimated
     later from the residuals, the default noise model's (:func:`heading_sigma`)."""
     n = len(runs)
+    reference = getattr(runs, "azimuth_std", None)
     if runs.heading_std is not None:
-        return np.asarray(runs.heading_std, dtype=float), "heading_std", []
+        return _with_reference(np.asarray(runs.heading_std, dtype=float), reference, "heading_std")
     # to be estimated from the residuals: start from the default noise model
     guess = np.full(n, float(np.sqrt(np.mean(heading_sigma(runs.duration, runs.latitude) ** 2))))
+    skipped = [] if reference is None else [
+        "azimuth_std_arcsec not added to the sigma: the scale estimated from the residuals already "
+        "holds the reference's scatter"]
     if robust:
-        return guess, "robust-scale", []
+        return guess, "robust-scale", skipped
     s_pe, dof_pe = pure_error(runs, mm)
     if s_pe is not None and s_pe <= IDENTICAL_ARCSEC * units.ARCSEC:
         return guess, "residual", [
             f"the replicates are identical (pure-error scatter {s_pe / units.ARCSEC:.2g} arcsec from {dof_pe} "
             "degrees of freedom): no pure-error sigma; check that the repeated runs were really measured again"]
     if s_pe is not None:
-        return np.full(n, s_pe), "pure-error", [
+        sigma, weighting, notes = _with_reference(np.full(n, s_pe), reference, "pure-error")
+        return sigma, weighting, [
             f"sigma {s_pe / units.ARCSEC:.3g} arcsec from {dof_pe} replicate degrees of freedom "
-            f"(pure error)"]
-    return guess, "residual", []
+            f"(pure error)"] + notes
+    return guess, "residual", skipped
+
+
+def _with_reference(sigma, reference, weighting):
+    """The runs' sigma with the stand reference's own 1-sigma (``azimuth_std_arcsec``) added in
+    quadrature: a heading error is the alignment's heading minus the reference, so both
+    errors are in it (independent, one draw per run)."""
+    if reference is None:
+        return sigma, weighting, []
+    return np.hypot(sigma, reference), weighting, [
+        "sigma of each run: its own and the stand reference's (azimuth_std_arcsec) in quadrature"]
 
 
 def huber_weights(u, c):

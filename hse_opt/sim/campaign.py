@@ -383,7 +383,7 @@ def run_campaign(plan, truth, seed, jobs=1, client=None, progress=None, *,
                 latitude=np.full(total, truth.site.latitude), duration=plan.duration,
                 t_start=plan.t_start, pitch=column("pitch"), roll=column("roll"),
                 heading_std=column("heading_std"), position=plan.position, covariates=covariates,
-                source="<simulated>")
+                metadata=plan.metadata, source="<simulated>")
 
 
 def _part(logs, chunk):
@@ -401,7 +401,8 @@ def _field_runs(plan, truth, column, covariates, positions, known):
             "latitude_deg": np.full(len(plan), truth.site.latitude / units.DEG),
             "duration_s": written["duration_s"], "t_start_s": written["t_start_s"],
             "pitch_arcsec": column("pitch") / units.ARCSEC, "roll_arcsec": column("roll") / units.ARCSEC,
-            "heading_std_arcsec": column("heading_std") / units.ARCSEC, "position": positions, **covariates}
+            "heading_std_arcsec": column("heading_std") / units.ARCSEC, "position": positions, **covariates,
+            **{k: v.tolist() for k, v in plan.metadata.items()}}
     cols = {k: (v.tolist() if isinstance(v, np.ndarray) else v) for k, v in cols.items()}
     return Runs.from_columns(cols, source="<simulated field campaign>", min_rate_dps=0.0,
                              allow_small_azimuths=True)
