@@ -56,6 +56,29 @@ def test_readable_report_and_bounds(capsys):
     assert "bounds that bind: lambda2*tilt_cos" in out and "chi2" in out and "AIC" in out
 
 
+
+def test_fit_summary_is_the_commands_report(capsys):
+    """The command prints its title and ``FitResult.summary()``; every parameter line shows the
+    value and 1-sigma the JSON output carries (a separate serialisation of the same fit)."""
+    from hse_opt.fit import fit
+
+    argv = ["fit", TABLE1, "--fix", FIX, "--robust"]
+    assert main(argv) == 0
+    out = capsys.readouterr().out.splitlines()
+    assert main(argv + ["--json"]) == 0
+    d = json.loads(capsys.readouterr().out)
+    result = fit(load_runs(TABLE1), fix={"lambda2*tilt_const": 0.0}, robust=True)
+    lines = result.summary()
+    assert out == [f"hse-opt fit: {TABLE1}: {lines[0]}", *lines[1:]]
+    rows = {line.split()[0]: line.split()[1:] for line in lines[4:8]}
+    assert set(rows) == set(d["parameters"])
+    for name, p in d["parameters"].items():
+        assert float(rows[name][0]) == pytest.approx(p["value"], rel=1e-4, abs=1e-9)
+        if p["free"]:
+            assert float(rows[name][1]) == pytest.approx(p["std"], rel=1e-3)
+    assert f"chi2 {d['chi2']:.4g} / dof {d['dof']}" in "\n".join(lines)
+    assert "Huber loss" in "\n".join(lines)
+
 @pytest.mark.parametrize("args, text", [
     (["--bound", "lambda2=1"], "allowed form NAME=LO:HI"),
     (["--fix", "lambda2*tilt_const=abc"], "is not a number"),
@@ -112,7 +135,7 @@ def test_report_p_value_matches_scipy():
     against scipy.stats over even and odd dof, both tails."""
     from scipy.stats import chi2
 
-    from hse_opt.commands.fit import chi2_sf
+    from hse_opt.fit.result import chi2_sf
     for dof in (1, 2, 3, 10, 11, 96, 97, 9996, 9997):
         for x in np.concatenate([[0.0, 1e-8], dof * np.array([0.05, 0.5, 0.9, 1.0, 1.1, 1.5, 3.0])]):
             assert chi2_sf(x, dof) == pytest.approx(chi2.sf(x, dof), rel=1e-8, abs=1e-300)

@@ -1,5 +1,4 @@
 """``hse-opt fit``: calibrate a model on alignment results (RUNS.csv)."""
-import math
 
 import numpy as np
 
@@ -85,66 +84,6 @@ def parse_fix(items):
     return {name: _number(v, "--fix", name) for name, v in _assignments(items, "--fix").items()}
 
 
-def chi2_sf(x, dof):
-    """P(chi2 with ``dof`` degrees of freedom > ``x``) for a whole ``dof`` >= 1: the closed
-    form of the regularised upper incomplete gamma function at half-integer order (a finite
-    Poisson sum, plus ``erfc`` for odd ``dof``), its terms in logs. numpy and math only: scipy
-    costs a third of a second of every ``hse-opt fit`` to import."""
-    x, half = max(float(x), 0.0) / 2.0, int(dof) // 2
-    if int(dof) != dof or dof < 1:
-        raise ValueError(f"dof {dof}: allowed a whole number >= 1")
-    if x == 0.0:
-        return 1.0
-    if dof % 2 == 0:  # sum_{k < dof/2} e^-x x^k / k!
-        k = np.arange(half, dtype=float)
-        log_terms = k * math.log(x) - x - np.concatenate([[0.0], np.cumsum(np.log(k[1:]))])
-        return float(min(1.0, np.exp(log_terms).sum()))
-    # odd: erfc(sqrt x) + sum_{k < (dof - 1)/2} e^-x x^(k + 1/2) / Gamma(k + 3/2)
-    k = np.arange(half, dtype=float)
-    log_gamma = math.lgamma(1.5) + np.concatenate([[0.0], np.cumsum(np.log(k[1:] + 0.5))])
-    log_terms = (k + 0.5) * math.log(x) - x - log_gamma
-    return float(min(1.0, math.erfc(math.sqrt(x)) + np.exp(log_terms).sum()))
-
-
-def format_report(result, source):
-    """The readable report of a :class:`~hse_opt.fit.FitResult`, as lines."""
-    d = result.to_dict()
-    lines = [f"hse-opt fit: {source}: {result.n_runs} runs, effects {', '.join(d['effects'])}",
-             f"  weighting: {result.weighting}; solver: {result.method} ({result.status})", ""]
-    width = max(len(n) for n in result.names) + 2
-    lines.append(f"  {'parameter':<{width}}{'value':>12}  {'1-sigma':>10}  unit")
-    for name, p in d["parameters"].items():
-        if not p["free"]:
-            state = "(fixed)"
-        elif name in result.binding:
-            state = "(at its bound)"
-        else:
-            state = ""
-        sigma = f"{p['std']:>10.4g}" if p["std"] > 0 else f"{'':>10}"
-        lines.append(f"  {name:<{width}}{p['value']:>12.5g}  {sigma}  {p['unit']} {state}".rstrip())
-    lines.append("")
-    fit_line = f"  chi2 {result.chi2:.4g} / dof {result.dof} = {result.chi2_red:.4g}"
-    if result.weighting in ("heading_std", "pure-error"):
-        fit_line += f" (p = {chi2_sf(result.chi2, result.dof):.3g})"
-    else:
-        fit_line += " (sigma from the residuals: no goodness-of-fit test)"
-    lines += [fit_line, f"  AIC {result.aic:.4g}, BIC {result.bic:.4g}, residual RMS "
-                        f"{result.rms_arcsec:.4g} arcsec, condition number {result.condition:.3g}"]
-    lines.append(f"  bounds that bind: {', '.join(result.binding) or 'none'}")
-    if result.constraints:
-        lines.append(f"  constraints: {'; '.join(str(c) for c in result.constraints)}"
-                     f" (active: {'; '.join(result.active) or 'none'})")
-    if result.downweighted:
-        lines.append(f"  down-weighted runs (Huber): {', '.join(str(r) for r in result.downweighted)}")
-    high = result.high_correlations()
-    lines.append("  correlations above 0.9: " + (", ".join(f"{a}/{b} {r:+.3f}" for a, b, r in high)
-                                                  or "none"))
-    if result.notes:
-        lines.append("  notes:")
-        lines += [f"    - {n}" for n in result.notes]
-    return lines
-
-
 def run(args):
     from ..data import load_runs
     from ..fit import fit
@@ -178,7 +117,8 @@ def run(args):
                     "outliers": [{"run": r, "studentized": t} for r, t in outliers(result, runs)],
                     "checks": check_lines(result, runs)})
     else:
-        lines = format_report(result, args.runs)
+        lines = result.summary()
+        lines = [f"hse-opt fit: {args.runs}: {lines[0]}", *lines[1:]]
         checks = check_lines(result, runs)
         if checks:
             lines += ["  look at:"] + [f"    - {c}" for c in checks]
