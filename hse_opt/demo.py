@@ -49,6 +49,7 @@ from .fit import fit as fit_runs
 from .information import heading_sigma
 from .model.effects import CATALOGUE
 from .model.composition import Model
+from .model.inputs import Tilt
 
 __all__ = ["DemoResult", "HiddenEffect", "NextPlan", "run_demo", "demo_truth", "demo_plan",
            "hidden_effect", "showable", "design_next", "report_sections", "write_outputs",
@@ -150,8 +151,8 @@ class HiddenEffect:
 def _plan_inputs(mm, plan, truth):
     """The measurement model's run inputs for the plan on ``truth``'s stand (SI)."""
     from .sim.truth import temperature
-    pitch = truth.stand.mount_tilt[1] + plan.tilt_y
-    roll = truth.stand.mount_tilt[0] + plan.tilt_x
+    mount = Tilt(*truth.stand.mount_tilt)  # the simulator's [x, y] = (roll, pitch)
+    pitch, roll = mount.pitch + plan.tilt_y, mount.roll + plan.tilt_x
     temp = temperature(truth.thermal, plan.t_start + plan.duration / 2)
     return mm.inputs(plan.rate, plan.azimuth, truth.site.latitude, plan.duration, plan.t_start,
                      pitch, roll, {"temp_c": temp} if mm.covariates else None)

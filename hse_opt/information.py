@@ -14,6 +14,7 @@ import numpy as np
 
 from . import units
 from .frames import EARTH_RATE
+from .model.inputs import RunInputs, Tilt
 
 #: Angle random walk of the default simulated system (``arw_dph_rthz = 0.0120``), rad/sqrt(s).
 DEFAULT_ARW = 0.0120 * units.DEG_PER_H
@@ -342,7 +343,8 @@ def covariance_factor(covariance, names=None, tol=1e-9, k=None):
 def describe_runs(X, tilt_known=False):
     """Sentences on what every run in ``X`` (measurement-model inputs) shares: the factors the
     runs do not vary, which is usually why parameters cannot be separated."""
-    rate, az = X[0], X[1]
+    v = RunInputs(X)
+    rate, az = v.rate, v.azimuth
     out = []
     if np.ptp(np.abs(rate)) < 1e-9:
         out.append(f"every run is at |rate| {abs(rate[0]) / units.DEG_PER_S:.4g} deg/s")
@@ -353,17 +355,17 @@ def describe_runs(X, tilt_known=False):
     elif np.unique(np.round(np.rad2deg(az) % 360, 3)).size < 3:
         out.append("the runs use fewer than 3 azimuths")
     if tilt_known:
-        c23 = -X[3] * np.cos(az) + X[2] * np.sin(az)
-        if np.all(np.abs(X[2:4]) < units.ARCSEC):
+        c23 = v.c23
+        if np.all(np.abs(v.tilt) < units.ARCSEC):
             out.append("every run is level (|pitch|, |roll| < 1 arcsec), so tilt-coupled terms do "
                        "not reach the heading")
         elif np.ptp(c23) < 1e-9:
             out.append(f"the rotation axis has the same east tilt C23 = {c23[0] / units.ARCSEC:.4g} "
                        "arcsec in every run")
-    if np.ptp(X[5]) < 1e-9:
-        out.append(f"every run starts {X[5][0]:.4g} s after power-on")
-    if np.ptp(X[6]) < 1e-9:
-        out.append(f"every run lasts {X[6][0]:.4g} s")
+    if np.ptp(v.t_start) < 1e-9:
+        out.append(f"every run starts {v.t_start[0]:.4g} s after power-on")
+    if np.ptp(v.duration) < 1e-9:
+        out.append(f"every run lasts {v.duration[0]:.4g} s")
     return out
 
 
@@ -377,18 +379,21 @@ def separating_runs(jacobian, X, direction, scale, k=3, tilt_known=False):
     first: ``rate_dps``, ``azimuth_deg``, ``t_start_s``, ``pitch_arcsec``, ``roll_arcsec``,
     ``signal`` (normalised signal on ``direction``) and ``text`` (the factors that vary).
     """
-    r = np.abs(X[0])
+    v = RunInputs(X)
+    r = np.abs(v.rate)
     rates = np.unique(np.concatenate([[r.min(), r.max()], [-r.min(), -r.max()]]))
     az = np.deg2rad(np.arange(0, 360, 45.0))
-    starts = np.unique([0.0, X[5].min(), X[5].max()])
-    tilts = [(X[2, 0], X[3, 0])]
-    if tilt_known and np.all(np.abs(X[2:4]) < units.ARCSEC):
-        tilts += [(s * units.MRAD, 0.0) for s in (1, -1)] + [(0.0, s * units.MRAD) for s in (1, -1)]
+    starts = np.unique([0.0, v.t_start.min(), v.t_start.max()])
+    tilts = [Tilt(roll=v.roll[0], pitch=v.pitch[0])]
+    if tilt_known and np.all(np.abs(v.tilt) < units.ARCSEC):
+        tilts += ([Tilt(roll=0.0, pitch=s * units.MRAD) for s in (1, -1)]
+                  + [Tilt(roll=s * units.MRAD, pitch=0.0) for s in (1, -1)])
     grid = np.array(np.meshgrid(rates, az, starts, np.arange(len(tilts)), indexing="ij")).reshape(4, -1)
     n = grid.shape[1]
     Xc = np.repeat(X[:, :1], n, axis=1).copy()
-    Xc[0], Xc[1], Xc[5] = grid[0], grid[1], grid[2]
-    Xc[2:4] = np.array(tilts).T[:, grid[3].astype(int)]
+    cand = RunInputs(Xc)
+    cand.rate, cand.azimuth, cand.t_start = grid[0], grid[1], grid[2]
+    cand.tilt = Tilt(*np.array(tilts).T[:, grid[3].astype(int)])
     Jc = jacobian(Xc) * np.asarray(scale)[None, :]
     signal = np.abs(Jc @ direction) / np.maximum(np.linalg.norm(Jc, axis=1), 1e-300)
     # a factor the signal does not depend on is left out of the advice
@@ -398,9 +403,10 @@ def separating_runs(jacobian, X, direction, scale, k=3, tilt_known=False):
     order = np.argsort(-np.round(signal, 12), kind="stable")
     out, seen = [], set()
     for i in order:
-        c = {"rate_dps": float(Xc[0, i] / units.DEG_PER_S), "azimuth_deg": float(np.rad2deg(Xc[1, i])),
-             "t_start_s": float(Xc[5, i]), "pitch_arcsec": float(Xc[2, i] / units.ARCSEC),
-             "roll_arcsec": float(Xc[3, i] / units.ARCSEC), "signal": float(signal[i])}
+        c = {"rate_dps": float(cand.rate[i] / units.DEG_PER_S),
+             "azimuth_deg": float(np.rad2deg(cand.azimuth[i])), "t_start_s": float(cand.t_start[i]),
+             "pitch_arcsec": float(cand.pitch[i] / units.ARCSEC),
+             "roll_arcsec": float(cand.roll[i] / units.ARCSEC), "signal": float(signal[i])}
         text = f"{c['rate_dps']:+.4g} deg/s " + (f"at azimuth {c['azimuth_deg']:.4g} deg" if by_az
                                                   else "at any azimuth")
         if by_start:

@@ -130,3 +130,35 @@ def test_inputs_broadcast_scalars_and_name_mismatched_lengths():
     assert np.array_equal(X, explicit)
     with pytest.raises(ValueError, match=r"rate \(2,\), azimuth \(3,\)"):
         mm.inputs(np.ones(2), az, 0.49, 600.0, 0.0, 0.0, 0.0)
+
+
+def test_run_inputs_view_names_the_rows_and_c23_is_the_exact_axis_east_component(rng):
+    """The named view reads back what :meth:`MeasurementModel.inputs` was given; ``c23`` is the first-order C23 of scipy's exact Z-Y-X
+    direction cosine matrix (residual second order in the tilt)."""
+    from scipy.spatial.transform import Rotation
+
+    from hse_opt.model.inputs import RunInputs, Tilt, c23
+
+    m = Model(["hse", "covariate:temp_c"]).measurement(tilt_known=True)
+    n = 50
+    given = dict(rate=rng.uniform(0.1, 1.0, n), azimuth=rng.uniform(0, 2 * np.pi, n),
+                 latitude=rng.uniform(-1, 1, n), duration=rng.uniform(300, 900, n),
+                 t_start=rng.uniform(0, 7200, n), pitch=rng.uniform(-2e-3, 2e-3, n),
+                 roll=rng.uniform(-2e-3, 2e-3, n))
+    temp = rng.normal(25, 3, n)
+    v = RunInputs(m.inputs(**given, covariates={"temp_c": temp}), m.covariates)
+    for name, value in given.items():
+        np.testing.assert_array_equal(getattr(v, name), value)
+    np.testing.assert_array_equal(v.covariates["temp_c"], temp)
+    np.testing.assert_array_equal(v.tilt.roll, given["roll"])
+    np.testing.assert_array_equal(v.tilt.pitch, given["pitch"])
+    exact = Rotation.from_euler("ZYX", np.column_stack([v.azimuth, v.pitch, v.roll])).as_matrix()[:, 1, 2]
+    np.testing.assert_allclose(v.c23, exact, rtol=0, atol=4e-6 * 2e-3)  # ~tilt^2
+    assert np.abs(v.c23 - exact).max() < 1e-3 * np.abs(exact).max()
+    np.testing.assert_array_equal(c23(v.azimuth, v.tilt), v.c23)
+    v.tilt = Tilt(roll=np.zeros(n), pitch=np.full(n, 1e-3))  # writing through the view
+    np.testing.assert_allclose(v.X[3], 0.0)
+    np.testing.assert_allclose(v.c23, 1e-3 * np.sin(v.azimuth))
+    at = RunInputs(m.inputs(0.7, [0.0, np.pi / 2], 0.5, pitch=[0.0, 200 * ARCSEC], roll=[100 * ARCSEC, 0.0],
+                            covariates={"temp_c": 20.0}))
+    np.testing.assert_allclose(at.c23 / ARCSEC, [-100.0, 200.0], atol=1e-9)  # roll at psi 0, pitch at 90

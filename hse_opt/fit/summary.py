@@ -2,6 +2,7 @@
 import numpy as np
 
 from .. import units
+from ..model.inputs import RunInputs
 
 
 def report_data(fit_result, runs):
@@ -17,7 +18,7 @@ def report_data(fit_result, runs):
     if len(runs) != fit_result.n_runs or not np.array_equal(np.asarray(runs.run), fit_result.run):
         raise ValueError(f"{runs.source}: these runs are not the ones the fit used (run ids differ)")
     predicted = runs.heading_err - fit_result.residuals
-    X = mm.inputs_from_runs(runs)
+    t_start = RunInputs(mm.inputs_from_runs(runs)).t_start  # the model's (run order when absent)
     rows = []
     for i, q in enumerate(mm.params):
         state = ("fixed" if not fit_result.free[i] else "at bound" if q.name in fit_result.binding
@@ -27,7 +28,7 @@ def report_data(fit_result, runs):
     return {
         "fit": fit_result.to_dict(),
         "runs": {"run": fit_result.run.tolist(), "rate_dps": (runs.rate / units.DEG_PER_S).tolist(),
-                 "azimuth_deg": (runs.azimuth / units.DEG).tolist(), "t_start_s": X[5].tolist(),
+                 "azimuth_deg": (runs.azimuth / units.DEG).tolist(), "t_start_s": t_start.tolist(),
                  "heading_err_arcsec": (runs.heading_err / units.ARCSEC).tolist(),
                  "predicted_arcsec": (predicted / units.ARCSEC).tolist(),
                  "residual_arcsec": (fit_result.residuals / units.ARCSEC).tolist(),

@@ -8,7 +8,7 @@ import numpy as np
 
 from .. import units
 from ..information import heading_sigma
-from ..model.measurement import RUN_FIELDS
+from ..model.inputs import RUN_FIELDS, RunInputs
 
 #: Huber's threshold in sigmas (95 % efficiency for Gaussian data)
 HUBER_C = 1.345
@@ -33,7 +33,7 @@ def replicate_groups(runs, mm=None, tilt_tol=10 * units.ARCSEC):
     if mm is not None:
         X = mm.inputs_from_runs(runs)
         used = _inputs_used(mm)
-        extra = [RUN_FIELDS.index("t_start"), *range(len(RUN_FIELDS), mm.n_x)]  # time, covariates
+        extra = [RunInputs.INDEX["t_start"], *range(len(RUN_FIELDS), mm.n_x)]  # time, covariates
         cols += [X[i] for i in extra if used[i]]
     _, labels = np.unique(np.column_stack(cols), axis=0, return_inverse=True)
     labels = labels.ravel()

@@ -6,6 +6,7 @@ return. ``heading_error_*`` functions return the project's sign (estimated - tru
 import numpy as np
 
 from ..frames import EARTH_RATE
+from . import inputs
 
 
 def lambda1(rate, latitude):
@@ -14,8 +15,9 @@ def lambda1(rate, latitude):
 
 
 def c23(psi, theta, gamma):
-    """C23 = -gamma cos psi + theta sin psi: east component of the rotation axis (Eq. 3)."""
-    return -gamma * np.cos(psi) + theta * np.sin(psi)
+    """C23 = -gamma cos psi + theta sin psi: east component of the rotation axis (Eq. 3;
+    :func:`hse_opt.model.inputs.c23` with pitch theta and roll gamma)."""
+    return inputs.c23(psi, inputs.Tilt(roll=gamma, pitch=theta))
 
 
 def mean_d_omega_east(rate, latitude, lambda2, C23):

@@ -5,9 +5,10 @@ A :class:`~hse_opt.model.composition.Model` (a set of effects) gives, for a set 
 rad, estimated - true, from the full nonlinear gyrocompass) and ``J(p, x) = dh/dp``, built
 once and batch-evaluated over runs with ``Function.map``.
 
-Run inputs ``x`` (SI), one column per run: rate (rad/s, signed), azimuth (rad), pitch and
-roll of b0 (rad), latitude (rad), t_start (s since power-on), duration (s), then the
-covariates the model's effects use.
+Run inputs ``x`` (SI), one column per run, read through the named view
+:class:`~hse_opt.model.inputs.RunInputs`: rate (rad/s, signed), azimuth (rad), pitch and roll
+of b0 (rad), latitude (rad), t_start (s since power-on), duration (s), then the covariates the
+model's effects use.
 
 Runs without pitch/roll (tilt unknown): the tilt is not a run input. Every parameter whose
 heading signature couples through the tilt (lambda2, the axis bias, the scale-factor
@@ -27,10 +28,10 @@ import numpy as np
 from .. import units
 from ..compile_cache import compiled
 from .effects import Param
+from .inputs import RUN_FIELDS, RunInputs
 from .symbolic import (Operating, ErrorModel, averaged_rate_b0,
                        heading_error_gyrocompass)
 
-RUN_FIELDS = ("rate", "azimuth", "pitch", "roll", "latitude", "t_start", "duration")
 #: a 1-mrad tilt must move the heading by this much per display unit for a parameter to
 #: count as tilt-coupled
 _COUPLING_FLOOR = 1e-3 * units.ARCSEC
@@ -45,9 +46,9 @@ def _measurement(model, tilt_known):
 
 def _symbolic_heading(model, p, x, covariate_names):
     """Heading error (rad) of one run for parameters ``p`` (dict of SI SX) and inputs x."""
-    cov = {c: x[len(RUN_FIELDS) + i] for i, c in enumerate(covariate_names)}
-    op = Operating(Omega=x[0], psi=x[1], theta=x[2], gamma=x[3], L=x[4], t_start=x[5],
-                   duration=x[6], covariates=cov)
+    v = RunInputs(x, covariate_names)
+    op = Operating(Omega=v.rate, psi=v.azimuth, theta=v.pitch, gamma=v.roll, L=v.latitude,
+                   t_start=v.t_start, duration=v.duration, covariates=v.covariates)
     errors = ErrorModel()
     for e in model.effects:
         e.act(p, op, errors)
@@ -93,10 +94,10 @@ class MeasurementModel:
     def _free_tilt(self, model, base, p_sym, x):
         """Replace tilt-coupled parameters by free C23 coefficients (module docstring)."""
         t = ca.SX.sym("t", 3)  # tilt_cos, tilt_sin, tilt_const: C23 coefficients
-        psi = x[1]
-        theta = t[1] + ca.sin(psi) * t[2]
-        gamma = -t[0] - ca.cos(psi) * t[2]
-        x_t = ca.vertcat(x[0], x[1], theta, gamma, x[4:])
+        psi = RunInputs(x).azimuth
+        # a tilt whose C23 is tilt_cos cos(psi) + tilt_sin sin(psi) + tilt_const
+        tilted = {"pitch": t[1] + ca.sin(psi) * t[2], "roll": -t[0] - ca.cos(psi) * t[2]}
+        x_t = ca.vertcat(*[tilted.get(f, x[i]) for i, f in enumerate(RUN_FIELDS)], x[len(RUN_FIELDS):])
         h_t, degree = _symbolic_heading(model, p_sym, x_t, self.covariates)
         p_all = ca.vertcat(*[p_sym[q.name] for q in base])
         p0 = ca.DM([q.nominal * q.scale for q in base])
@@ -133,12 +134,13 @@ class MeasurementModel:
         rng = np.random.default_rng(12345)
         n = 16
         X = np.zeros((x.shape[0], n))
-        X[0] = rng.choice([-1, 1], n) * rng.uniform(10, 80, n) * units.DEG_PER_S
-        X[1] = rng.uniform(0, 2 * np.pi, n)
-        X[4] = rng.uniform(-1.0, 1.0, n)
-        X[5] = rng.uniform(0, 7200, n)
-        X[6] = 600.0
-        X[7:] = rng.normal(size=(X.shape[0] - 7, n))
+        v = RunInputs(X)
+        v.rate = rng.choice([-1, 1], n) * rng.uniform(10, 80, n) * units.DEG_PER_S
+        v.azimuth = rng.uniform(0, 2 * np.pi, n)
+        v.latitude = rng.uniform(-1.0, 1.0, n)
+        v.t_start = rng.uniform(0, 7200, n)
+        v.duration = 600.0
+        X[len(RUN_FIELDS):] = rng.normal(size=(X.shape[0] - len(RUN_FIELDS), n))  # covariates
         mixed_v, dh0_v = f.map(n)(X, p0, ca.DM.zeros(3))
         mixed_v = np.abs(np.array(mixed_v)).reshape(3, n, -1).max(axis=(0, 1))
         scale = np.array([q.scale for q in base])
@@ -286,21 +288,21 @@ def _check_inputs(X, tilt_known):
         i, j = np.argwhere(bad)[0]
         label = names[i] if i < len(names) else f"covariate {i - len(names)}"
         raise ValueError(f"run input {label!r} of run index {j} is {X[i, j]}; allowed: finite values")
-    lat = np.abs(X[4])
+    v = RunInputs(X)
+    lat = np.abs(v.latitude)
     if (lat > np.pi / 2).any():
         j = int(np.argmax(lat))
-        raise ValueError(f"latitude of run index {j} is {np.degrees(X[4, j]):.6g} deg; "
+        raise ValueError(f"latitude of run index {j} is {np.degrees(v.latitude[j]):.6g} deg; "
                          "allowed: -90 to 90 deg")
-    if (X[6] <= 0).any():
-        j = int(np.argmin(X[6]))
-        raise ValueError(f"duration of run index {j} is {X[6, j]} s; allowed: > 0")
+    if (v.duration <= 0).any():
+        j = int(np.argmin(v.duration))
+        raise ValueError(f"duration of run index {j} is {v.duration[j]} s; allowed: > 0")
     if tilt_known:
-        tilt = np.abs(X[2:4])
-        if (tilt > MAX_TILT).any():
-            i, j = np.unravel_index(np.argmax(tilt), tilt.shape)
-            raise ValueError(f"{('pitch', 'roll')[i]} of run index {j} is "
-                             f"{np.degrees(X[2 + i, j]):.6g} deg; allowed: |tilt| <= "
-                             f"{np.degrees(MAX_TILT):g} deg (first-order tilt terms)")
+        tilt = np.vstack([v.pitch, v.roll])
+        if (np.abs(tilt) > MAX_TILT).any():
+            i, j = np.unravel_index(np.argmax(np.abs(tilt)), tilt.shape)
+            raise ValueError(f"{('pitch', 'roll')[i]} of run index {j} is {np.degrees(tilt[i, j]):.6g} "
+                             f"deg; allowed: |tilt| <= {np.degrees(MAX_TILT):g} deg (first-order tilt terms)")
 
 
 class BatchEvaluator:
