@@ -26,9 +26,9 @@ from hse_opt import units
 from hse_opt.data import Runs
 from hse_opt.fit import fit
 from hse_opt.model import Model
+from hse_opt.validation.twins import effect_names
 
-EFFECTS = ["hse", "axis_bias", "sync_delay", "scale_nonlinearity", "warmup", "azimuth_harmonic2",
-           "encoder_harmonic", "covariate:temp_c"]
+EFFECTS = list(effect_names())  # the whole catalogue and the simulator's covariate
 TRUTH = dict(offset=5.0, lambda2=4.2, bias_z=0.01, delay=30.0, sf_nonlin=0.05, warmup_amp=25.0,
              warmup_tau=1500.0, az_c2=3.0, az_s2=-2.0, k_temp_c=0.8)
 HELD = {name: 0.0 for name in ("enc_c1", "enc_s1", "enc_c2", "enc_s2")}

@@ -16,9 +16,9 @@ import numpy as np
 
 from hse_opt import units
 from hse_opt.model import Model
+from hse_opt.validation.twins import effect_names
 
-CATALOGUE = ["hse", "axis_bias", "sync_delay", "scale_nonlinearity", "warmup", "azimuth_harmonic2",
-             "encoder_harmonic", "covariate:temp_c"]
+CATALOGUE = list(effect_names())  # the whole catalogue and the simulator's covariate
 
 
 def runs(m, n, rng):

@@ -19,7 +19,7 @@ Plan (:func:`demo_plan`)
     scale-factor nonlinearity) visible. 36 runs, one every 700 s.
 Hidden effect (:func:`hidden_effect`)
     Drawn by the seed from the catalogue effects the simulator can switch on
-    (:data:`hse_opt.sim.truth.EFFECT_KEYS`), with a random sign / phase (and, for the
+    (:func:`hse_opt.validation.twins.effect_names`), with a random sign / phase (and, for the
     warm-up, a time constant of 10-30 minutes). Its size follows one rule for every effect:
     over the plan, the part of its heading signature that the paper's model cannot absorb
     has an RMS of :data:`HIDDEN_SIGMAS` noise sigmas (computed with the symbolic measurement
@@ -47,12 +47,13 @@ from . import units
 from .data import Plan, Runs, write_text_atomic
 from .fit import fit as fit_runs
 from .information import heading_sigma
-from .model.effects import CATALOGUE
+from .model.effects import effect as make_effect
 from .model.composition import Model
 from .model.inputs import Tilt
+from .validation.twins import effect_names, twin
 
 __all__ = ["DemoResult", "HiddenEffect", "NextPlan", "run_demo", "demo_truth", "demo_plan",
-           "hidden_effect", "showable", "design_next", "report_sections", "write_outputs",
+           "hidden_effect", "hideable", "showable", "design_next", "report_sections", "write_outputs",
            "HIDDEN_SIGMAS", "OUTPUT_FILES"]
 
 #: RMS, in noise sigmas, of the hidden effect's heading signature that the paper's model
@@ -99,29 +100,6 @@ def demo_truth():
 
 
 # -- the hidden effect -----------------------------------------------------------------------
-def _harmonic(order, c, s):
-    """``c cos(k x) + s sin(k x)`` as the simulator's ``a sin(k x + phi)``."""
-    return {"order": order, "amplitude_arcsec": float(np.hypot(c, s)),
-            "phase_deg": float(np.degrees(np.arctan2(c, s)))}
-
-
-#: catalogue effect -> (model parameter values, display units) -> truth changes (TOML-shaped)
-_TO_TRUTH = {
-    "axis_bias": lambda v: {"gyro": {"axis_bias_dph": v["bias_z"]}},
-    "sync_delay": lambda v: {"encoder": {"sync_delay_us": v["delay"]}},
-    "scale_nonlinearity": lambda v: {"gyro": {"sf_nonlinearity_ppm_per_dps": [v["sf_nonlin"]] * 3}},
-    "warmup": lambda v: {"mount": {"warmup_xi_z_arcsec": v["warmup_amp"],
-                                   "warmup_tau_s": v["warmup_tau"]}},
-    # the model's coefficients are the reading's error (reading - true), the simulator's
-    # harmonic is true - reading
-    "azimuth_harmonic2": lambda v: {"stand": {"azimuth_harmonics": [
-        _harmonic(2, -v["az_c2"], -v["az_s2"])]}},
-    "encoder_harmonic": lambda v: {"encoder": {"harmonics": [
-        _harmonic(k, v[f"enc_c{k}"], v[f"enc_s{k}"]) for k in (1, 2)]}},
-    "covariate:temp_c": lambda v: {"mount": {"xi_z_tempco_arcsec_per_c": v["k_temp_c"]}},
-}
-
-
 @dataclass(frozen=True)
 class HiddenEffect:
     """The effect put into the truth.
@@ -179,9 +157,8 @@ def _sizes(name, plan, truth, direction, fixed):
 
 def _direction(name, rng):
     """A random direction in the effect's linear parameters, and its nonlinear ones."""
-    eff = CATALOGUE[name]() if name in CATALOGUE else None
-    params = eff.params if eff is not None else Model(["hse", name]).params[2:]
-    nonlinear = set(getattr(eff, "nonlinear", ()))
+    eff = make_effect(name)
+    params, nonlinear = eff.params, set(eff.nonlinear)
     fixed = {q.name: float(rng.uniform(600.0, 1800.0)) for q in params if q.name in nonlinear}
     linear = [q.name for q in params if q.name not in nonlinear]
     if len(linear) == 1:
@@ -199,21 +176,27 @@ def showable(plan=None, truth=None):
     tuple of str
     """
     if plan is None and truth is None:
-        return _default_showable()
+        return _default_showable(effect_names())
     plan = demo_plan() if plan is None else plan
     truth = demo_truth() if truth is None else truth
     rng = np.random.default_rng(0)
     out = []
-    for name in _TO_TRUTH:
+    for name in hideable():
         direction, fixed = _direction(name, rng)
         if _sizes(name, plan, truth, direction, fixed)[1]:
             out.append(name)
     return tuple(out)
 
 
-@lru_cache(maxsize=1)
-def _default_showable():
+@lru_cache(maxsize=4)
+def _default_showable(names):
     return showable(demo_plan(), demo_truth())
+
+
+def hideable():
+    """The effects the demo may hide: every effect with a twin in the simulator
+    (:func:`hse_opt.validation.twins.effect_names`) that the paper's model lacks."""
+    return tuple(n for n in effect_names() if n != "hse")
 
 
 def hidden_effect(seed, plan=None, truth=None):
@@ -240,7 +223,7 @@ def hidden_effect(seed, plan=None, truth=None):
     direction, fixed = _direction(name, rng)
     values, _, units_ = _sizes(name, plan, truth, direction, fixed)
     values = {**values, **fixed}
-    return HiddenEffect(name, values, {k: units_[k] for k in values}, _TO_TRUTH[name](values))
+    return HiddenEffect(name, values, {k: units_[k] for k in values}, twin(name).truth_changes(values))
 
 
 # -- the next plan ---------------------------------------------------------------------------

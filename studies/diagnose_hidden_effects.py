@@ -2,7 +2,7 @@
 
 The truth is the paper-like default system (warm-up switched off) plus one effect the paper's
 model lacks - every catalogue effect in turn, and a combination of two - switched on through
-the simulator's own TRUTH keys; and a campaign with nothing hidden. The plan
+its twin's TRUTH keys (:mod:`hse_opt.validation.twins`); and a campaign with nothing hidden. The plan
 (``diagnostic_plan``): 4 cold starts on 4 days at different lab temperatures (so temperature is
 not a function of time since power-on), +-20/40/60 deg/s, 8 azimuths, the stand's tilt plus a
 0.5-deg tilt fixture per day; 64 runs of 300 s, sampled at 100 Hz instead of the paper's
@@ -54,6 +54,7 @@ from hse_opt.data import Runs
 from hse_opt.diagnose import refine
 from hse_opt.validation.synthetic import diagnostic_plan
 from hse_opt.sim import TruthConfig, run_campaign
+from hse_opt.validation import twins
 
 SEED = 6
 #: family-wise probability that a correct diagnosis fails the study's verdicts
@@ -63,18 +64,23 @@ BASE = TruthConfig.default().updated({
     "timing": {"sample_period_ms": 10.0},
     "mount": {"warmup_xi_z_arcsec": 0.0}, "gyro": {"bias_warmup_dph": [0.0, 0.0, 0.0]},
     "thermal": {"swing_c": 1.5, "swing_period_s": 3600.0}})
-HARMONIC2 = {"stand": {"azimuth_harmonics": [{"order": 2, "amplitude_arcsec": 26.0, "phase_deg": 30.0}]}}
-HIDDEN = {
-    "axis_bias": {"gyro": {"axis_bias_dph": 0.2}},
-    "sync_delay": {"encoder": {"sync_delay_us": 125.0}},
-    "scale_nonlinearity": {"gyro": {"sf_nonlinearity_ppm_per_dps": [0.175, 0.175, 0.175]}},
-    "warmup": {"mount": {"warmup_xi_z_arcsec": 80.0, "warmup_tau_s": 600.0}},
-    "azimuth_harmonic2": HARMONIC2,
-    "encoder_harmonic": {"encoder": {"harmonics": [{"order": 1, "amplitude_arcsec": 200.0,
-                                                    "phase_deg": 30.0}]}},
-    "covariate:temp_c": {"mount": {"xi_z_tempco_arcsec_per_c": 4.0}},
-    "sync_delay+azimuth_harmonic2": {"encoder": {"sync_delay_us": 125.0}, **HARMONIC2},
+#: size of each hidden effect (its parameters, display units); the simulator's truth follows
+#: from its twin (hse_opt.validation.twins). Stand reading error 26 arcsec at 2 x azimuth,
+#: encoder error 200 arcsec at the table angle, both at phase 30 deg.
+SIZES = {
+    "axis_bias": {"bias_z": 0.2},
+    "sync_delay": {"delay": 125.0},
+    "scale_nonlinearity": {"sf_nonlin": 0.175},
+    "warmup": {"warmup_amp": 80.0, "warmup_tau": 600.0},
+    "azimuth_harmonic2": {"az_c2": -26.0 * np.sin(np.pi / 6), "az_s2": -26.0 * np.cos(np.pi / 6)},
+    "encoder_harmonic": {"enc_c1": 200.0 * np.sin(np.pi / 6), "enc_s1": 200.0 * np.cos(np.pi / 6),
+                         "enc_c2": 0.0, "enc_s2": 0.0},
+    "covariate:temp_c": {"k_temp_c": 4.0},
 }
+#: name -> truth changes: every effect the model shares with the simulator but the paper's
+#: (hse_opt.validation.twins.effect_names), then sync delay and stand reading error together
+HIDDEN = {name: twins.truth_changes(name, values)
+          for name, values in twins.hidden(SIZES, pairs=[("sync_delay", "azimuth_harmonic2")]).items()}
 
 
 def simulate(truth, seed, sessions=4, per_session=16):

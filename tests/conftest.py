@@ -2,9 +2,10 @@ import numpy as np
 import pytest
 
 from hse_opt import frames, units
+from hse_opt.validation.twins import effect_names
 
-ALL_EFFECTS = ["hse", "axis_bias", "sync_delay", "scale_nonlinearity", "warmup",
-               "azimuth_harmonic2", "encoder_harmonic", "covariate:temp_c"]
+#: every catalogue effect and the simulator's covariate
+ALL_EFFECTS = list(effect_names())
 
 
 def pytest_collection_modifyitems(items):

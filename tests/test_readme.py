@@ -20,6 +20,9 @@ from pathlib import Path
 
 import pytest
 
+from hse_opt.model import effects
+from hse_opt.validation import twins
+
 README = Path(__file__).resolve().parents[1] / "README.md"
 _BLOCK = re.compile(r"(<!-- [^>]*-->\s*)?```(python|bash|c)\n(.*?)```", flags=re.S)
 COMPILER = shutil.which("cc")
@@ -44,22 +47,29 @@ def test_readme_blocks_run_top_to_bottom(tmp_path, monkeypatch):
     monkeypatch.chdir(shared)
     bindir = Path(sys.executable).parent
     env = {**os.environ, "PATH": f"{bindir}{os.pathsep}{os.environ.get('PATH', '')}"}
-    for k, (lang, code) in enumerate(blocks):
-        if lang == "python":  # on its own: a fresh namespace
-            exec(compile(code, f"{README} (block {k})", "exec"), {"__name__": "__main__"})
-            continue
-        if lang == "c":
-            name = re.match(r"/\*\s*(\w+\.c):", code)
-            assert name, f"a C block must start with /* NAME.c: ...\n{code[:200]}"
-            (shared / name.group(1)).write_text(code, encoding="utf-8")
-            continue
-        for line in (ln.strip() for ln in code.splitlines()):
-            if not line or line.startswith("#") or (COMPILER is None and line.endswith("# needs a C compiler")):
+    # the README declares an effect: the catalogue and the twin map are as before afterwards
+    saved = [(registry, dict(registry)) for registry in (effects.CATALOGUE, twins.TWINS)]
+    try:
+        for k, (lang, code) in enumerate(blocks):
+            if lang == "python":  # on its own: a fresh namespace
+                exec(compile(code, f"{README} (block {k})", "exec"), {"__name__": "__main__"})
                 continue
-            m = re.search(r"#\s*exit\s+(\d+)\s*$", line)
-            out = subprocess.run(["bash", "-c", line], cwd=shared, env=env, capture_output=True,
-                                 text=True, timeout=300)
-            assert out.returncode == (int(m.group(1)) if m else 0), f"{line}\n{out.stderr[-2000:]}"
+            if lang == "c":
+                name = re.match(r"/\*\s*(\w+\.c):", code)
+                assert name, f"a C block must start with /* NAME.c: ...\n{code[:200]}"
+                (shared / name.group(1)).write_text(code, encoding="utf-8")
+                continue
+            for line in (ln.strip() for ln in code.splitlines()):
+                if not line or line.startswith("#") or (COMPILER is None and line.endswith("# needs a C compiler")):
+                    continue
+                m = re.search(r"#\s*exit\s+(\d+)\s*$", line)
+                out = subprocess.run(["bash", "-c", line], cwd=shared, env=env, capture_output=True,
+                                     text=True, timeout=300)
+                assert out.returncode == (int(m.group(1)) if m else 0), f"{line}\n{out.stderr[-2000:]}"
+    finally:
+        for registry, before in saved:
+            registry.clear()
+            registry.update(before)
 
 
 def test_quickstart_is_the_two_commands_ci_runs():

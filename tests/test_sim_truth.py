@@ -4,7 +4,7 @@ import math
 import numpy as np
 import pytest
 
-from hse_opt.sim.truth import EFFECT_KEYS, RunError, RunSpec, TruthConfig, load_truth, validate_run
+from hse_opt.sim.truth import RunError, RunSpec, TruthConfig, load_truth, validate_run
 
 # independent unit factors written out here (not taken from hse_opt.units)
 ARCSEC = math.pi / 180 / 3600
@@ -134,15 +134,6 @@ def test_run_tilt_too_large_names_plan_column():
     t = TruthConfig.ideal()
     with pytest.raises(ValueError, match="tilt_y_arcsec.*too large.*3600"):
         validate_run(t, RunSpec(rate=0.7, duration=60.0, tilt=(0.0, 3700 * ARCSEC)))
-
-
-def test_every_catalogue_effect_has_switches_in_the_schema():
-    d = TruthConfig.default().to_dict()
-    for effect in ("axis_bias", "sync_delay", "scale_nonlinearity", "warmup", "azimuth_harmonic2",
-                   "encoder_harmonic", "covariate:temp_c", "hse"):
-        for key in EFFECT_KEYS[effect]:
-            sec, _, name = key.partition(".")
-            assert sec in d and (name == "" or name in d[sec]), key
 
 
 def test_ideal_is_free_of_errors_and_noise():

@@ -451,10 +451,7 @@ def test_temperature_covariate():
 def test_every_catalogue_effect_is_compared():
     """A catalogue effect added to the model needs its simulator comparison here."""
     from hse_opt.model import CATALOGUE
-    compared = {"hse", "axis_bias", "sync_delay", "scale_nonlinearity", "warmup", "azimuth_harmonic2",
-                "encoder_harmonic"}
-    assert set(CATALOGUE) == compared
-    for name in compared:
+    for name in CATALOGUE:
         assert f"def test_{name}(" in open(__file__).read()
 
 

@@ -219,6 +219,19 @@ CATALOGUE = {cls.name: cls for cls in
              (HSE, AxisBias, SyncDelay, ScaleNonlinearity, Warmup, AzimuthHarmonic2, EncoderHarmonic)}
 
 
+def register_effect(cls):
+    """Add an :class:`Effect` class to :data:`CATALOGUE` under its ``name`` (a class
+    decorator; returns the class): the tools then know it by name, and the diagnosis tests
+    it as a candidate. Its twin in the simulator is declared in
+    :mod:`hse_opt.validation.twins`. Raises when the name is taken."""
+    if not (isinstance(cls, type) and issubclass(cls, Effect)) or not cls.name:
+        raise ValueError(f"register_effect needs an Effect class with a name, got {cls!r}")
+    if cls.name in CATALOGUE or cls.name.startswith("covariate:"):
+        raise ValueError(f"effect name {cls.name!r} is taken; the catalogue has {', '.join(CATALOGUE)}")
+    CATALOGUE[cls.name] = cls
+    return cls
+
+
 def effect(name):
     """The catalogue effect called ``name`` (``'covariate:<column>'`` for a covariate)."""
     if isinstance(name, Effect):

@@ -28,12 +28,12 @@ from hse_opt.sim.campaign import (RunResult, default_align_config, run_campaign,
                                   simulate_heading_error, simulate_run)
 from hse_opt.sim.imu import generate, true_attitude
 from hse_opt.sim.rawlog import RawLog, check_rawlog, load_rawlog, save_rawlog, validate_rawlog
-from hse_opt.sim.truth import EFFECT_KEYS, Harmonic, RunSpec, TruthConfig, load_truth, save_truth
+from hse_opt.sim.truth import Harmonic, RunSpec, TruthConfig, load_truth, save_truth
 
 __all__ = [
     "AlignConfig", "AlignHistory", "AlignResult", "align", "triad", "RunResult",
     "default_align_config", "run_campaign", "simulate_alignment", "simulate_heading_error",
     "simulate_run", "generate",
-    "true_attitude", "RawLog", "check_rawlog", "load_rawlog", "save_rawlog", "validate_rawlog", "EFFECT_KEYS",
+    "true_attitude", "RawLog", "check_rawlog", "load_rawlog", "save_rawlog", "validate_rawlog",
     "Harmonic", "RunSpec", "TruthConfig", "load_truth", "save_truth",
 ]

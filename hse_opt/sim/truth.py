@@ -56,14 +56,8 @@ may give any subset of keys, the rest keep their default values)
     ``temp = ambient_c + rise_c (1 - exp(-t_on / tau_s)) + swing_c sin(2 pi t_on / swing_period_s + swing_phase_deg)``;
     ``reference_c`` is the temperature of the lab calibration.
 
-Catalogue effects (DESIGN.md) and the keys that switch them on: ``hse`` -- ``gyro.eps_arcsec``
-with a tilt (``stand.mount_tilt_arcsec`` or the plan's); ``axis_bias`` -- ``gyro.axis_bias_dph``;
-``sync_delay`` -- ``encoder.sync_delay_us``; ``scale_nonlinearity`` --
-``gyro.sf_nonlinearity_ppm_per_dps``; ``warmup`` -- ``mount.warmup_xi_z_arcsec``,
-``mount.warmup_tau_s`` (and ``gyro.bias_warmup_dph``); ``azimuth_harmonic2`` --
-``[[stand.azimuth_harmonics]]`` with ``order = 2``; ``encoder_harmonic`` --
-``[[encoder.harmonics]]``; ``covariate:temp_c`` -- ``mount.xi_z_tempco_arcsec_per_c`` with the
-``[thermal]`` model. See :data:`EFFECT_KEYS`.
+The catalogue effects of the symbolic model and the keys that switch them on here are
+:mod:`hse_opt.validation.twins` (the simulator does not know the model's effects).
 
 The default system (:meth:`TruthConfig.default`)
 ------------------------------------------------
@@ -129,7 +123,7 @@ else:  # pragma: no cover
 __all__ = [
     "Harmonic", "SiteConfig", "TimingConfig", "TableConfig", "EncoderConfig", "GyroConfig",
     "MountConfig", "AccelConfig", "StandConfig", "ThermalConfig", "TruthConfig", "RunSpec",
-    "EFFECT_KEYS", "MAX_TILT", "RunError", "load_truth", "save_truth", "validate_run", "temperature",
+    "MAX_TILT", "RunError", "load_truth", "save_truth", "validate_run", "temperature",
     "gyro_matrices",
 ]
 
@@ -327,19 +321,6 @@ _SECTIONS = {
     "thermal": ThermalConfig,
 }
 _HARMONIC_FIELDS = {("encoder", "harmonics"), ("stand", "azimuth_harmonics")}
-
-#: Catalogue effect name -> the TOML keys (``section.key``) that switch it on.
-EFFECT_KEYS = {
-    "hse": ("gyro.eps_arcsec", "stand.mount_tilt_arcsec"),
-    "axis_bias": ("gyro.axis_bias_dph",),
-    "sync_delay": ("encoder.sync_delay_us",),
-    "scale_nonlinearity": ("gyro.sf_nonlinearity_ppm_per_dps",),
-    "warmup": ("mount.warmup_xi_z_arcsec", "mount.warmup_tau_s", "gyro.bias_warmup_dph"),
-    "azimuth_harmonic2": ("stand.azimuth_harmonics",),
-    "encoder_harmonic": ("encoder.harmonics",),
-    "covariate:temp_c": ("mount.xi_z_tempco_arcsec_per_c", "thermal"),
-}
-
 
 def _key_of(cls, fld):
     if (cls, fld.name) in _HARMONIC_CLS_FIELDS:
