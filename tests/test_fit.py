@@ -291,6 +291,30 @@ def test_huber_equals_scipy_huber_and_names_the_outlier(rng):
     assert np.max(np.abs(f.values - truth) / f.std) < np.max(np.abs(plain.values - truth) / plain.std)
 
 
+
+def test_robust_scale_is_the_gaussian_consistent_mad_and_huber_uses_it(rng):
+    """Without heading_std a robust fit takes sigma from the residuals' median absolute
+    deviation (MAD / Phi^-1(3/4), from its definition), and its estimate is scipy's Huber fit
+    with that scale."""
+    from scipy.stats import norm
+
+    runs = twin(LINEAR, design(), TRUTH_LINEAR, rng)
+    y = np.array(runs.heading_err)
+    y[[3, 11]] += 20 * runs.heading_std[[3, 11]]
+    runs = Runs(**{**{k: getattr(runs, k) for k in ("run", "rate", "azimuth", "latitude", "duration",
+                                                    "t_start", "pitch", "roll")}, "heading_err": y})
+    f = fit(runs, LINEAR, robust=True)
+    assert f.weighting == "robust-scale" and set(f.downweighted[:2]) == {int(runs.run[3]), int(runs.run[11])}
+    r = f.residuals
+    mad = np.median(np.abs(r - np.median(r))) / norm.ppf(0.75)
+    np.testing.assert_allclose(f.sigma, mad, rtol=1e-12)
+    mm = LINEAR.measurement(True)
+    X = mm.inputs_from_runs(runs)
+    ref = least_squares(lambda v: (y - mm.predict(v * mm.scale, X)) / mad, f.values,
+                        jac=lambda v: -mm.jacobian(v * mm.scale, X) * mm.scale / mad, loss="huber",
+                        f_scale=1.345, xtol=1e-15, ftol=1e-15, gtol=1e-15)
+    assert np.all(np.abs(f.values - ref.x) < 1e-5 * f.std)
+
 # -- identifiability ------------------------------------------------------------------------------
 def test_lambda2_and_sync_delay_at_one_azimuth_are_named_and_separated(rng):
     d = design(azimuths_deg=(30.0,), per=18)

@@ -110,4 +110,7 @@ def huber_weights(u, c):
 
 
 def mad_scale(res):
-    return 1.4826 * float(np.median(np.abs(res - np.median(res))))
+    """Robust sigma of the residuals: the median absolute deviation scaled to a Gaussian's
+    sigma (``1.4826 MAD``, :func:`scipy.stats.median_abs_deviation`)."""
+    from scipy.stats import median_abs_deviation  # robust fits only: scipy.stats loads slowly
+    return float(median_abs_deviation(res, scale="normal"))
