@@ -17,7 +17,8 @@ Names
     Lambda, Eq. 1), ``xi`` (Eq. 2), ``r_zb_s``, ``lambda1``, ``lambda2``, ``C23``.
 Attitude
     C_b0^n = rot_z(psi) rot_y(theta) rot_x(gamma): heading psi clockwise from north,
-    pitch theta, roll gamma; the paper's Eq. 3 is its first-order form.
+    pitch theta, roll gamma; the paper's Eq. 3 is its first-order form. A tilt of b0 is
+    ``Tilt(roll, pitch)`` and C23 is ``c23()`` (:mod:`hse_opt.model.inputs`).
 Signs
     Heading error is *estimated minus true* everywhere (RUNS.csv ``heading_err_arcsec``,
     model predictions, fits, plots). The paper's delta-psi (Eqs. 12, 14-16) is true minus
@@ -27,6 +28,9 @@ Units
     SI inside (rad, rad/s, s). arcsec, deg, deg/s, deg/h and microseconds appear only at the
     edges (files, command line, reports, parameter display units), converted through
     :mod:`hse_opt.units`; a non-SI name carries its unit (``rate_dps``).
+
+The long form: ``docs/conventions.md``; file formats ``docs/formats.md``; packages and data
+flow ``docs/architecture.md`` (in the repository).
 """
 import sys
 import types

@@ -1,7 +1,7 @@
 """PLAN and RUNS tables: load, validate and save (the data-format contract).
 
-Both files are CSV with one header row and units in the column names (README, "Data
-formats"). In memory a table is a frozen dataclass of read-only float64 arrays in SI units
+Both files are CSV with one header row and units in the column names (``docs/formats.md``,
+the contract). In memory a table is a frozen dataclass of read-only float64 arrays in SI units
 (rad, rad/s, s); the run id is int64. Every extra numeric column is kept as a covariate, in
 the file's own unit and under its own name (``temp_c``). An extra column with a cell that is
 not a finite number (a date, an operator, a serial number, an empty cell) is text: kept as

@@ -5,7 +5,7 @@
   uniform distribution (Kolmogorov-Smirnov) on campaigns of the measurement model;
 * structure in words for an effect outside the catalogue, ambiguity in a plan that cannot
   separate two effects - and the proposed runs resolving it;
-* the command line and its JSON contract (DESIGN.md), on a campaign of the numeric simulator
+* the command line and its JSON contract (docs/formats.md), on a campaign of the numeric simulator
   against an independent least-squares solve.
 
 The error rates (item 6) and the hidden-effect campaigns of the simulator (item 7) are studies

@@ -1,6 +1,6 @@
 """Raw data generation against independent references (issue 3, item 2).
 
-The references here integrate the physics of PHYSICS.md directly (Gauss-Legendre quadrature
+The references here integrate the paper's physics (docs/conventions.md) directly (Gauss-Legendre quadrature
 of the body rate and specific force built from rotation matrices), not the generator's
 closed forms.
 """

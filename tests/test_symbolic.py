@@ -193,7 +193,7 @@ def test_linear_eq12_and_gyrocompass_agree_to_first_order(rng):
 
 def test_gyrocompass_sign_by_construction(rng):
     """A computed Earth rate turned about down by +delta (toward east) moves the estimated
-    north toward east; every heading then reads small: error = -delta (PHYSICS.md)."""
+    north toward east; every heading then reads small: error = -delta (docs/conventions.md, Signs)."""
     for _ in range(20):
         psi, theta, gamma, L = rng.uniform(0, 6.3), *rng.uniform(-2e-3, 2e-3, 2), rng.uniform(-1, 1)
         delta = rng.uniform(-1e-3, 1e-3)

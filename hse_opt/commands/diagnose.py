@@ -26,7 +26,7 @@ EXAMPLE = """examples:
 
 
 def add_arguments(parser):
-    parser.add_argument("runs", metavar="RUNS.csv", help="alignment results (DESIGN.md format)")
+    parser.add_argument("runs", metavar="RUNS.csv", help="alignment results (columns: docs/formats.md)")
     add_input_checks(parser)
     parser.add_argument("--effects", default="hse", help="effects of the model (default: hse, the paper's)")
     parser.add_argument("--fix", action="append", default=[], metavar="NAME=VALUE",

@@ -28,7 +28,7 @@ examples:
 
 
 def add_arguments(parser):
-    parser.add_argument("runs", metavar="RUNS.csv", help="alignment results (DESIGN.md format)")
+    parser.add_argument("runs", metavar="RUNS.csv", help="alignment results (columns: docs/formats.md)")
     add_input_checks(parser)
     parser.add_argument("--effects", metavar="a,b", default="",
                         help="catalogue effects to add to 'hse' (e.g. sync_delay,warmup,covariate:temp_c)")

@@ -62,7 +62,7 @@ class Evaluation:
         return float(self.std[self.names.index(name)])
 
     def to_dict(self):
-        """The JSON form (DESIGN.md contract keys, and more)."""
+        """The JSON form (the contract keys of ``docs/formats.md``, and more)."""
         return {
             "criterion": self.criterion,
             "criterion_value": float(self.criterion_value) if np.isfinite(self.criterion_value) else None,

@@ -81,7 +81,7 @@ class DesignResult:
         return self.evaluation.std_of(name)
 
     def to_dict(self):
-        """The JSON form (DESIGN.md contract keys, and more)."""
+        """The JSON form (the contract keys of ``docs/formats.md``, and more)."""
         a = self.approximate
         out = self.evaluation.to_dict()
         out.update({

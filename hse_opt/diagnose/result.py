@@ -146,7 +146,7 @@ class Diagnosis:
 
     # -- output ------------------------------------------------------------------------------
     def to_dict(self):
-        """The JSON form (DESIGN.md contract, plus more keys)."""
+        """The JSON form (the contract of ``docs/formats.md``, plus more keys)."""
         return {
             "effects": list(self.effects),
             "n_runs": self.n_runs,

@@ -269,7 +269,7 @@ class FitResult:
         return lines
 
     def to_dict(self):
-        """The JSON form (DESIGN.md contract, plus more keys)."""
+        """The JSON form (the contract of ``docs/formats.md``, plus more keys)."""
         lower = self.lower if self.lower is not None else np.full(len(self.names), -np.inf)
         upper = self.upper if self.upper is not None else np.full(len(self.names), np.inf)
         return {

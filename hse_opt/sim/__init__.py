@@ -1,6 +1,6 @@
 """The numeric alignment simulator: the independent reference for :mod:`hse_opt.model`.
 
-Built from the physics (``PHYSICS.md``); it imports only :mod:`hse_opt.units` and
+Built from the paper's physics (``docs/conventions.md``); it imports only :mod:`hse_opt.units` and
 :mod:`hse_opt.data` (file formats) from the rest of the package, has its own rotations
 (:mod:`hse_opt.sim.rotations`) and loads neither CasADi nor cvxpy.
 

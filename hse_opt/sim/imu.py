@@ -1,6 +1,6 @@
 """Raw 500 Hz data of the constant-rate biased RLG system on a static base (vectorised).
 
-Physics (``PHYSICS.md``; frames n NED, b0 turntable base, b table top, s IMU, g gyro axes):
+Physics (``docs/conventions.md``; frames n NED, b0 turntable base, b table top, s IMU, g gyro axes):
 
 * Attitude of b0: ``C_b0^n = Rot(tau_n) rot_z(A) rot_y(theta) rot_x(gamma)``: the stand axis
   tilted by ``tau_n = (tau_N, tau_E, 0)`` (fixed in n), the true stand azimuth ``A`` (reading
