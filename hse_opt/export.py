@@ -56,7 +56,7 @@ from . import __version__, units
 from .frames import EARTH_RATE
 from .information import covariance_factor, propagated_std
 from .model import closed_form as cf
-from .model.measurement import RUN_FIELDS
+from .model.inputs import RUN_FIELDS, RunInputs
 
 __all__ = ["ENTRY_POINT", "MARGIN_FRACTION", "MARGIN_FLOOR", "Validity", "compensation_function",
            "export_calibration", "CALIBRATION_FORMAT"]
@@ -102,7 +102,7 @@ class Validity:
         floor = {**MARGIN_FLOOR, **(margin_floor or {})}
         X = np.asarray(X, dtype=float)
         V = X.copy()
-        V[0] = np.abs(X[0])
+        RunInputs(V).rate = np.abs(RunInputs(X).rate)
         lo, hi = V.min(axis=1), V.max(axis=1)
         margin = np.array([max(margin_fraction * (h - lo_), floor.get(nm, 0.0))
                            for nm, lo_, h in zip(names, lo, hi)])
@@ -115,7 +115,7 @@ class Validity:
         checked[k["azimuth"]] = False
         if not tilt_known:
             checked[[k["pitch"], k["roll"]]] = False
-        senses = tuple(s for s in (1, -1) if np.any(np.sign(X[0]) == s))
+        senses = tuple(s for s in (1, -1) if np.any(np.sign(RunInputs(X).rate) == s))
         return cls(tuple(names), checked, lo, hi, lower, upper, senses)
 
     def status(self, X):
@@ -123,11 +123,11 @@ class Validity:
         bitmask of the inputs outside their range or not finite."""
         X = np.asarray(X, dtype=float)
         V = X.copy()
-        V[0] = np.abs(X[0])
+        RunInputs(V).rate = np.abs(RunInputs(X).rate)
         with np.errstate(invalid="ignore"):
             inside = (V >= self.lower[:, None]) & (V <= self.upper[:, None])
         ok = np.where(self.checked[:, None], inside, np.isfinite(X))
-        ok[0] &= np.isin(np.sign(X[0]), self.senses)
+        ok[RunInputs.INDEX["rate"]] &= np.isin(np.sign(RunInputs(X).rate), self.senses)
         bits = (1 << np.arange(len(self.names), dtype=np.int64))[:, None]
         return np.sum(np.where(ok, 0, bits), axis=0)
 
@@ -300,12 +300,13 @@ def _eq14(fit_result, X):
         return None
     mm = fit_result.measurement
     cov = np.asarray(fit_result.covariance)
-    az = np.round(np.degrees(X[1]), 6)
-    keys = np.stack([az, X[2], X[3], X[4]], axis=1)
+    run_in = RunInputs(X)
+    keys = np.stack([np.round(np.degrees(run_in.azimuth), 6), run_in.pitch, run_in.roll, run_in.latitude],
+                    axis=1)
     _, first = np.unique(keys, axis=0, return_index=True)
     positions = []
     for i in sorted(first):
-        psi, theta, gamma, lat = X[1, i], X[2, i], X[3, i], X[4, i]
+        psi, theta, gamma, lat = run_in.azimuth[i], run_in.pitch[i], run_in.roll[i], run_in.latitude[i]
         denom = 3.0 * EARTH_RATE * np.cos(lat)
         if fit_result.tilt_known:
             j = mm.parameter_index("lambda2")

@@ -63,14 +63,16 @@ def _libraries(cache):
 
 
 def _inputs(mm, n, rng):
+    from hse_opt.model.inputs import RUN_FIELDS, RunInputs
     X = np.zeros((mm.n_x, n))
-    X[0] = rng.choice([-1, 1], n) * rng.uniform(0.2, 1.2, n)
-    X[1] = rng.uniform(0, 2 * np.pi, n)
-    X[2:4] = rng.uniform(-1e-3, 1e-3, (2, n))
-    X[4] = rng.uniform(-1, 1, n)
-    X[5] = rng.uniform(0, 7200, n)
-    X[6] = 600.0
-    X[7:] = rng.normal(25, 2, (mm.n_x - 7, n))
+    v = RunInputs(X)
+    v.rate = rng.choice([-1, 1], n) * rng.uniform(0.2, 1.2, n)
+    v.azimuth = rng.uniform(0, 2 * np.pi, n)
+    v.pitch, v.roll = rng.uniform(-1e-3, 1e-3, (2, n))
+    v.latitude = rng.uniform(-1, 1, n)
+    v.t_start = rng.uniform(0, 7200, n)
+    v.duration = 600.0
+    X[len(RUN_FIELDS):] = rng.normal(25, 2, (mm.n_x - len(RUN_FIELDS), n))  # covariates
     return X
 
 

@@ -157,7 +157,7 @@ def test_run_inputs_view_names_the_rows_and_c23_is_the_exact_axis_east_component
     assert np.abs(v.c23 - exact).max() < 1e-3 * np.abs(exact).max()
     np.testing.assert_array_equal(c23(v.azimuth, v.tilt), v.c23)
     v.tilt = Tilt(roll=np.zeros(n), pitch=np.full(n, 1e-3))  # writing through the view
-    np.testing.assert_allclose(v.X[3], 0.0)
+    np.testing.assert_array_equal(v.X[RunInputs.INDEX['roll']], 0.0)
     np.testing.assert_allclose(v.c23, 1e-3 * np.sin(v.azimuth))
     at = RunInputs(m.inputs(0.7, [0.0, np.pi / 2], 0.5, pitch=[0.0, 200 * ARCSEC], roll=[100 * ARCSEC, 0.0],
                             covariates={"temp_c": 20.0}))
