@@ -50,7 +50,7 @@ from .information import heading_sigma
 from .model.effects import effect as make_effect
 from .model.composition import Model
 from .model.inputs import Tilt
-from .validation.twins import effect_names, twin
+from .validation.twins import effect_names, hideable, twin
 
 __all__ = ["DemoResult", "HiddenEffect", "NextPlan", "run_demo", "demo_truth", "demo_plan",
            "hidden_effect", "hideable", "showable", "design_next", "report_sections", "write_outputs",
@@ -191,12 +191,6 @@ def showable(plan=None, truth=None):
 @lru_cache(maxsize=4)
 def _default_showable(names):
     return showable(demo_plan(), demo_truth())
-
-
-def hideable():
-    """The effects the demo may hide: every effect with a twin in the simulator
-    (:func:`hse_opt.validation.twins.effect_names`) that the paper's model lacks."""
-    return tuple(n for n in effect_names() if n != "hse")
 
 
 def hidden_effect(seed, plan=None, truth=None):

@@ -32,7 +32,8 @@ import numpy as np
 
 from ..model.effects import CATALOGUE, effect
 
-__all__ = ["Twin", "TWINS", "SIMULATED_COVARIATES", "effect_names", "harmonic", "hidden", "truth_changes", "register_twin", "twin"]
+__all__ = ["Twin", "TWINS", "SIMULATED_COVARIATES", "effect_names", "hideable", "harmonic", "hidden",
+           "truth_changes", "register_twin", "twin"]
 
 #: covariate effects whose column the simulator writes (``temp_c``: mean IMU temperature)
 SIMULATED_COVARIATES = ("covariate:temp_c",)
@@ -116,12 +117,18 @@ def effect_names():
     return names
 
 
+def hideable():
+    """The effects of :func:`effect_names` that the paper's model (``hse``) lacks: what a
+    campaign can hide from it."""
+    return tuple(n for n in effect_names() if n != "hse")
+
+
 def hidden(sizes, pairs=()):
-    """``{name: values}`` for hiding each effect of :func:`effect_names` but the paper's
-    (``hse``), sized by ``sizes`` (effect -> its parameter values, display units), then each
-    pair of ``pairs`` as ``"a+b"`` (values merged). Raises ``LookupError`` naming the effects
-    ``sizes`` leaves out: a new effect needs its size where a study hides it."""
-    names = [n for n in effect_names() if n != "hse"]
+    """``{name: values}`` for hiding each of :func:`hideable`, sized by ``sizes`` (effect -> its
+    parameter values, display units), then each pair of ``pairs`` as ``"a+b"`` (values
+    merged). Raises ``LookupError`` naming the effects ``sizes`` leaves out: a new effect needs
+    its size where a study hides it."""
+    names = hideable()
     missing = [n for n in names if n not in sizes]
     if missing:
         raise LookupError(f"no size for the effects {missing}; allowed: a size for every one of {names}")
