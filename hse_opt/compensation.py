@@ -27,6 +27,20 @@ def compensated_parameters(fit_result):
                  if nm not in stand and nm.split("*", 1)[0] not in stand)
 
 
+def compensation_point(fit_result, parameters=None):
+    """``(use, p)``: the mask of the compensated parameters (default
+    :func:`compensated_parameters`; unknown names raise) and the SI parameter vector the
+    compensation evaluates -- compensated and nonlinear parameters at the estimate, the others
+    at their nominal values."""
+    mm = fit_result.measurement
+    names = compensated_parameters(fit_result) if parameters is None else tuple(parameters)
+    for nm in names:
+        mm.parameter_index(nm)
+    use = np.array([nm in names for nm in mm.names])
+    keep = use | np.array([nm in mm.nonlinear for nm in mm.names])
+    return use, np.where(keep, fit_result.p, mm.nominal)
+
+
 def compensation(runs, fit_result, parameters=None):
     """The modelled heading error of each run that compensation removes, and its 1-sigma.
 
@@ -58,12 +72,7 @@ def compensation(runs, fit_result, parameters=None):
     if fit_result.tilt_known and runs.pitch is None:
         raise ValueError(f"{runs.source}: the calibration was fitted with known tilt; compensating "
                          "needs each run's pitch_arcsec/roll_arcsec (Eq. 14 uses C23 from leveling)")
-    names = compensated_parameters(fit_result) if parameters is None else tuple(parameters)
-    for nm in names:
-        mm.parameter_index(nm)
-    use = np.array([nm in names for nm in mm.names])
-    keep = use | np.array([nm in mm.nonlinear for nm in mm.names])
-    p = np.where(keep, fit_result.p, mm.nominal)
+    use, p = compensation_point(fit_result, parameters)
     X = mm.inputs_from_runs(runs)
     correction = mm.predict(p, X)
     Jd = mm.jacobian(p, X)[:, use] * mm.scale[use][None, :]

@@ -141,15 +141,10 @@ def compensation_function(fit_result, parameters=None):
     (compensated parameters at the estimate, the others at nominal, nonlinear ones as
     fitted) and the covariance factor ``C = L L'`` as constants.
     """
-    from .compensation import compensated_parameters
+    from .compensation import compensation_point
 
     mm = fit_result.measurement
-    names = compensated_parameters(fit_result) if parameters is None else tuple(parameters)
-    for nm in names:
-        mm.parameter_index(nm)
-    use = np.array([nm in names for nm in mm.names])
-    keep = use | np.array([nm in mm.nonlinear for nm in mm.names])
-    p = np.where(keep, fit_result.p, mm.nominal)
+    use, p = compensation_point(fit_result, parameters)
     x = ca.SX.sym("x", mm.n_x)
     q = ca.SX.sym("q", int(use.sum()))  # compensated parameters, display units from the estimate
     p_expr = ca.SX(ca.DM(p))
