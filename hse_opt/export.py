@@ -53,10 +53,12 @@ import casadi as ca
 import numpy as np
 
 from . import __version__, units
+from . import frames
 from .frames import EARTH_RATE
 from .information import covariance_factor, propagated_std
 from .model import closed_form as cf
 from .model.inputs import RUN_FIELDS, RunInputs
+from .model.symbolic import c_b0_n
 
 __all__ = ["ENTRY_POINT", "MARGIN_FRACTION", "MARGIN_FLOOR", "Validity", "compensation_function",
            "export_calibration", "CALIBRATION_FORMAT"]
@@ -137,28 +139,67 @@ def compensation_function(fit_result, parameters=None):
 
     ``correction_rad`` is minus the heading error that :func:`hse_opt.fit.compensation`
     removes (the correction to add to the heading), ``sigma_rad`` its 1-sigma from the fit's
-    covariance. Built from the fit's measurement-model Function ``h(p, x)`` with ``p`` fixed
-    (compensated parameters at the estimate, the others at nominal, nonlinear ones as
-    fitted) and the covariance factor ``C = L L'`` as constants.
+    covariance. Built from the fit's measurement model with ``p`` fixed (compensated
+    parameters at the estimate, the others at nominal, nonlinear ones as fitted) and the
+    covariance factor ``C = L L'`` as constants.
+
+    Two constructions of the same function; the one with fewer operations is returned:
+    the measurement model's ``h(p, x)`` as the fit evaluates it, and (tilt-known fits) the
+    chain rebuilt with the true Earth rate in b0 as a symbol ``w``, so that the constant
+    linear chain from ``w`` to the revolution-averaged rate folds into one small matrix
+    (:func:`hse_opt.model.folding.fold_linear`) before ``w = C_n^b0 omega_ie_n`` is put back.
     """
     from .compensation import compensation_point
 
     mm = fit_result.measurement
     use, p = compensation_point(fit_result, parameters)
+    L = ca.DM(covariance_factor(np.asarray(fit_result.covariance)[np.ix_(use, use)], np.array(mm.names)[use]))
     x = ca.SX.sym("x", mm.n_x)
     q = ca.SX.sym("q", int(use.sum()))  # compensated parameters, display units from the estimate
     p_expr = ca.SX(ca.DM(p))
-    idx = np.flatnonzero(use)
-    for j, i in enumerate(idx):
+    for j, i in enumerate(np.flatnonzero(use)):
         p_expr[int(i)] = p[i] + q[j] * mm.scale[i]
-    h = mm.h(p_expr, x)
     zero = ca.DM.zeros(q.shape[0])
-    h0 = ca.substitute(h, q, zero)
-    L = covariance_factor(np.asarray(fit_result.covariance)[np.ix_(use, use)], np.array(mm.names)[use])
-    JL = ca.mtimes(ca.substitute(ca.jacobian(h, q), q, zero), ca.DM(L))
-    sigma = ca.sqrt(ca.sumsqr(JL))
-    outputs = ca.cse([-h0, sigma])  # one evaluation of each shared subexpression (sin/cos of the inputs)
+    from .model.folding import fold_linear
+
+    built = [_direct(mm, p_expr, x, q, zero, L)]
+    built.append(fold_linear([x], built[0]))
+    if fit_result.tilt_known:
+        built.append(_folded(fit_result.model, mm, p_expr, x, q, zero, L))
+    outputs = min((ca.cse(o) for o in built),  # one evaluation of each shared subexpression
+                  key=lambda o: ca.Function("n", [x], o).n_instructions())
     return ca.Function(f"{ENTRY_POINT}_model", [x], outputs, ["x"], ["correction_rad", "sigma_rad"])
+
+
+def _direct(mm, p_expr, x, q, zero, L):
+    """Correction and sigma from the measurement model's ``h(p, x)``."""
+    h = mm.h(p_expr, x)
+    h0 = ca.substitute(h, q, zero)
+    dh = ca.substitute(ca.jacobian(h, q), q, zero)
+    return [-h0, ca.sqrt(ca.sumsqr(ca.mtimes(dh, L)))]
+
+
+def _folded(model, mm, p_expr, x, q, zero, L):
+    """Correction and sigma with the chain from the Earth rate in b0 folded (tilt known)."""
+    from .model.folding import fold_linear
+    from .model.measurement import symbolic_rate
+
+    w = ca.SX.sym("w", 3)
+    p = {nm: p_expr[i] for i, nm in enumerate(mm.names)}
+    op, errors, omega_b0, _ = symbolic_rate(model, p, x, mm.covariates, omega_ie_b0=w)
+    parts = [ca.substitute(e, q, zero) for e in
+             (omega_b0, ca.jacobian(omega_b0, q), errors.reference_error, ca.jacobian(errors.reference_error, q))]
+    omega0, d_omega, ref0, d_ref = fold_linear([x, w], parts)
+    w_true = ca.mtimes(c_b0_n(op.psi, op.theta, op.gamma).T, frames.earth_rate_n(op.L))
+    omega0, d_omega, ref0, d_ref = (ca.substitute(e, w, w_true) for e in (omega0, d_omega, ref0, d_ref))
+    # heading_error_gyrocompass for an orthonormal C_n^b0 (down . east = 0, |down| = 1):
+    # -atan2(omega . east, omega . north), and its gradient in omega
+    C_n_b0 = c_b0_n(op.psi, op.theta, op.gamma).T
+    north, east = C_n_b0[:, 0], C_n_b0[:, 1]
+    e0, n0 = ca.dot(omega0, east), ca.dot(omega0, north)
+    g0 = -ca.atan2(e0, n0)
+    dh = -(n0 * ca.mtimes(east.T, d_omega) - e0 * ca.mtimes(north.T, d_omega)) / (e0 ** 2 + n0 ** 2) - d_ref
+    return [-(g0 - ref0), ca.sqrt(ca.sumsqr(ca.mtimes(dh, L)))]
 
 
 def _input_table(fit_result):

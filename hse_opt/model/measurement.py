@@ -44,15 +44,27 @@ def _measurement(model, tilt_known):
     return MeasurementModel(model, tilt_known)
 
 
-def _symbolic_heading(model, p, x, covariate_names):
-    """Heading error (rad) of one run for parameters ``p`` (dict of SI SX) and inputs x."""
+def symbolic_rate(model, p, x, covariate_names, omega_ie_b0=None):
+    """The chain of one run up to the revolution-averaged computed Earth rate in b0.
+
+    ``p``: dict of SI SX (or numbers) per parameter; ``x``: the run inputs; ``omega_ie_b0``:
+    optional stand-in (e.g. a symbol) for the true Earth rate in b0. Returns
+    ``(op, errors, omega_b0, degree)``; the heading error is
+    ``heading_error_gyrocompass(op, omega_b0) - errors.reference_error``.
+    """
     v = RunInputs(x, covariate_names)
     op = Operating(Omega=v.rate, psi=v.azimuth, theta=v.pitch, gamma=v.roll, L=v.latitude,
                    t_start=v.t_start, duration=v.duration, covariates=v.covariates)
     errors = ErrorModel()
     for e in model.effects:
         e.act(p, op, errors)
-    omega_b0, degree = averaged_rate_b0(op, errors, model.geometry)
+    omega_b0, degree = averaged_rate_b0(op, errors, model.geometry, omega_ie_b0=omega_ie_b0)
+    return op, errors, omega_b0, degree
+
+
+def _symbolic_heading(model, p, x, covariate_names):
+    """Heading error (rad) of one run for parameters ``p`` (dict of SI SX) and inputs x."""
+    op, errors, omega_b0, degree = symbolic_rate(model, p, x, covariate_names)
     return heading_error_gyrocompass(op, omega_b0) - errors.reference_error, degree
 
 

@@ -211,17 +211,17 @@ class Operating:
     covariates: dict = field(default_factory=dict)
 
 
-def averaged_rate_b0(op, errors, geometry=Geometry(), form="exact"):
+def averaged_rate_b0(op, errors, geometry=Geometry(), form="exact", omega_ie_b0=None):
     """Revolution-averaged computed Earth rate in b0 and the averaging degree.
 
     See :func:`rate_b0` for the arguments; returns ``(omega_b0, degree)`` with ``omega_b0``
     the exact revolution mean (:func:`revolution_average`).
     """
-    integrand, alpha, degree = rate_b0(op, errors, geometry, form)
+    integrand, alpha, degree = rate_b0(op, errors, geometry, form, omega_ie_b0)
     return revolution_average(integrand, alpha, degree), degree
 
 
-def rate_b0(op, errors, geometry=Geometry(), form="exact"):
+def rate_b0(op, errors, geometry=Geometry(), form="exact", omega_ie_b0=None):
     """Computed Earth rate in b0 at table angle alpha, before averaging.
 
     Parameters
@@ -232,6 +232,10 @@ def rate_b0(op, errors, geometry=Geometry(), form="exact"):
         A :class:`Geometry`, or ``(r_zb_s, K_g)`` where either may be a CasADi expression.
     form : {'exact', 'first_order'}
         Form of C_b0^n.
+    omega_ie_b0 : casadi.SX, shape (3, 1), optional
+        Stand-in for the true Earth rate in b0 (default ``C_n^b0 omega_ie_n``); a symbol here
+        lets the constant chain from it to the averaged rate be folded (the compiled
+        compensation, :mod:`hse_opt.export`).
 
     Returns
     -------
@@ -248,7 +252,8 @@ def rate_b0(op, errors, geometry=Geometry(), form="exact"):
     r_cal, K_g = (geometry.r_zb_s, geometry.K_g) if isinstance(geometry, Geometry) else geometry
     alpha = ca.SX.sym("alpha")
     C_n_b0 = c_b0_n(op.psi, op.theta, op.gamma, form).T
-    omega_ie_b0 = ca.mtimes(C_n_b0, frames.earth_rate_n(op.L))
+    if omega_ie_b0 is None:
+        omega_ie_b0 = ca.mtimes(C_n_b0, frames.earth_rate_n(op.L))
     C_b_b0 = frames.rot_z(alpha)
     omega_nb_b = op.Omega * E_Z
     omega_ib_b = ca.mtimes(C_b_b0.T, omega_ie_b0) + omega_nb_b
