@@ -7,8 +7,8 @@ import stat
 import numpy as np
 import pytest
 
-from hse_opt import data
 from hse_opt.data import DataError, Plan, Runs, load_plan, load_runs, save_plan, save_runs
+from hse_opt.data.table import _looks_like_radians
 from hse_opt.datasets import paper_table1, paper_table1_path
 from hse_opt.units import ARCSEC, DEG, DEG_PER_S
 
@@ -134,7 +134,7 @@ def test_failed_replace_leaves_target_and_no_temp(tmp_path, monkeypatch):
     def broken_replace(src, dst):
         raise OSError("disk gone")
 
-    monkeypatch.setattr(data.os, "replace", broken_replace)
+    monkeypatch.setattr(os, "replace", broken_replace)
     with pytest.raises(OSError, match="disk gone"):
         save_runs(random_runs(5), path)
     assert path.read_text() == "old content\n" and sorted(os.listdir(tmp_path)) == ["runs.csv"]
@@ -247,7 +247,7 @@ def test_azimuths_in_radians_are_caught(tmp_path):
 @pytest.mark.parametrize("azimuths_deg", [
     [0, 0, 0], [3.5, 3.5, 3.5], [0, 1, 2], [-0.05, 0.1, 0.3], [0, 91.8795, 181.2953], [359.9, 0.1, 5.5]])
 def test_degree_azimuths_are_not_taken_for_radians(azimuths_deg):
-    assert not data._looks_like_radians(np.array(azimuths_deg, float))
+    assert not _looks_like_radians(np.array(azimuths_deg, float))
 
 
 def test_lock_in_limit_is_a_parameter(tmp_path):

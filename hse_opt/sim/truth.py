@@ -111,8 +111,9 @@ import numpy as np
 
 from hse_opt import units
 # the exact decimal <-> SI conversions and the atomic writer of the file formats (one
-# implementation each, in data.py)
-from hse_opt.data import _to_si, _to_text, atomic_path
+# implementation each, in hse_opt.data)
+from hse_opt.data import atomic_path
+from hse_opt.data.decimals import _to_si, _to_text
 from hse_opt.sim.rotations import R_ZB_S_IDEAL, c_b_s, skew
 
 if sys.version_info >= (3, 11):
