@@ -17,7 +17,8 @@ Where
     ``$HSE_OPT_CACHE_DIR`` when set; otherwise the user's cache folder:
     ``$XDG_CACHE_HOME/hse_opt`` (default ``~/.cache/hse_opt``) on Linux,
     ``~/Library/Caches/hse_opt`` on macOS, ``%LOCALAPPDATA%\\hse_opt\\Cache`` on Windows.
-    The libraries are in its ``casadi/`` folder; deleting the folder empties the cache.
+    The libraries are in its ``casadi/`` folder (built measurement models in ``models/``,
+    :mod:`hse_opt.model.cache`); deleting the folder empties the cache.
 ``HSE_OPT_NO_CACHE=1``
     Nothing is read from or written to the cache: every process compiles what it uses (in a
     temporary folder of the system's, removed once the library is loaded).
@@ -89,21 +90,24 @@ def _find_compiler():
     return _compiler[0]
 
 
-def key(f):
-    """The cache key of Function ``f`` (hex digest; see the module docstring)."""
+def key(f, graph=None):
+    """The cache key of Function ``f`` (hex digest; see the module docstring). ``graph``: a
+    string that determines ``f`` as its serialisation does (e.g. the digest of a mapped
+    Function's inner serialisation with the map's options), to spare serialising ``f``."""
     _, identity = _find_compiler()
     h = hashlib.sha256()
     for part in (ca.__version__, str(identity), " ".join(FLAGS), sys.platform, platform.machine(),
-                 f.serialize()):
+                 f.serialize() if graph is None else f"{f.name()}|{graph}"):
         h.update(part.encode())
         h.update(b"\0")
     return h.hexdigest()[:40]
 
 
-def compiled(f):
+def compiled(f, graph=None):
     """``f`` evaluated by compiled C: from this process's memory, else the disk cache, else
-    compiled now (and cached). Returns ``f`` itself, with a warning, when compiling fails."""
-    k = key(f)
+    compiled now (and cached). Returns ``f`` itself, with a warning, when compiling fails.
+    ``graph``: see :func:`key`."""
+    k = key(f, graph)
     with _lock:
         if k not in _loaded:
             _loaded[k] = _load_or_build(f, k)

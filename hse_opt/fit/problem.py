@@ -3,7 +3,6 @@ parameters, with the residuals and Jacobian from one batch call of the model."""
 import math
 from functools import lru_cache
 
-import casadi as ca
 import numpy as np
 
 from ..information import Prior
@@ -72,11 +71,7 @@ class Problem:
 def residual_jacobian(mm):
     """Batch evaluator of ``[h, dh/dp]`` (n, 1 + n_p) for ``mm``: one Function whose Jacobian
     shares the heading's expression graph, so both cost about what the Jacobian alone does."""
-    p = ca.SX.sym("p", len(mm.names))
-    x = ca.SX.sym("x", mm.n_x)
-    h = mm.h(p, x)
-    return BatchEvaluator(ca.Function("hJ", [p, x], [ca.densify(ca.vertcat(h, ca.jacobian(h, p).T))],
-                                      ["p", "x"], ["h_dh_dp"]), exact=True)
+    return BatchEvaluator(mm.hJ, exact=True, graph=mm.graph["hJ"])
 
 
 def setup(mm, runs, fix, bounds, constraints, prior, notes, start=None):

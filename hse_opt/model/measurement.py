@@ -20,6 +20,7 @@ mrad. Their heading signatures are the mixed derivatives d2h/(dp dC23) of the sy
 model, so nothing is written by hand. The untilted part of such a parameter is a constant
 heading offset (for lambda2: the skew part of Lambda), absorbed by ``offset``.
 """
+import hashlib
 from functools import cached_property, lru_cache
 
 import casadi as ca
@@ -41,7 +42,9 @@ MAX_TILT = 2.0 * units.DEG
 
 @lru_cache(maxsize=64)
 def _measurement(model, tilt_known):
-    return MeasurementModel(model, tilt_known)
+    from .cache import load_or_build
+
+    return load_or_build(MeasurementModel, model, tilt_known)
 
 
 def symbolic_rate(model, p, x, covariate_names, omega_ie_b0=None):
@@ -80,6 +83,8 @@ class MeasurementModel:
         Trigonometric degree in the table angle averaged exactly (degree + 1 samples).
     h, J : casadi.Function
         ``h(p, x) -> heading error`` (rad) and ``J(p, x) -> dh/dp`` (1 x n_p) of one run.
+    hJ : casadi.Function
+        ``hJ(p, x) -> [h; dh/dp']`` ((1 + n_p) x 1): both from one graph.
     """
 
     def __init__(self, model, tilt_known):
@@ -100,8 +105,39 @@ class MeasurementModel:
         self.scale = np.array([q.scale for q in self.params])
         self.nonlinear = tuple(n for e in model.effects for n in e.nonlinear if n in self.names)
         self.h = ca.Function("h", [p_vec, x], [h], ["p", "x"], ["heading_err"])
-        self.J = ca.Function("J", [p_vec, x], [ca.jacobian(h, p_vec)], ["p", "x"], ["dh_dp"])
+        dh = ca.jacobian(h, p_vec)
+        self.J = ca.Function("J", [p_vec, x], [dh], ["p", "x"], ["dh_dp"])
+        # h and dh/dp in one Function sharing the graph (the fit's iterations need both)
+        self.hJ = ca.Function("hJ", [p_vec, x], [ca.densify(ca.vertcat(h, dh.T))], ["p", "x"], ["h_dh_dp"])
         self.n_x = n_x
+
+    # ---- kept on disk by hse_opt.model.cache ------------------------------------------
+    _FUNCTIONS = ("h", "J", "hJ")
+
+    def __getstate__(self):
+        state = {k: v for k, v in self.__dict__.items() if k not in ("model", "_batch", "graph")}
+        for name in self._FUNCTIONS:
+            state[name] = getattr(self, name).serialize()
+        return state
+
+    def __setstate__(self, state):
+        self.__dict__.update(state)
+        for name in self._FUNCTIONS:
+            setattr(self, name, ca.Function.deserialize(state[name]))
+        self.graph = {name: hashlib.sha256(state[name].encode()).hexdigest() for name in self._FUNCTIONS}
+        self.model = None
+
+    @cached_property
+    def graph(self):
+        """Digest of each Function's serialisation (the compile cache's key, without
+        serialising the mapped Functions again)."""
+        return {name: hashlib.sha256(getattr(self, name).serialize().encode()).hexdigest()
+                for name in self._FUNCTIONS}
+
+    def attach(self, model):
+        """This model, unpickled, for the live ``model`` it was built from."""
+        self.model = model
+        return self
 
     def _free_tilt(self, model, base, p_sym, x):
         """Replace tilt-coupled parameters by free C23 coefficients (module docstring)."""
@@ -275,7 +311,8 @@ class MeasurementModel:
 
     @cached_property
     def _batch(self):
-        return {"h": BatchEvaluator(self.h), "J": BatchEvaluator(self.J)}
+        return {"h": BatchEvaluator(self.h, graph=self.graph["h"]),
+                "J": BatchEvaluator(self.J, graph=self.graph["J"])}
 
     def _p(self, p):
         p = np.asarray(p, dtype=float).ravel()
@@ -326,7 +363,9 @@ class BatchEvaluator:
     mapped over ``jit_chunk`` runs is compiled to C once per machine
     (:mod:`hse_opt.compile_cache`) and evaluates every batch size; if compiling fails, the
     virtual machine is used and a warning says why. ``jit=True/False`` on a call overrides
-    the size rule (repeated small batches, e.g. on-line fits, gain from it too).
+    the size rule (repeated small batches, e.g. on-line fits, gain from it too). ``graph``: a
+    digest of ``fun``'s serialisation, when known (the compile cache's key without serialising
+    the mapped Function).
     ``exact=True``: a call that is not compiled maps exactly its ``n`` runs (up to
     ``max_chunk``) instead of padding to a power of two - a third less work at 100 runs, for
     a mapped Function per run count (~0.4 ms to build; the last ``_MAX_EXACT`` kept): for
@@ -335,8 +374,9 @@ class BatchEvaluator:
 
     _MAX_EXACT = 64
 
-    def __init__(self, fun, max_chunk=4096, jit_above=1000, exact=False, jit_chunk=256):
+    def __init__(self, fun, max_chunk=4096, jit_above=1000, exact=False, jit_chunk=256, graph=None):
         self.fun = fun
+        self.graph = graph
         self.n_out = fun.nnz_out(0)
         self.max_chunk = max_chunk
         self.jit_above = jit_above
@@ -356,7 +396,8 @@ class BatchEvaluator:
         key = (chunk, jit)
         if key not in self._functions:
             f = self.fun.map(f"{self.fun.name()}_map", "serial", chunk, [0], [])
-            self._functions[key] = compiled(f) if jit else f
+            graph = None if self.graph is None else f"{self.graph}|map|serial|{chunk}|[0]"
+            self._functions[key] = compiled(f, graph) if jit else f
         return self._functions[key]
 
     def _mapped(self, chunk, jit):
