@@ -25,9 +25,17 @@ Hidden effect (:func:`hidden_effect`)
     has an RMS of :data:`HIDDEN_SIGMAS` noise sigmas (computed with the symbolic measurement
     model). Effects that need more than their parameter's physical bounds (``Param.lower``
     / ``upper``) to reach that size cannot be shown by this plan and are not drawn: the
-    encoder's periodic error, which a triad system averages out to first order (its 1st
-    harmonic reaches heading only as a product with lambda2, about 0.04 arcsec per arcsec
-    at lambda2 = 4.2 arcsec; its 2nd harmonic not at all).
+    encoder's periodic error, as the sizing model ``hse + encoder_harmonic`` sees it (alone
+    it averages out over a revolution; its 1st harmonic reaches heading only in a product
+    with the horizontal misalignment of the processed rotation axis, of which this model
+    knows only lambda2's part). It is not negligible: the demo system's own mount error
+    (3, -2) arcsec and its axis calibration error, together xi = (5.0, -0.6) arcsec
+    (``mount_xi``, :meth:`hse_opt.model.effects.MountXi.from_axis_error`), make 10 arcsec of
+    encoder error move the simulated heading by up to 1.2 arcsec at 40 deg/s, where
+    ``hse + encoder_harmonic`` predicts 0.26; ``hse + encoder_harmonic + mount_xi`` at that xi
+    is within 0.05 arcsec of the simulator (what is left: the system's eps1..eps3 are not
+    equal, and lambda2 spread equally leaks slightly differently; README, "The symbolic
+    model"). ``mount_xi`` has no signature without the encoder, so it is not drawn either.
 
 Steps (:func:`run_demo`): simulate the campaign with the numeric simulator, fit the paper's
 model, diagnose, add the effect the diagnosis names and refit, design an optimised next

@@ -164,8 +164,9 @@ def compensation_function(fit_result, parameters=None):
 
     built = [_direct(mm, p_expr, x, q, zero, L)]
     built.append(fold_linear([x], built[0]))
-    if fit_result.tilt_known:
-        built.append(_folded(fit_result.model, mm, p_expr, x, q, zero, L))
+    folded = _folded(fit_result.model, mm, p_expr, x, q, zero, L) if fit_result.tilt_known else None
+    if folded is not None:
+        built.append(folded)
     outputs = min((ca.cse(o) for o in built),  # one evaluation of each shared subexpression
                   key=lambda o: ca.Function("n", [x], o).n_instructions())
     return ca.Function(f"{ENTRY_POINT}_model", [x], outputs, ["x"], ["correction_rad", "sigma_rad"])
@@ -180,13 +181,16 @@ def _direct(mm, p_expr, x, q, zero, L):
 
 
 def _folded(model, mm, p_expr, x, q, zero, L):
-    """Correction and sigma with the chain from the Earth rate in b0 folded (tilt known)."""
+    """Correction and sigma with the chain from the Earth rate in b0 folded (tilt known); None
+    for a model with encoder harmonics."""
     from .model.folding import fold_linear
     from .model.measurement import symbolic_rate
 
     w = ca.SX.sym("w", 3)
     p = {nm: p_expr[i] for i, nm in enumerate(mm.names)}
     op, errors, omega_b0, _ = symbolic_rate(model, p, x, mm.covariates, omega_ie_b0=w)
+    if errors.encoder_terms:  # the alignment's coarse/fine split (heading_error_alignment): not folded
+        return None
     parts = [ca.substitute(e, q, zero) for e in
              (omega_b0, ca.jacobian(omega_b0, q), errors.reference_error, ca.jacobian(errors.reference_error, q))]
     omega0, d_omega, ref0, d_ref = fold_linear([x, w], parts)

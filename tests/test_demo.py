@@ -137,7 +137,7 @@ def test_every_drawable_effect_is_drawn_and_the_rest_have_no_signature():
     assert set(names) == set(demo.showable())
     not_drawn = set(demo.hideable()) - set(demo.showable())
     assert not_drawn == {"encoder_harmonic"}
-    # a triad system averages the encoder's periodic error out: no heading signature at all
+    # the sizing model (hse + encoder_harmonic, no mount_xi) at lambda2 = 0: no heading signature
     mm = Model(["hse", "encoder_harmonic"]).measurement(tilt_known=True)
     plan = demo.demo_plan()
     J = mm.jacobian(mm.nominal, demo._plan_inputs(mm, plan, demo.demo_truth()))

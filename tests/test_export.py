@@ -51,10 +51,13 @@ def _campaign(effects, n, rng):
     runs = Runs(run=np.arange(1, n + 1), rate=rate, azimuth=az, heading_err=y, latitude=lat,
                 duration=np.full(n, 600.0), t_start=t0, pitch=pitch, roll=roll,
                 heading_std=np.full(n, sigma), covariates={"temp_c": temp} if cov else {})
-    # parameters without a heading signature in these runs (the encoder harmonics average out)
+    # parameters without a heading signature in these runs (the encoder's 2nd harmonic)
     J = mm.jacobian(mm.vector(truth), X)
     per_unit = np.abs(J).max(axis=0) * mm.scale             # rad of heading per display unit
     held = {nm: 0.0 for nm, g in zip(mm.names, per_unit) if g < 1e-6 * units.ARCSEC}
+    # the mount's horizontal misalignment reaches heading only in a product with the encoder's
+    # 1st harmonic: held at its true value, the encoder's is fitted
+    held.update({nm: truth[nm] for nm in ("xi_x", "xi_y") if nm in mm.names})
     return runs, fit(runs, model, fix=held)
 
 

@@ -575,7 +575,7 @@ def test_pure_error_replicates_are_runs_the_model_cannot_tell_apart():
 
 
 def test_a_bilinear_effect_is_fitted_from_a_start_where_it_has_no_signature():
-    # the encoder's 1st harmonic reaches heading only through lambda2 (a product of errors):
+    # without mount_xi the encoder's 1st harmonic reaches heading only through lambda2 (a product):
     # at the nominal start (lambda2 = 0) it has no signature; the fit solves the paper's
     # parameters first and then sees it. Its 2nd harmonic has none at all: held by the user
     from hse_opt.validation.synthetic import diagnostic_plan, model_runs

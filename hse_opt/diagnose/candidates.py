@@ -137,6 +137,11 @@ def test_candidates(null, f0, runs, names, fix, refit):
 
 def _candidate(null, f0, runs, name, fix, refit):
     eff = make_effect(name)
+    missing = [n for n in eff.needs if n not in f0.model.effect_names]
+    if missing:  # a product with another effect's parameters (mount_xi with encoder_harmonic)
+        return Candidate(name, eff.description, tuple(q.name for q in eff.params), (), False,
+                         f"no heading signature without {', '.join(missing)} in the model (it acts "
+                         "only in a product with it): test them together"), None
     model1 = f0.model + eff
     mm1 = model1.measurement(f0.tilt_known)
     X1 = mm1.inputs_from_runs(runs)

@@ -100,3 +100,21 @@ def heading_error_first_order(rate, latitude, eps, xi, r_zb_s, psi, theta, gamma
     w, cL, sL = EARTH_RATE, np.cos(latitude), np.sin(latitude)
     d_omega_e = C23 * M33 * (rate + 1.5 * w * (C13 * cL - C33 * sL)) + c * w * (C33 * cL + C13 * sL)
     return -d_omega_e / (w * cL)
+
+
+def heading_error_encoder_mount(rate, latitude, psi, enc_c1, enc_s1, xi_x, xi_y):
+    """Heading error (rad, estimated - true) of the encoder's 1st harmonic meeting a horizontal
+    mount error, to first order in each (level base), derived here.
+
+    The calibrated ``C~_s^b = (I - [xi x]) C_s^b`` (Eq. 2) leaks the table rate into the
+    horizontal of b: ``-Omega xi x e_z = Omega (-xi_y, xi_x)``, as a complex number
+    ``i Omega z`` with ``z = xi_x + i xi_y``. The processor turns it into b0 with the encoder
+    angle ``alpha + delta``, ``delta = c1 cos(alpha) + s1 sin(alpha)``:
+    ``exp(i alpha) (1 + i delta) i Omega z``, whose revolution mean is
+    ``-Omega D z / 2`` with ``D = c1 + i s1`` (the mean of ``delta exp(i alpha)`` is ``D / 2``).
+    In n (``C_b0^n = rot_z(psi)``) its east part is ``Im(exp(i psi) (-Omega D z / 2))``, and
+    Eq. 12 gives ``Omega Im(exp(i psi) D z) / (2 w_ie cos L)``. Angles in rad, rate rad/s.
+    """
+    D = enc_c1 + 1j * enc_s1
+    z = xi_x + 1j * xi_y
+    return rate * np.imag(np.exp(1j * psi) * D * z) / (2.0 * EARTH_RATE * np.cos(latitude))

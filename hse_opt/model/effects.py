@@ -27,8 +27,9 @@ Declaring a new effect takes a few lines::
 from dataclasses import dataclass
 
 import casadi as ca
+import numpy as np
 
-from .. import units
+from .. import frames, units
 
 
 @dataclass(frozen=True)
@@ -73,6 +74,9 @@ class Effect:
     level: str = ""
     #: parameters entering the model nonlinearly (kept at nominal in linearised use)
     nonlinear: tuple = ()
+    #: catalogue effects without which this one has no heading signature (it acts only in a
+    #: product with theirs)
+    needs: tuple = ()
 
     @property
     def description(self):
@@ -175,7 +179,21 @@ class AzimuthHarmonic2(Effect):
 
 
 class EncoderHarmonic(Effect):
-    """Encoder periodic angle error (1st and 2nd harmonics of the table angle)."""
+    """Encoder periodic angle error (1st and 2nd harmonics of the table angle).
+
+    It turns the projection of the gyro outputs into b0 by delta(alpha), whose revolution
+    mean is zero, so alone it has no heading signature. Its 1st harmonic reaches heading
+    through the processed table rate's horizontal part in b: a rate fixed in the table top,
+    ``Omega h`` with ``h = (-xi_y, xi_x)`` for a mount error xi (Eq. 2), projected with the
+    erroneous angle, keeps a revolution mean ``-Omega (c1 + i s1) (xi_x + i xi_y) / 2`` in b0
+    (complex horizontal components): a heading error
+    ``Omega Im(exp(i psi) (c1 + i s1) (xi_x + i xi_y)) / (2 w_ie cos L)``
+    (:func:`hse_opt.model.closed_form.heading_error_encoder_mount`), about 0.6 arcsec per
+    arcsec of encoder error per 10 arcsec of misalignment at 40 deg/s. The model carries it
+    for every source of that horizontal part: declare the mount's with :class:`MountXi`
+    (a rotation-axis calibration error acts the same way, :meth:`MountXi.from_axis_error`);
+    lambda2 (``hse``) adds its own. The 2nd harmonic has no revolution mean with it.
+    """
 
     name = "encoder_harmonic"
     level = "encoder"
@@ -189,6 +207,46 @@ class EncoderHarmonic(Effect):
             return sum(p[f"enc_c{k}"] * ca.cos(k * alpha) + p[f"enc_s{k}"] * ca.sin(k * alpha)
                        for k in (1, 2))
         errors.add_encoder_error(delta, 2)
+
+
+class MountXi(Effect):
+    """IMU mount misaligned about x_b, y_b (xi_x, xi_y of Eq. 2): heading only with an encoder error.
+
+    The lab calibration C~_s^b = (I - [xi x]) C_s^b (Eq. 2) with a horizontal xi tilts the
+    processed rotation axis: the table rate leaks into the horizontal of b as ``Omega (-xi_y,
+    xi_x)``, which turns with the table and averages out over a revolution; so does the
+    Earth-rate term. Alone it moves the heading only at second order (products with lambda2,
+    < 1e-3 arcsec at the paper's sizes); with the encoder's 1st harmonic
+    (:class:`EncoderHarmonic`) it gives a heading error proportional to the rate. A
+    rotation-axis calibration error (r_zb^s) tilts the processed axis the same way: declare
+    its equivalent, :meth:`from_axis_error`.
+    """
+
+    name = "mount_xi"
+    level = "processing"
+    needs = ("encoder_harmonic",)
+    params = (
+        Param("xi_x", "arcsec", units.ARCSEC, 0.0, -600.0, 600.0,
+              "mount rotation about x_b left in the calibrated C~_s^b (Eq. 2)"),
+        Param("xi_y", "arcsec", units.ARCSEC, 0.0, -600.0, 600.0,
+              "mount rotation about y_b left in the calibrated C~_s^b (Eq. 2)"),
+    )
+
+    def act(self, p, op, errors):
+        errors.add_xi(ca.vertcat(p["xi_x"], p["xi_y"], 0))
+
+    @staticmethod
+    def from_axis_error(r_zb_s_true, r_zb_s_calibrated):
+        """``{"xi_x": .., "xi_y": ..}`` (arcsec) that tilt the processed rotation axis as
+        the calibrated axis ``r_zb_s_calibrated`` does when the true one is
+        ``r_zb_s_true`` (unit vectors in s): with ``d = C_s^b (r_true - r_cal)`` the
+        processed table rate leaks into b as ``Omega (d_x, d_y)``, the leak of
+        ``xi = (d_y, -d_x)``. (The axis error also turns x_b about the axis: a heading
+        offset, which ``offset`` absorbs.)"""
+        r_true = np.asarray(r_zb_s_true, dtype=float)
+        r_cal = np.asarray(r_zb_s_calibrated, dtype=float)
+        d = frames.c_b_s(r_cal).T @ (r_true / np.linalg.norm(r_true) - r_cal / np.linalg.norm(r_cal))
+        return {"xi_x": float(d[1] / units.ARCSEC), "xi_y": float(-d[0] / units.ARCSEC)}
 
 
 class Covariate(Effect):
@@ -216,7 +274,8 @@ class Covariate(Effect):
 
 
 CATALOGUE = {cls.name: cls for cls in
-             (HSE, AxisBias, SyncDelay, ScaleNonlinearity, Warmup, AzimuthHarmonic2, EncoderHarmonic)}
+             (HSE, AxisBias, SyncDelay, ScaleNonlinearity, Warmup, AzimuthHarmonic2, EncoderHarmonic,
+              MountXi)}
 
 
 def register_effect(cls):

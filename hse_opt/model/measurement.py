@@ -2,7 +2,8 @@
 
 A :class:`~hse_opt.model.composition.Model` (a set of effects) gives, for a set of runs, a
 :class:`MeasurementModel`: CasADi Functions ``h(p, x)`` (heading error of one run,
-rad, estimated - true, from the full nonlinear gyrocompass) and ``J(p, x) = dh/dp``, built
+rad, estimated - true, as the alignment processor forms it: the full nonlinear gyrocompass,
+:func:`~hse_opt.model.symbolic.heading_error_alignment`) and ``J(p, x) = dh/dp``, built
 once and batch-evaluated over runs with ``Function.map``.
 
 Run inputs ``x`` (SI), one column per run, read through the named view
@@ -30,8 +31,8 @@ from .. import units
 from ..compile_cache import compiled
 from .effects import Param
 from .inputs import RUN_FIELDS, RunInputs
-from .symbolic import (Operating, ErrorModel, averaged_rate_b0,
-                       heading_error_gyrocompass)
+from .symbolic import (Operating, ErrorModel, alignment_rates_b0, averaged_rate_b0,
+                       heading_error_alignment)
 
 #: a 1-mrad tilt must move the heading by this much per display unit for a parameter to
 #: count as tilt-coupled
@@ -47,28 +48,37 @@ def _measurement(model, tilt_known):
     return load_or_build(MeasurementModel, model, tilt_known)
 
 
-def symbolic_rate(model, p, x, covariate_names, omega_ie_b0=None):
-    """The chain of one run up to the revolution-averaged computed Earth rate in b0.
-
-    ``p``: dict of SI SX (or numbers) per parameter; ``x``: the run inputs; ``omega_ie_b0``:
-    optional stand-in (e.g. a symbol) for the true Earth rate in b0. Returns
-    ``(op, errors, omega_b0, degree)``; the heading error is
-    ``heading_error_gyrocompass(op, omega_b0) - errors.reference_error``.
-    """
+def _chain(model, p, x, covariate_names):
+    """The operating point of one run and the error model its effects build."""
     v = RunInputs(x, covariate_names)
     op = Operating(Omega=v.rate, psi=v.azimuth, theta=v.pitch, gamma=v.roll, L=v.latitude,
                    t_start=v.t_start, duration=v.duration, covariates=v.covariates)
     errors = ErrorModel()
     for e in model.effects:
         e.act(p, op, errors)
+    return op, errors
+
+
+def symbolic_rate(model, p, x, covariate_names, omega_ie_b0=None):
+    """The chain of one run up to the revolution-averaged computed Earth rate in b0.
+
+    ``p``: dict of SI SX (or numbers) per parameter; ``x``: the run inputs; ``omega_ie_b0``:
+    optional stand-in (e.g. a symbol) for the true Earth rate in b0. Returns
+    ``(op, errors, omega_b0, degree)``; without encoder harmonics (``errors.encoder_terms``
+    empty) the heading error is ``heading_error_gyrocompass(op, omega_b0) -
+    errors.reference_error``; with them the alignment splits the mean
+    (:func:`~hse_opt.model.symbolic.heading_error_alignment`).
+    """
+    op, errors = _chain(model, p, x, covariate_names)
     omega_b0, degree = averaged_rate_b0(op, errors, model.geometry, omega_ie_b0=omega_ie_b0)
     return op, errors, omega_b0, degree
 
 
 def _symbolic_heading(model, p, x, covariate_names):
     """Heading error (rad) of one run for parameters ``p`` (dict of SI SX) and inputs x."""
-    op, errors, omega_b0, degree = symbolic_rate(model, p, x, covariate_names)
-    return heading_error_gyrocompass(op, omega_b0) - errors.reference_error, degree
+    op, errors = _chain(model, p, x, covariate_names)
+    coarse, mean, degree = alignment_rates_b0(op, errors, model.geometry)
+    return heading_error_alignment(op, coarse, mean) - errors.reference_error, degree
 
 
 class MeasurementModel:

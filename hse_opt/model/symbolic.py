@@ -11,7 +11,9 @@ Every quantity is named as in the paper. The chain, for one operating point:
    ``omega~_ie_n = C_b^n (C~_s^b K~_g omega_ig_g - omega_nb_b)`` (Eq. 6);
 3. the error ``d_omega = omega~_ie_n - omega_ie_n`` and its parts (Eqs. 8-11);
 4. the revolution average (exact, see :func:`revolution_average`) and the heading error,
-   linear (Eq. 12) or from the full nonlinear gyrocompass.
+   linear (Eq. 12), from the full nonlinear gyrocompass, or as the alignment processor
+   forms it (:func:`alignment_rates_b0`, :func:`heading_error_alignment`: the same to first
+   order; they differ by products of errors when encoder harmonics meet a table-fixed rate).
 
 The model's effects (:mod:`hse_opt.model.effects`) act on this chain through an
 :class:`ErrorModel`: where the physics acts (gyro outputs, calibration, encoder, heading
@@ -254,9 +256,8 @@ def rate_b0(op, errors, geometry=Geometry(), form="exact", omega_ie_b0=None):
     C_n_b0 = c_b0_n(op.psi, op.theta, op.gamma, form).T
     if omega_ie_b0 is None:
         omega_ie_b0 = ca.mtimes(C_n_b0, frames.earth_rate_n(op.L))
-    C_b_b0 = frames.rot_z(alpha)
     omega_nb_b = op.Omega * E_Z
-    omega_ib_b = ca.mtimes(C_b_b0.T, omega_ie_b0) + omega_nb_b
+    omega_ib_b = ca.mtimes(frames.rot_z(alpha).T, omega_ie_b0) + omega_nb_b
 
     r_cal = r_cal if frames.is_symbolic(r_cal) else ca.DM(r_cal)
     r_true = r_cal + errors.d_r_zb_s
@@ -276,18 +277,73 @@ def rate_b0(op, errors, geometry=Geometry(), form="exact", omega_ie_b0=None):
 
     omega_b_est = ca.mtimes([c_s_b_tilde(C_s_b, errors.xi), k_g_tilde(K_g, errors.eps), out_g])
 
-    # encoder: alpha_enc = alpha - Omega*delay + delta(alpha); delta linearised (|delta| ~ 1e-5)
+    C_b_b0_enc, omega_nb_b_enc, order = encoder_projection(op, errors, alpha)
+    integrand = ca.mtimes(C_b_b0_enc, omega_b_est - omega_nb_b_enc)
+    return integrand, alpha, degree_body + 1 + order
+
+
+def encoder_projection(op, errors, alpha):
+    """What the processor takes from the encoder at the true table angle ``alpha``.
+
+    The encoder angle is ``alpha_enc = alpha - Omega*delay + delta(alpha)``, ``delta`` the sum
+    of the encoder terms, linearised (``|delta|`` ~ 1e-4 rad). Returns ``C_b^b0`` built from
+    it, the table rate it removes, ``Omega (1 + d delta / d alpha) e_z``, and the largest
+    harmonic order of ``delta``.
+    """
     delta = ca.SX(0)
     order = 0
     for fun, k in errors.encoder_terms:
         delta = delta + fun(alpha)
         order = max(order, k)
     d_delta = ca.jacobian(delta, alpha)
-    C_b_b0_enc = ca.mtimes([C_b_b0, frames.rot_z(-op.Omega * errors.encoder_delay),
+    C_b_b0_enc = ca.mtimes([frames.rot_z(alpha), frames.rot_z(-op.Omega * errors.encoder_delay),
                             ca.SX.eye(3) + delta * SKEW_Z])
-    omega_nb_b_enc = op.Omega * (1 + d_delta) * E_Z
-    integrand = ca.mtimes(C_b_b0_enc, omega_b_est - omega_nb_b_enc)
-    return integrand, alpha, degree_body + 1 + order
+    return C_b_b0_enc, op.Omega * (1 + d_delta) * E_Z, order
+
+
+def alignment_rates_b0(op, errors, geometry=Geometry(), form="exact"):
+    """The revolution-averaged rate in b0 as the alignment processor splits it.
+
+    The alignment processor (``hse-opt align``, :mod:`hse_opt.sim.align`: simulated and real
+    logs) levels and gyrocompasses (TRIAD) on the mean rate
+    with the parts fixed in the table top fitted out: a vector ``v`` fixed in b reaches b0
+    as ``g(alpha) v``, ``g`` the turn by the *encoder* angle (complex form, horizontal), and
+    the horizontal mean is fitted as ``w + g v`` (least squares over the revolution). Its
+    fine alignment (Kalman filter, table-fixed parts turning at the nominal rate) then sees
+    the remainder of the revolution mean, ``mean - w``, as an east rate error, linearly
+    (Eq. 12). The two differ only when the encoder angle is not uniform in time (encoder
+    harmonics): ``g`` then has a revolution mean ``mu`` and the fit moves ``mu v`` of a
+    table-fixed rate (a mount misalignment's leak of the table rate) out of the coarse mean.
+
+    Returns ``(omega_coarse, omega_mean, degree)``: the coarse mean ``w`` (vertical: the
+    plain mean), the plain revolution mean (:func:`averaged_rate_b0`) and its degree.
+    """
+    integrand, alpha, degree = rate_b0(op, errors, geometry, form)
+    mean = revolution_average(integrand, alpha, degree)
+    if not errors.encoder_terms:
+        return mean, mean, degree      # g = exp(i (alpha - Omega delay)): mu = 0
+    C_b_b0_enc, _, order = encoder_projection(op, errors, alpha)
+    g = C_b_b0_enc[0:2, 0]
+    z = integrand[0:2]
+    both = degree + 1 + order            # degree of conj(g) z, and above that of |g|^2
+
+    def avg(f):
+        return revolution_average(f, alpha, both)
+    mu = avg(g)
+    gg = avg(g[0] * g[0] + g[1] * g[1])
+    p = avg(ca.vertcat(g[0] * z[0] + g[1] * z[1], g[0] * z[1] - g[1] * z[0]))  # mean conj(g) z
+    mu_p = ca.vertcat(mu[0] * p[0] - mu[1] * p[1], mu[0] * p[1] + mu[1] * p[0])
+    w = (gg * mean[0:2] - mu_p) / (gg - mu[0] * mu[0] - mu[1] * mu[1])
+    return ca.vertcat(w, mean[2]), mean, degree
+
+
+def heading_error_alignment(op, omega_coarse, omega_mean, form="exact"):
+    """Heading error (rad, estimated - true) of the alignment processor: the full nonlinear
+    gyrocompass on the coarse mean (:func:`heading_error_gyrocompass`) plus the fine
+    alignment's linear response to the rest, ``-d_omega_E / (w_ie cos L)`` (Eq. 12); see
+    :func:`alignment_rates_b0`. Equal to the gyrocompass on the plain mean to first order."""
+    rest_n = ca.mtimes(c_b0_n(op.psi, op.theta, op.gamma, form), omega_mean - omega_coarse)
+    return heading_error_gyrocompass(op, omega_coarse, form) - rest_n[1] / (EARTH_RATE * ca.cos(op.L))
 
 
 def heading_error_linear(op, omega_b0, form="exact"):

@@ -9,7 +9,9 @@ here, once, with the sign conventions between the two sides:
   true - reading, and its harmonics are ``a sin(k x + phi)`` where the model has
   ``c cos(k x) + s sin(k x)``;
 * ``lambda2`` is spread equally over the simulator's ``gyro.eps_arcsec`` (eps1..eps3);
-* the model's common scale-factor nonlinearity is the same on each of the three gyros.
+* the model's common scale-factor nonlinearity is the same on each of the three gyros;
+* ``mount_xi`` writes the simulator's whole ``mount.xi_arcsec`` with ``xi_z = 0`` (the
+  warm-up and the temperature covariate turn the mount about z through their own keys).
 
 :func:`effect_names` is the list of effects that the demo, the studies, the tests and the
 benchmarks use: the catalogue's, then the covariate the simulator records. A catalogue
@@ -84,6 +86,8 @@ TWINS = {t.effect: t for t in (
          lambda v: {"stand": {"azimuth_harmonics": [harmonic(2, -v["az_c2"], -v["az_s2"])]}}),
     Twin("encoder_harmonic", ("encoder.harmonics",),
          lambda v: {"encoder": {"harmonics": [harmonic(k, v[f"enc_c{k}"], v[f"enc_s{k}"]) for k in (1, 2)]}}),
+    Twin("mount_xi", ("mount.xi_arcsec",),
+         lambda v: {"mount": {"xi_arcsec": [v["xi_x"], v["xi_y"], 0.0]}}),
     Twin("covariate:temp_c", ("mount.xi_z_tempco_arcsec_per_c", "thermal"),
          lambda v: {"mount": {"xi_z_tempco_arcsec_per_c": v["k_temp_c"]}}),
 )}
@@ -118,9 +122,10 @@ def effect_names():
 
 
 def hideable():
-    """The effects of :func:`effect_names` that the paper's model (``hse``) lacks: what a
-    campaign can hide from it."""
-    return tuple(n for n in effect_names() if n != "hse")
+    """The effects of :func:`effect_names` that the paper's model (``hse``) lacks and that
+    show in the heading on their own (no ``Effect.needs``; ``mount_xi`` acts only with
+    ``encoder_harmonic``): what a campaign can hide from it."""
+    return tuple(n for n in effect_names() if n != "hse" and not effect(n).needs)
 
 
 def hidden(sizes, pairs=()):
