@@ -36,3 +36,12 @@ def test_formats_doc_names_every_column_the_loaders_read():
     plan = text[text.index("`PLAN.csv` - one row per planned alignment"):].split("\n\n", 1)[0]
     for col in Plan._COLUMNS:
         assert re.search(rf"\b{col.name}\b", plan), col.name
+
+
+def test_readme_names_the_oldest_stack_that_pyproject_pins():
+    """``.ci/oldest`` runs the suite with exactly pyproject's lower bounds; the README names them."""
+    deps = re.search(r"dependencies = \[(.*?)\]", (ROOT / "pyproject.toml").read_text(), re.S).group(1)
+    readme = " ".join((ROOT / "README.md").read_text(encoding="utf-8").split())
+    for name in ("numpy", "scipy", "casadi", "cvxpy"):
+        low = re.search(rf'"{name}>=([0-9.]+)"', deps).group(1)
+        assert f"{name} {low}" in readme, f"README does not name {name} {low}, the lower bound"
