@@ -251,6 +251,14 @@ def rate_b0(op, errors, geometry=Geometry(), form="exact", omega_ie_b0=None):
         degree + 1 samples): 1 for the body rate, times the largest gyro-output degree,
         plus 1 + the largest encoder harmonic for the encoder-angle projection.
     """
+    C_b_b0_enc, rate_b, alpha, degree = _projected(op, errors, geometry, form, omega_ie_b0)
+    return ca.mtimes(C_b_b0_enc, rate_b), alpha, degree
+
+
+def _projected(op, errors, geometry, form, omega_ie_b0=None):
+    """The two factors of :func:`rate_b0`: the processor's ``C_b^b0`` (encoder angle) and the
+    processed rate in b, ``C~_s^b K~_g omega_ig_g - omega_nb_b``, at the symbol alpha; then
+    alpha and the degree."""
     r_cal, K_g = (geometry.r_zb_s, geometry.K_g) if isinstance(geometry, Geometry) else geometry
     alpha = ca.SX.sym("alpha")
     C_n_b0 = c_b0_n(op.psi, op.theta, op.gamma, form).T
@@ -278,8 +286,7 @@ def rate_b0(op, errors, geometry=Geometry(), form="exact", omega_ie_b0=None):
     omega_b_est = ca.mtimes([c_s_b_tilde(C_s_b, errors.xi), k_g_tilde(K_g, errors.eps), out_g])
 
     C_b_b0_enc, omega_nb_b_enc, order = encoder_projection(op, errors, alpha)
-    integrand = ca.mtimes(C_b_b0_enc, omega_b_est - omega_nb_b_enc)
-    return integrand, alpha, degree_body + 1 + order
+    return C_b_b0_enc, omega_b_est - omega_nb_b_enc, alpha, degree_body + 1 + order
 
 
 def encoder_projection(op, errors, alpha):
@@ -305,35 +312,30 @@ def alignment_rates_b0(op, errors, geometry=Geometry(), form="exact"):
     """The revolution-averaged rate in b0 as the alignment processor splits it.
 
     The alignment processor (``hse-opt align``, :mod:`hse_opt.sim.align`: simulated and real
-    logs) levels and gyrocompasses (TRIAD) on the mean rate
-    with the parts fixed in the table top fitted out: a vector ``v`` fixed in b reaches b0
-    as ``g(alpha) v``, ``g`` the turn by the *encoder* angle (complex form, horizontal), and
-    the horizontal mean is fitted as ``w + g v`` (least squares over the revolution). Its
-    fine alignment (Kalman filter, table-fixed parts turning at the nominal rate) then sees
-    the remainder of the revolution mean, ``mean - w``, as an east rate error, linearly
-    (Eq. 12). The two differ only when the encoder angle is not uniform in time (encoder
-    harmonics): ``g`` then has a revolution mean ``mu`` and the fit moves ``mu v`` of a
-    table-fixed rate (a mount misalignment's leak of the table rate) out of the coarse mean.
+    logs) levels and gyrocompasses (TRIAD) on the mean rate with the parts fixed in the table
+    top fitted out: a vector ``v`` fixed in b reaches b0 as ``g(alpha) v``, ``g`` the turn by
+    the *encoder* angle (complex form, horizontal), and the horizontal mean is fitted as
+    ``w + g v`` over the revolution, which gives ``w = mean - mu v`` with ``mu`` the
+    revolution mean of ``g``. Its fine alignment (Kalman filter, table-fixed parts turning
+    at the nominal rate) then sees the remainder, ``mu v``, as an east rate error, linearly
+    (Eq. 12). ``mu`` is nonzero only when the encoder angle is not uniform in time (encoder
+    harmonics: ``mu = i (c1 + i s1) / 2``), and ``v`` is large when a mount misalignment
+    leaks the table rate into b.
 
     Returns ``(omega_coarse, omega_mean, degree)``: the coarse mean ``w`` (vertical: the
     plain mean), the plain revolution mean (:func:`averaged_rate_b0`) and its degree.
     """
-    integrand, alpha, degree = rate_b0(op, errors, geometry, form)
-    mean = revolution_average(integrand, alpha, degree)
-    if not errors.encoder_terms:
-        return mean, mean, degree      # g = exp(i (alpha - Omega delay)): mu = 0
-    C_b_b0_enc, _, order = encoder_projection(op, errors, alpha)
-    g = C_b_b0_enc[0:2, 0]
-    z = integrand[0:2]
-    both = degree + 1 + order            # degree of conj(g) z, and above that of |g|^2
-
-    def avg(f):
-        return revolution_average(f, alpha, both)
-    mu = avg(g)
-    gg = avg(g[0] * g[0] + g[1] * g[1])
-    p = avg(ca.vertcat(g[0] * z[0] + g[1] * z[1], g[0] * z[1] - g[1] * z[0]))  # mean conj(g) z
-    mu_p = ca.vertcat(mu[0] * p[0] - mu[1] * p[1], mu[0] * p[1] + mu[1] * p[0])
-    w = (gg * mean[0:2] - mu_p) / (gg - mu[0] * mu[0] - mu[1] * mu[1])
+    C_b_b0_enc, rate_b, alpha, degree = _projected(op, errors, geometry, form)
+    integrand = ca.mtimes(C_b_b0_enc, rate_b)
+    if not errors.encoder_terms:       # g = exp(i (alpha - Omega delay)): mu = 0
+        mean = revolution_average(integrand, alpha, degree)
+        return mean, mean, degree
+    # one set of angles for the mean and the table-fixed part v (the b-frame mean)
+    both = revolution_average(ca.vertcat(integrand, rate_b[0:2]), alpha, degree)
+    mean, v = both[0:3], both[3:5]
+    order = max(k for _, k in errors.encoder_terms)
+    mu = revolution_average(C_b_b0_enc[0:2, 0], alpha, 1 + order)
+    w = mean[0:2] - ca.vertcat(mu[0] * v[0] - mu[1] * v[1], mu[0] * v[1] + mu[1] * v[0])
     return ca.vertcat(w, mean[2]), mean, degree
 
 
