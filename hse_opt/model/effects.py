@@ -188,11 +188,14 @@ class EncoderHarmonic(Effect):
     erroneous angle, keeps a revolution mean ``-Omega (c1 + i s1) (xi_x + i xi_y) / 2`` in b0
     (complex horizontal components): a heading error
     ``Omega Im(exp(i psi) (c1 + i s1) (xi_x + i xi_y)) / (2 w_ie cos L)``
-    (:func:`hse_opt.model.closed_form.heading_error_encoder_mount`), about 0.6 arcsec per
+    (:func:`hse_opt.model.closed_form.heading_error_encoder_mount`), up to 0.26 arcsec per
     arcsec of encoder error per 10 arcsec of misalignment at 40 deg/s. The model carries it
     for every source of that horizontal part: declare the mount's with :class:`MountXi`
     (a rotation-axis calibration error acts the same way, :meth:`MountXi.from_axis_error`);
-    lambda2 (``hse``) adds its own. The 2nd harmonic has no revolution mean with it.
+    lambda2 (``hse``) adds its own. The 2nd harmonic has no revolution mean with it; the
+    alignment filter leaves a start-up transient of it (up to ~0.08 arcsec at 20 deg/s for
+    30 arcsec of encoder error and 140 arcsec of misalignment in 10 minutes, falling as
+    1/duration), which no revolution mean holds (``studies/encoder_coupling.py``).
     """
 
     name = "encoder_harmonic"
@@ -215,11 +218,11 @@ class MountXi(Effect):
     The lab calibration C~_s^b = (I - [xi x]) C_s^b (Eq. 2) with a horizontal xi tilts the
     processed rotation axis: the table rate leaks into the horizontal of b as ``Omega (-xi_y,
     xi_x)``, which turns with the table and averages out over a revolution; so does the
-    Earth-rate term. Alone it moves the heading only at second order (products with lambda2,
-    < 1e-3 arcsec at the paper's sizes); with the encoder's 1st harmonic
-    (:class:`EncoderHarmonic`) it gives a heading error proportional to the rate. A
-    rotation-axis calibration error (r_zb^s) tilts the processed axis the same way: declare
-    its equivalent, :meth:`from_axis_error`.
+    Earth-rate term. Alone it moves the heading only at second order (products with lambda2:
+    < 1e-4 arcsec at xi = (3, -2) arcsec and lambda2 = 4.2 arcsec, < 0.01 at 100 arcsec); with
+    the encoder's 1st harmonic (:class:`EncoderHarmonic`) it gives a heading error
+    proportional to the rate. A rotation-axis calibration error (r_zb^s) tilts the processed
+    axis the same way: declare its equivalent, :meth:`from_axis_error`.
     """
 
     name = "mount_xi"
