@@ -8,17 +8,19 @@ from ..information import UnidentifiableError, analyse, blind_out, invisible, nu
 from ..model.composition import as_model
 from .problem import Problem, position_projector, setup
 from .result import FitResult, SolverError
-from .solvers import gauss_newton, solve
+from .solvers import gauss_newton, gauss_newton_step, solve, subspace
 from .weights import HUBER_C, huber_weights, mad_scale, run_sigma
 
 
-def _profile_start(prob, w, z, A_eq, b_eq, lin, given=(), points=25):
-    """Start values of the nonlinear parameters from their profiles: each in turn on a grid over
-    its range (log-spaced for a positive one, e.g. a time constant), the linear parameters solved
-    exactly at every point (they enter linearly), the point of the smallest objective kept. A
-    start far from the optimum of a time constant otherwise leaves the solvers on a plateau
-    (IPOPT's Maximum_Iterations_Exceeded on a warm-up campaign). ``given``: names whose start
-    the caller chose (kept)."""
+def _profile_start(prob, w, z, A_eq, b_eq, lin, given=(), points=25, coarse=3):
+    """Start values of the nonlinear parameters from their profiles: each in turn on a grid of
+    ``points`` over its range (log-spaced for a positive one, e.g. a time constant), the linear
+    parameters solved exactly at each point (they enter linearly: one step, one batch call of
+    the model), the point of the smallest objective kept. The grid is searched coarse to fine:
+    every ``coarse``-th point, then the points between the best one's neighbours. A start far
+    from the optimum of a time constant otherwise leaves the solvers on a plateau (IPOPT's
+    Maximum_Iterations_Exceeded on a warm-up campaign). ``given``: names whose start the
+    caller chose (kept)."""
     for j in np.flatnonzero(prob.nonlinear):
         if prob.names[j] in given:
             continue
@@ -26,16 +28,33 @@ def _profile_start(prob, w, z, A_eq, b_eq, lin, given=(), points=25):
         if not (np.isfinite(lo) and np.isfinite(hi) and lo < hi):
             continue
         grid = np.geomspace(lo, hi, points) if lo > 0 else np.linspace(lo, hi, points)
-        best, f_best = z, prob.objective(z, w)
-        for value in grid:
-            trial = z.copy()
-            trial[j] = value
-            trial, _ = gauss_newton(prob, w, trial, A_eq, b_eq, max_iter=1, mask=lin)
-            trial = np.clip(trial, prob.lb, prob.ub)
-            f = prob.objective(trial, w)
-            if f < f_best:
-                best, f_best = trial, f
-        z = best
+        f_start, tried = prob.objective(z, w), {}
+
+        def profile(i):
+            """(objective, z) with parameter j at grid[i], the linear parameters solved."""
+            if i not in tried:
+                trial = z.copy()
+                trial[j] = grid[i]
+                Z, trial = subspace(prob, trial, A_eq, b_eq, lin)
+                out = gauss_newton_step(prob, w, trial, Z) if Z.shape[1] else (0.0, None, None)
+                if out is None or not np.all(np.isfinite(out[0])):
+                    tried[i] = (np.inf, trial)
+                else:
+                    # the QR's predicted objective is the objective after the step (the linear
+                    # parameters enter linearly); evaluated when a bound clips the step
+                    step, _, f = out
+                    stepped = trial + step
+                    trial = np.clip(stepped, prob.lb, prob.ub)
+                    if f is None or not np.array_equal(trial, stepped):
+                        f = prob.objective(trial, w)
+                    tried[i] = (f, trial)
+            return tried[i]
+
+        best = min(range(0, points, coarse), key=lambda i: profile(i)[0])
+        best = min(range(max(best - coarse + 1, 0), min(best + coarse, points)), key=lambda i: profile(i)[0])
+        f, trial = profile(best)
+        if f < f_start:
+            z = trial
     return z
 
 
