@@ -72,3 +72,28 @@ def test_identical_replicates_are_said():
     assert d.lack_of_fit is not None and d.lack_of_fit.p_value is None
     assert "identical" in d.lack_of_fit.note
     assert d.fit.weighting == "residual" and any("replicates are identical" in n for n in d.notes)
+
+
+def test_chi2_quantile_matches_scipy():
+    """The chi-square check's interval (bisection on the closed-form chi2_sf, no scipy at
+    start-up) against scipy.stats over even and odd dof, both tails."""
+    from hse_opt.fit.result import chi2_isf
+    for dof in (1, 2, 3, 10, 11, 96, 97, 9996, 9997):
+        for q in (1e-12, 0.005, 0.5, 0.995):
+            assert chi2_isf(q, dof) == pytest.approx(stats.chi2.isf(q, dof), rel=1e-9)
+    with pytest.raises(ValueError, match="q 1.0"):
+        chi2_isf(1.0, 3)
+
+
+@pytest.mark.parametrize("shift_arcsec", [0.0, 25.0, 32.0, 36.0, 40.0, 60.0])
+def test_outliers_are_the_exact_bonferroni_t_test(shift_arcsec):
+    """The outlier test skips scipy when the largest residual passes the normal test (Student's
+    t has the heavier tails); around the threshold it must name exactly the runs scipy's t test
+    rejects (shifts of 25-40 arcsec on a 7.6-arcsec run straddle it)."""
+    for seed in range(3):
+        runs = runs_with_outlier(seed=seed, shift_arcsec=shift_arcsec)
+        f = fit(runs)
+        t, _ = studentized(f, runs)
+        p = len(t) * 2 * stats.t.sf(np.abs(t), f.dof - 1)
+        expected = sorted(int(r) for r in f.run[p < 0.01])
+        assert sorted(r for r, _ in outliers(f, runs)) == expected

@@ -38,17 +38,28 @@ def test_package_and_command_line_load_nothing_heavy(code):
     assert _roots(_loaded(code)) == set()
 
 
-def test_fit_loads_casadi_but_not_cvxpy_or_matplotlib():
+def test_fit_loads_casadi_but_not_cvxpy_matplotlib_or_scipy():
     mods = _loaded("import hse_opt; hse_opt.fit")
-    assert "casadi" in mods and not _roots(mods) & {"cvxpy", "matplotlib"}
+    assert "casadi" in mods and not _roots(mods) & {"cvxpy", "matplotlib", "scipy"}
 
 
-def test_fit_command_loads_neither_cvxpy_nor_matplotlib():
+@pytest.mark.parametrize("std_arcsec", [None, 2.0])
+def test_fit_command_loads_neither_cvxpy_nor_matplotlib_nor_scipy(tmp_path, std_arcsec):
+    """The fit command with its run checks loads no scipy (scipy.stats alone costs a second of
+    start-up): Table 1 passes the chi-square check with the sigma from pure error and fails it
+    with a heading_std of 2 arcsec (its scatter is ~8 arcsec); no run is an outlier."""
     table = ROOT / "hse_opt" / "datasets" / "paper_table1.csv"
-    mods = _loaded("import contextlib, io, hse_opt.cli\n"
-                   "with contextlib.redirect_stdout(io.StringIO()):\n"
-                   f"    assert hse_opt.cli.main(['fit', {str(table)!r}, '--fix', 'lambda2*tilt_const=0']) == 0")
-    assert "casadi" in mods and not _roots(mods) & {"cvxpy", "matplotlib"}
+    std = "None" if std_arcsec is None else f"np.full(len(runs), {std_arcsec} * units.ARCSEC)"
+    mods = _loaded("import contextlib, io, numpy as np, hse_opt.cli\n"
+                   "from hse_opt import units\n"
+                   "from hse_opt.data import load_runs, save_runs\n"
+                   f"runs = load_runs({str(table)!r})\n"
+                   f"save_runs(runs.replace(heading_std={std}), {str(tmp_path / 'RUNS.csv')!r})\n"
+                   "with contextlib.redirect_stdout(io.StringIO()) as out:\n"
+                   f"    assert hse_opt.cli.main(['fit', {str(tmp_path / 'RUNS.csv')!r}, '--fix', "
+                   "'lambda2*tilt_const=0']) == 0\n"
+                   f"assert ('far from 1' in out.getvalue()) == {std_arcsec is not None}, out.getvalue()")
+    assert "casadi" in mods and not _roots(mods) & {"cvxpy", "matplotlib", "scipy"}
 
 
 def test_api_names_stay_functions_after_their_modules_are_imported():

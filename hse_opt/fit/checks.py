@@ -1,10 +1,16 @@
 """What a user should look at after a fit: runs far off the model (externally studentised
 residuals, Bonferroni over the runs), a reduced chi-square far from 1 when sigma is known or
-from pure error, and degenerate noise (zero scatter)."""
+from pure error, and degenerate noise (zero scatter).
+
+Every ``hse-opt fit`` runs these checks, so they load no scipy.stats (a second of start-up):
+the chi-square check uses the closed form :func:`~hse_opt.fit.result.chi2_sf`, and the
+outlier test asks scipy for Student's t only when a run could be an outlier."""
+import math
+
 import numpy as np
-from scipy import stats
 
 from .. import units
+from .result import chi2_isf, chi2_sf
 
 #: family-wise level of the outlier test and two-sided level of the chi-square check
 ALPHA = 0.01
@@ -36,8 +42,12 @@ def outliers(result, runs, alpha=ALPHA):
     largest first."""
     t, _ = studentized(result, runs)
     n, dof = t.size, int(result.dof)
-    if dof < 2:
+    largest = float(np.max(np.nan_to_num(np.abs(t)), initial=0.0))
+    # Student's t has the heavier tails (P(|T| > x) >= P(|Z| > x), Jensen: a Gaussian scale
+    # mixture): when the largest residual passes the normal test, no run is an outlier
+    if dof < 2 or n * math.erfc(largest / math.sqrt(2.0)) >= alpha:
         return []
+    from scipy import stats
     with np.errstate(invalid="ignore"):
         p = n * 2 * stats.t.sf(np.abs(t), dof - 1)
     order = np.argsort(-np.nan_to_num(np.abs(t)))
@@ -53,8 +63,9 @@ def check_lines(result, runs):
                    "or copied values); sigmas, tests and uncertainties mean nothing here")
         return out
     if result.weighting in ("heading_std", "pure-error") and result.dof > 0:
-        lo, hi = stats.chi2.ppf([ALPHA / 2, 1 - ALPHA / 2], result.dof) / result.dof
-        if not lo <= result.chi2_red <= hi:
+        p = chi2_sf(result.chi2_red * result.dof, result.dof)
+        if not ALPHA / 2 <= p <= 1 - ALPHA / 2:
+            lo, hi = (chi2_isf(q, result.dof) / result.dof for q in (1 - ALPHA / 2, ALPHA / 2))
             why = ("the scatter exceeds the sigmas: a missing effect or outliers (hse-opt diagnose), or "
                    "optimistic sigmas" if result.chi2_red > hi else "the scatter is below the sigmas: "
                    "pessimistic sigmas, or replicates that are not independent")

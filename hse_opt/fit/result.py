@@ -39,6 +39,20 @@ def chi2_sf(x, dof):
     return float(min(1.0, math.erfc(math.sqrt(x)) + np.exp(log_terms).sum()))
 
 
+
+def chi2_isf(q, dof):
+    """The ``x`` with :func:`chi2_sf` ``(x, dof) = q`` (0 < q < 1), by bisection to 1e-12
+    relative: the chi-square quantile without scipy."""
+    if not 0.0 < q < 1.0:
+        raise ValueError(f"q {q}: allowed 0 < q < 1")
+    lo, hi = 0.0, float(dof) + 10.0 * math.sqrt(2.0 * dof) + 50.0
+    while chi2_sf(hi, dof) > q:
+        lo, hi = hi, 2.0 * hi
+    while hi - lo > 1e-12 * hi:
+        mid = 0.5 * (lo + hi)
+        lo, hi = (mid, hi) if chi2_sf(mid, dof) > q else (lo, mid)
+    return 0.5 * (lo + hi)
+
 @dataclass(frozen=True)
 class Constraint:
     """A linear constraint ``lower <= sum(c_i * value_i) <= upper`` between parameters, in
