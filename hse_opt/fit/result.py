@@ -39,7 +39,6 @@ def chi2_sf(x, dof):
     return float(min(1.0, math.erfc(math.sqrt(x)) + np.exp(log_terms).sum()))
 
 
-
 def chi2_isf(q, dof):
     """The ``x`` with :func:`chi2_sf` ``(x, dof) = q`` (0 < q < 1), by bisection to 1e-12
     relative: the chi-square quantile without scipy."""
@@ -52,6 +51,7 @@ def chi2_isf(q, dof):
         mid = 0.5 * (lo + hi)
         lo, hi = (mid, hi) if chi2_sf(mid, dof) > q else (lo, mid)
     return 0.5 * (lo + hi)
+
 
 @dataclass(frozen=True)
 class Constraint:
