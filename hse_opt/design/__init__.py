@@ -19,14 +19,18 @@ the information matrix into a loss; :func:`design` minimises it within a test-ti
    ``problem.status`` is checked: a failure raises :class:`DesignError` with it; an
    ``optimal_inaccurate`` end is judged by the certificate (kept at >= 0.99, and said in the
    result's notes below 0.999).
-3. **Exact design** -- the approximate design's support is first reduced (Caratheodory: same
-   information matrices on fewer candidates), then rounded efficiently (Pukelsheim & Rieder
-   1992, :func:`apportion`) to ``n`` whole runs, ``n`` the largest for which the plan with its
-   setup times (:class:`Costs`) fits the budget, then polished by one-run exchanges. Setups
-   are not linear in the run numbers: a greedy search drops stand positions while the rounded
-   plan gets better (``prune``). The *efficiency* is measured against the approximate
-   optimum for the same alignment time (``efficiency``) and for the whole budget
-   (``budget_efficiency``, which also counts the time the setups take).
+3. **Exact design** -- the approximate design's support is first reduced (the same
+   information matrices on few stand positions, then Caratheodory: on fewer candidates),
+   then rounded efficiently (Pukelsheim & Rieder 1992, :func:`apportion`) to ``n`` whole
+   runs, ``n`` the largest for which the plan with its setup times (:class:`Costs`) fits the
+   budget (with time slots: slot by slot, each slot's runs ending within it), then polished
+   by one-run exchanges. Setups are not linear in the run numbers: a greedy search drops
+   stand positions while the rounded plan gets better (``prune``). The *efficiency* is
+   measured against the approximate optimum for the same alignment time (in each time slot;
+   ``efficiency``) and for the whole budget (``budget_efficiency``, which also counts the
+   time the setups take). Ties between candidates (symmetric ones tie exactly) are broken
+   canonically, within stated tolerances, by the candidates' settings, so that the plan does
+   not depend on floating-point noise (:mod:`.ties`).
 4. **Refinement** -- IPOPT (CasADi) moves the exact design's rates and azimuths off the
    candidate grid (runs sharing an azimuth or a rate keep sharing it, so setups do not grow).
 5. **Run order** -- runs sharing a setting run together and settings are grouped by their
@@ -54,7 +58,7 @@ of the test. The final plan is always evaluated at its real start times.
 The package's modules, one step each: :mod:`.criteria`, :mod:`.space` (stand, costs, design
 space), :mod:`.problem` (information rows, the problem object), :mod:`.approximate`,
 :mod:`.reduction`, :mod:`.rounding`, :mod:`.refine`, :mod:`.resolution`, :mod:`.order`,
-:mod:`.evaluation`, :mod:`.plans` and :mod:`.pipeline` (:func:`design`). Monte Carlo validation of a plan with the simulator is
+:mod:`.evaluation`, :mod:`.plans`, :mod:`.ties` and :mod:`.pipeline` (:func:`design`). Monte Carlo validation of a plan with the simulator is
 :func:`hse_opt.validation.monte_carlo.monte_carlo` (validation sits above design and sim).
 """
 import sys

@@ -19,9 +19,11 @@ import numpy as np
 
 from ..information import UnidentifiableError
 from .criteria import CASADI, CvxOps, NotSmooth, Scaled, as_criterion
+from . import ties
 from .problem import Problem, Rows
 from .reduction import SUPPORT_TOL
 from .space import Candidates, positive
+from .ties import VALUE_RTOL
 
 SOLVERS = ("CLARABEL", "SCS")
 #: a certified efficiency that ends the column generation when another round does not raise it
@@ -72,21 +74,25 @@ class ApproximateDesign:
         return np.flatnonzero(self.runs > SUPPORT_TOL * self.runs.max())
 
 
-def solve_approximate(prob, batch=128, polish=True, target=1 - 1e-7, enough=ENOUGH):
+def solve_approximate(prob, batch=128, polish=True, target=1 - 1e-7, enough=ENOUGH, start=None):
     """The approximate design of ``prob`` by column generation: convex programs over a
     growing active set until the equivalence theorem certifies the solution over every
     candidate to ``target``, or to ``enough`` when a round raises the certificate by less than
     1e-5 (the conic solver's accuracy, not the active set, then limits it); ``polish``: each
-    solution re-solved on its support by :func:`polish_weights`."""
+    solution re-solved on its support by :func:`polish_weights`; ``start``: candidates the
+    first active set also holds (e.g. the support of a neighbouring problem's design)."""
     t0 = time.perf_counter()
     n, slot = prob.n, prob.slot
     active = _initial_active(prob)
+    if start is not None:
+        active = np.union1d(active, start)
     last = -np.inf
     for it in range(1, 100):
         best, failures = None, []
+        sub = prob.take(active)
         for solver in (prob.solver,) if prob.solver else SOLVERS:
             try:
-                w_a, mus, status, used, sup_grads = _convex(replace(prob.take(active), solver=solver))
+                w_a, mus, status, used, sup_grads = _convex(replace(sub, solver=solver))
             except DesignError as err:  # the next solver
                 failures.append(str(err).partition("not solved: ")[2] or str(err))
                 continue
@@ -100,7 +106,9 @@ def solve_approximate(prob, batch=128, polish=True, target=1 - 1e-7, enough=ENOU
                     (w, mus), (loss, h, cert) = polished, trial
             if best is None or cert > best[2]:
                 best = (w, mus, cert, loss, h, status, used)
-            if status == cp.OPTIMAL or cert >= 0.99:  # else the next solver (an inaccurate end, judged)
+            # an inaccurate end is judged by the certificate over the candidates it was given
+            # (over all of them it is low in early rounds, whatever the solver); else the next solver
+            if status == cp.OPTIMAL or cert >= 0.99 or certify(sub, w[active], mus, sup_grads)[2] >= 0.99:
                 break
         if best is None:
             raise DesignError("the approximate design's convex program was not solved: " + "; ".join(failures))
@@ -109,10 +117,10 @@ def solve_approximate(prob, batch=128, polish=True, target=1 - 1e-7, enough=ENOU
             break
         last = max(last, cert)
         # a candidate enters when spending its slot's share of the budget on it beats the slot's runs
-        value = h * np.minimum(prob.budget / prob.cost / prob.n_slots,
+        value = h * np.minimum(prob.slot_budget[slot] / prob.cost,
                                np.inf if prob.max_runs is None else prob.max_runs)
         now = np.bincount(slot, h * w, minlength=prob.n_slots)[slot]
-        order = np.argsort(-(value - now), kind="stable")
+        order = ties.order(-(value - now), prob.rank, VALUE_RTOL)
         new = order[(value[order] > now[order] + 1e-9 * abs(now[order])) & ~np.isin(order, active)][:batch]
         if new.size == 0:
             break
@@ -183,7 +191,7 @@ def polish_weights(prob, w, loss0):
     S = np.zeros((n_slots, m))
     S[slot[sup], np.arange(m)] = cost[sup]
     lin = [S] + ([np.ones((1, m))] if max_runs is not None else [])
-    ub = [np.full(n_slots, prob.budget / n_slots)] + ([[max_runs]] if max_runs is not None else [])
+    ub = [prob.slot_budget] + ([[max_runs]] if max_runs is not None else [])
     g = ([ca.mtimes(ca.DM(np.vstack(lin)), u)]
          + [mean_loss_of(gd.rows, gd.spec, CASADI.log_det) for gd in prob.guards])
     g += [e for e, _ in links]
@@ -228,7 +236,7 @@ def _convex(prob):
     else:  # each time slot its share of the budget
         S = np.zeros((n_slots, n))
         S[slot, np.arange(n)] = 1.0
-        cons = [S @ u <= 1.0 / n_slots]
+        cons = [S @ u <= prob.slot_budget / prob.budget]
     if prob.max_runs is not None:
         cons.append(scale @ u <= prob.max_runs)
 
@@ -296,8 +304,10 @@ def _solve(problem, solver):
 def _run_solver(problem, name):
     if name == "SCS":
         problem.solve(solver=name, eps_abs=1e-8, eps_rel=1e-8, max_iters=20000)  # a fallback: seconds, not minutes
-    elif name == "CLARABEL":  # the chordal split of the small dense cones costs accuracy
-        problem.solve(solver=name, chordal_decomposition_enable=False)
+    elif name == "CLARABEL":  # the chordal split of the small dense cones costs accuracy; A-optimal
+        # programs with time slots take 200-400 iterations (the default 200 ended them user_limit,
+        # and SCS then took 1 s a program)
+        problem.solve(solver=name, chordal_decomposition_enable=False, max_iter=1000)
     else:
         problem.solve(solver=name)
 
@@ -311,13 +321,13 @@ def certificate(prob, loss, h, w, mus, tangent=None):
     if max_runs is None:
         per_slot = np.full(n_slots, -np.inf)
         np.maximum.at(per_slot, slot, h / cost)
-        best = float(np.sum(np.maximum(per_slot, 0.0)) * budget / n_slots)
+        best = float(np.maximum(per_slot, 0.0) @ prob.slot_budget)
     else:
         from scipy.optimize import linprog
         S = np.zeros((n_slots, cost.size))
         S[slot, np.arange(cost.size)] = cost
         res = linprog(-h, A_ub=np.vstack([S, np.ones_like(cost)]),
-                      b_ub=[budget / n_slots] * n_slots + [max_runs], bounds=(0, None), method="highs")
+                      b_ub=[*prob.slot_budget, max_runs], bounds=(0, None), method="highs")
         if res.status != 0:
             raise DesignError(f"equivalence-theorem bound: linprog status {res.status} ({res.message})")
         best = float(-res.fun)

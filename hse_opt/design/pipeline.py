@@ -35,7 +35,8 @@ class DesignResult:
         Predicted sigmas and drift biases of the plan (at its start times).
     criterion : str
     efficiency : float
-        Against the approximate optimum for the plan's alignment time (rounding, then
+        Against the approximate optimum for the plan's alignment time (with time slots: the
+        plan's alignment time in each slot; rounding, then
         refinement: above 1 when refinement gains more off the candidate grid than the
         rounding lost).
     rounding_efficiency : float
@@ -250,12 +251,14 @@ def design(model=None, criterion="c:lambda2", *, budget, space=None, stand=None,
         raise UnidentifiableError(f"{int(exact.counts.sum())} whole runs within the budget cannot identify "
                                   f"the model for criterion {crit.label}", spec.names)
 
-    # the approximate optimum for the exact plan's alignment time
-    t_align = float(exact.counts @ (exact.settings.duration + costs.run_overhead))
-    if prior is None and max_runs is None:
+    # the approximate optimum for the exact plan's alignment time (in each time slot)
+    t_slot = exact.slot_times(costs.run_overhead, prob.n_slots)
+    t_align = float(t_slot.sum())
+    if prior is None and max_runs is None and np.ptp(t_slot) <= 1e-9 * t_align:
         loss_same = prob.loss(approx.runs * t_align / B)
     else:
-        loss_same = solve_approximate(prob.with_budget(t_align)).loss
+        loss_same = solve_approximate(prob.with_budget(t_align, t_slot if prob.n_slots > 1 else None),
+                                      start=approx.support).loss
     rounding_eff = crit.efficiency(exact.loss, loss_same, spec.k)
 
     status = "off"

@@ -122,7 +122,8 @@ class Problem:
         Budget for ``sum_i w_i cost_i`` (the alignment time after the warm-up).
     max_runs : int or None
     slot : numpy.ndarray of int, shape (n,)
-        Time slot of each candidate (0 ... n_slots - 1); each slot has ``budget / n_slots``.
+        Time slot of each candidate (0 ... n_slots - 1); each slot has ``budget / n_slots``
+        (or its ``shares`` entry).
     n_slots : int
     candidates : Candidates or None
         The settings (None for :func:`~hse_opt.design.approximate_design` on given rows).
@@ -130,6 +131,12 @@ class Problem:
         Setup costs (rounding to whole runs needs them).
     solver : str or None
         cvxpy solver (None: Clarabel, then SCS).
+    shares : numpy.ndarray, shape (n_slots,), or None
+        Budget of each time slot (summing to ``budget``; None: equal shares). The rounded
+        plan's own slot times, for the optimum it is measured against.
+    rank : numpy.ndarray of int, shape (n,)
+        Canonical rank of each candidate, which wins ties (:mod:`~hse_opt.design.ties`;
+        default: the candidates' settings order, else their index).
     """
 
     criterion: Criterion
@@ -144,9 +151,13 @@ class Problem:
     candidates: Candidates | None = None
     costs: Costs | None = None
     solver: str | None = None
+    shares: np.ndarray | None = None
+    rank: np.ndarray = None
 
     def __post_init__(self):
         n = self.rows.shape[1]
+        if self.rank is None:
+            object.__setattr__(self, "rank", np.arange(n) if self.candidates is None else self.candidates.rank())
         if self.cost is None:
             object.__setattr__(self, "cost", np.ones(n))
         if self.slot is None:
@@ -164,11 +175,25 @@ class Problem:
     def take(self, idx):
         """The problem on a subset of the candidates (same slots and budget)."""
         return replace(self, rows=self.rows[:, idx], guards=tuple(g.take(idx) for g in self.guards),
-                       cost=self.cost[idx], slot=self.slot[idx],
+                       cost=self.cost[idx], slot=self.slot[idx], rank=self.rank[idx],
                        candidates=None if self.candidates is None else self.candidates.take(idx))
 
-    def with_budget(self, budget):
-        return replace(self, budget=float(budget))
+    @property
+    def slot_budget(self):
+        """Budget of each time slot, shape (n_slots,)."""
+        if self.shares is None:
+            return np.full(self.n_slots, self.budget / self.n_slots)
+        return np.asarray(self.shares, float)
+
+    @property
+    def slot_length(self):
+        """Length of a time slot, s: the runs of a slot start and end within it."""
+        return self.budget / self.n_slots
+
+    def with_budget(self, budget, shares=None):
+        """The same problem for another budget (``shares``: its split over the time slots,
+        summing to ``budget``; default equal)."""
+        return replace(self, budget=float(budget), shares=None if shares is None else np.asarray(shares, float))
 
     def loss(self, w):
         """Criterion loss (mean over the samples) of the run numbers ``w``."""

@@ -157,6 +157,23 @@ class Candidates:
         """Measurement-model inputs (n_x, n) on ``stand``."""
         return stand.inputs(mm, self.rate, self.azimuth, self.tilt_x, self.tilt_y, self.duration, self.t_start)
 
+    def rank(self):
+        """Canonical rank of each candidate (int, 0 ... n-1): the settings in lexicographic
+        order -- time slot, tilt, azimuth in [0, 2 pi), rate, duration -- so that ties between
+        candidates are broken the same way whatever order they are listed in."""
+        keys = (np.round(self.duration, 6), np.round(self.rate, 12),
+                np.round(np.mod(np.round(self.azimuth, 12), np.round(2 * np.pi, 12)), 12),
+                np.round(self.tilt_y, 12), np.round(self.tilt_x, 12), np.round(self.not_before, 6))
+        out = np.empty(len(self), int)
+        out[np.lexsort(keys)] = np.arange(len(self))
+        return out
+
+    def positions(self):
+        """Stand position of each candidate (int labels in the settings' order): time slot,
+        tilt and azimuth -- what costs a setup or a wait to change; rate and duration do not."""
+        keys = np.column_stack([self.not_before, self.tilt_x, self.tilt_y, np.mod(self.azimuth, 2 * np.pi)])
+        return np.unique(keys.round(9), axis=0, return_inverse=True)[1].ravel()
+
     @property
     def slot(self):
         """Time-slot label of each candidate (int, in time order)."""
