@@ -28,9 +28,11 @@ def demo_run(tmp_path_factory):
 
 
 #: the designed plans' sigma and gain reproduce to this relative tolerance on any machine: the
-#: c-optimum is flat, and rounding to whole runs (efficiency >= 0.99 in variance against the
-#: certified approximate optimum) picks one of several plans within about 2% in sigma
-DESIGN_RTOL = 0.03
+#: c-optimum is flat and its symmetric candidates tie exactly, but ties are broken canonically
+#: (hse_opt/design/ties.py: 1e-12 noise in every row gives the same plan, test_design.py), so
+#: the plan is the same and its sigma differs by IPOPT's tolerance; 1% leaves room for the
+#: printed digit (before the canonical ties: 0.502 or 0.491 arcsec, and 3%)
+DESIGN_RTOL = 0.01
 
 
 @pytest.mark.slow
