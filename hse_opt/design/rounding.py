@@ -30,7 +30,7 @@ def apportion(weights, n, rank=None):
 
     ``n_i = ceil((n - l/2) q_i)`` for the ``l`` support points with proportions ``q``, then
     one run at a time is added where ``n_j / q_j`` is smallest, or removed where
-    ``(n_j - 1) / q_j`` is largest, until the total is ``n``. Ratios equal to
+    ``(n_j - 1) / q_j`` is largest, until the total is ``n``. Ratios equal within
     :data:`~.ties.WEIGHT_RTOL` are ties, won by the lowest ``rank``.
 
     Parameters
