@@ -102,6 +102,12 @@ float64, so ``load -> save -> load`` and ``save -> load`` are exact and a saved
 ``91.8795`` stays ``91.8795``. Files are written whole: a temporary file in the target's
 directory, flushed and fsynced, then ``os.replace``; on any error the target is untouched.
 Input files are only read.
+
+The package: :mod:`~hse_opt.data.errors` (:class:`DataError`), :mod:`~hse_opt.data.decimals`
+(file text <-> SI, exactly), :mod:`~hse_opt.data.table` (the columns, checks and parse both
+tables share), :mod:`~hse_opt.data.runs` (:class:`Runs`, field campaigns),
+:mod:`~hse_opt.data.plan` (:class:`Plan`), :mod:`~hse_opt.data.csvfile` (read and save) and
+:mod:`~hse_opt.data.atomic` (outputs whole or not at all); every name is re-exported here.
 """
 from __future__ import annotations
 

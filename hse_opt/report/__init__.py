@@ -34,6 +34,14 @@ Sections
 The page also carries every section's numbers as an inert JSON block
 (``<script type="application/json" id="hse-opt-data">``) and marks table rows with
 ``data-key`` attributes, so that tests and scripts can read back what it shows.
+
+The package: :mod:`~hse_opt.report.page` (:class:`Section`, :class:`Figure`, the HTML file),
+:mod:`~hse_opt.report.cells` (HTML fragments), :mod:`~hse_opt.report.style` (matplotlib, SVG),
+:mod:`~hse_opt.report.rules` (factors, groups, tilt setups), :mod:`~hse_opt.report.curves`
+(the model on made-up runs, the calibration line's slope), the plots and sections of a fit
+(:mod:`~hse_opt.report.fit_plots`, :mod:`~hse_opt.report.fit_sections`), a diagnosis
+(:mod:`~hse_opt.report.diagnosis`) and a plan (:mod:`~hse_opt.report.plan`); every public
+name is re-exported here.
 """
 from __future__ import annotations
 
