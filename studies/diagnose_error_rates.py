@@ -23,30 +23,38 @@ diagnosis' tests):
   ``refine`` (adding the suggested effects until adequate) the fraction ending ``adequate``
   with the hidden effect(s) in the model.
 
-* held-back cases (issue 14, item 7): a 25-arcsec level shift after run 23 and one run 200
-  arcsec off (right answer: verdict ``unexplained structure``), a campaign without
-  ``heading_std`` and no hidden effect (``adequate``), a 150-us sync delay beside a recorded
-  column that follows the rotation sense (both reported ambiguous). At the CI size (6 seeds,
-  this session): 100 %, 100 %, 100 % and 67 % (4/6) right; ``--full`` was not yet measured
-  for them, and the ambiguous pair may fall short of 90 % there.
+* held-back cases (issue 14, item 7), each with its right answer:
+
+  - a 25-arcsec level shift after run 23, one run 200 arcsec off: verdict ``unexplained
+    structure``;
+  - a campaign without ``heading_std`` and no hidden effect: ``adequate``;
+  - a 150-us sync delay beside a recorded column that follows the rotation sense (a fan
+    switched with the sense, with 2 % noise of its own): a truly ambiguous pair, both reported
+    ambiguous. (The column's noise must not be the heading noise: drawn from the same
+    generator seed, it was, and the column then explained the noise too -- sync_delay +
+    column fitted to chi2 0.15 on 44 dof, and the column won by Delta-BIC 5-9 in most seeds:
+    31 % "ambiguous" at ``--full`` came from that, not from the diagnosis.)
+  - the issue's own pair: a 70-us sync delay on 48 runs, ``encoder_harmonic`` the rival. The
+    study measures whether the data separate them: the chi2 (noise sigmas squared) that the
+    rival's best fit leaves of the delay's noise-free signature. Above Delta-BIC 6 plus the
+    rival's extra parameter's ln n the right answer is sync_delay first and not ambiguous
+    with encoder_harmonic, else both ambiguous. On the measurement model the encoder's first
+    harmonic reaches heading only through lambda2 and leaves chi2 ~48 of the delay's 49: the
+    data separate them clearly.
 
 Sizes are stated as the parameter value and as the effect's signature on the plan: its peak
 in arcsec and noise sigmas, and the RMS (in sigmas) of the part the paper's model cannot
 absorb (what the data can see: noncentrality = n x RMS^2).
 
-Checks. At any size, one-sided binomial tests at the family-wise level 1e-3 (Bonferroni over
-the 9 rates): the false-alarm count is consistent with a rate <= alpha, and each rank-first
-count with a rate >= 90 %; a diagnosis meeting its targets fails them with probability < 1e-3.
-At the CI size they catch a broken diagnosis (16 false alarms in 100 campaigns - a rate
-of 20 % is caught 87 % of the time - or an effect ranked first in at most 1 of 6 seeds), not
-a small shortfall; ``--full`` measures the rates and asserts
-the issue's targets on them. Measured with ``--full`` (150 s CPU):
+Checks. At any size: the issue's targets on the point estimates (false alarms <= 10 %; each
+hidden effect first, each held-back case right, in >= 90 % of the seeds -- at the CI size,
+10 fixed seeds, that allows one miss), and one-sided binomial tests at the family-wise level
+1e-3 (Bonferroni over the rates): the false-alarm count consistent with a rate <= alpha, each
+right count with a rate >= 90 %. Measured with ``--full`` (CPU time on a shared machine):
 
-    false alarms 2/200 = 1.0 % (95 % CI 0.1-3.6 %)
-    every hidden effect (and the pair) ranks first in 100/100 seeds, verdict missing-effect in
-    100 %, refined to adequate with the effect(s) in the model in 96-100 %
+    MEASURED_FULL
 
-Run:  python studies/diagnose_error_rates.py            (CI size: 100 null, 6 seeds each; ~9 s CPU)
+Run:  python studies/diagnose_error_rates.py            (CI size: 100 null, 10 seeds each; ~15 s CPU)
       python studies/diagnose_error_rates.py --full     (200 null campaigns, 100 seeds each)
 """
 import argparse
@@ -59,6 +67,8 @@ from threadpoolctl import threadpool_limits
 
 from hse_opt import units
 from hse_opt.diagnose import ALPHA, diagnose, refine
+from hse_opt.diagnose.candidates import AMBIGUOUS_DELTA_BIC
+from hse_opt.fit import fit
 from hse_opt.model import as_model
 from hse_opt.model.inputs import RUN_FIELDS
 from hse_opt.validation.synthetic import diagnostic_plan, model_runs
@@ -147,9 +157,42 @@ def _no_std(runs_for, plan, seed):     # Table-1-like: no heading_std, no hidden
 
 def _pair(runs_for, plan, seed):       # a recorded column that follows the rotation sense
     p2 = diagnostic_plan(sessions=2, runs_per_session=24, rates_dps=(40.0,))
-    fan = (p2.rate > 0).astype(float) + np.random.default_rng(seed).normal(0, 0.02, len(p2))
+    # the column's own noise: a stream of its own, not the heading noise's
+    fan = (p2.rate > 0).astype(float) + np.random.default_rng([seed, 1]).normal(0, 0.02, len(p2))
     return model_runs(p2, {**BASE, "delay": 150.0}, np.random.default_rng(seed), base_tilt=BASE_TILT,
                       covariates={"fan": fan})
+
+
+#: the issue's pair: a 70-us sync delay on 48 runs (three days: no tilt fixture, about x, about y)
+RIVAL_PLAN = dict(sessions=3, runs_per_session=16)
+RIVAL_TRUTH = {**BASE, "delay": 70.0}
+
+
+def _rival(runs_for, plan, seed):
+    return model_runs(diagnostic_plan(**RIVAL_PLAN), RIVAL_TRUTH, np.random.default_rng(seed),
+                      base_tilt=BASE_TILT)
+
+
+def rival_separation():
+    """The chi2 (noise sigmas squared) that hse + encoder_harmonic fitted to the delay's noise-free
+    runs leaves (hse + sync_delay leaves 0), and whether that separates them: more than Delta-BIC
+    6 plus ln n for the rival's one extra free parameter (enc_c1, enc_s1 against delay)."""
+    exact = model_runs(diagnostic_plan(**RIVAL_PLAN), RIVAL_TRUTH, np.random.default_rng(0),
+                       base_tilt=BASE_TILT)
+    mm = as_model(["hse", "sync_delay"]).measurement(True)
+    exact = exact.replace(heading_err=mm.predict(mm.vector(RIVAL_TRUTH), mm.inputs_from_runs(exact)))
+    # the 2nd harmonic has no heading signature: held at 0, as the diagnosis holds it
+    chi2 = float(fit(exact, ["hse", "encoder_harmonic"], fix={"enc_c2": 0.0, "enc_s2": 0.0}).chi2)
+    return chi2, chi2 > AMBIGUOUS_DELTA_BIC + np.log(len(exact))
+
+
+def _rival_right(separated):
+    def right(runs, alpha):
+        d = diagnose(runs, alpha=alpha)
+        if separated:
+            return d.best is not None and d.best.effect == "sync_delay" and "encoder_harmonic" not in d.ambiguous
+        return {"sync_delay", "encoder_harmonic"} <= set(d.ambiguous)
+    return right
 
 
 HELD_BACK = {
@@ -159,7 +202,7 @@ HELD_BACK = {
     "one run 200 arcsec off": (
         _outlier, lambda r, a: diagnose(r, alpha=a, refit=False).verdict == "unexplained structure",
         "verdict unexplained structure"),
-    "no heading_std, no hidden effect": (
+    "no heading_std, no hidden effect": (  # a false-alarm case: as many campaigns as the null's
         _no_std, lambda r, a: diagnose(r, alpha=a, refit=False).verdict == "adequate", "verdict adequate"),
     "sync delay beside a sense-following column": (
         _pair, lambda r, a: set(diagnose(r, alpha=a).ambiguous) == {"sync_delay", "covariate:fan"},
@@ -170,7 +213,7 @@ HELD_BACK = {
 def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--null", type=int, default=100, help="no-effect campaigns (default 100)")
-    ap.add_argument("--seeds", type=int, default=6, help="seeds per hidden effect (default 6)")
+    ap.add_argument("--seeds", type=int, default=10, help="seeds per hidden effect (default 10)")
     ap.add_argument("--full", action="store_true",
                     help="200 no-effect campaigns, 100 seeds per effect, refine every hidden-effect campaign")
     ap.add_argument("--alpha", type=float, default=ALPHA)
@@ -222,7 +265,7 @@ def main(argv=None):
             missing += d.verdict == "missing-effect"
             fixed += steps[-1].verdict == "adequate" and set(effects_of(name)) <= set(steps[-1].effects)
         size = ", ".join(f"{k} = {v:g}" for k, v in values.items())
-        firsts[name] = first
+        firsts[name] = (first, args.seeds)
         print(f"{name:<30}{size:<34}{peak:>12.1f}{peak_s:>11.1f}{seen:>15.2f}"
               f"{100 * first / args.seeds:>10.0f}%{100 * missing / args.seeds:>8.0f}%"
               + (f"{100 * fixed / args.seeds:>10.0f}%" if args.full else ""))
@@ -231,11 +274,18 @@ def main(argv=None):
 
     # held-back cases (issue 14): the right answer is an effect, an ambiguity or "unexplained
     # structure"; a campaign without heading_std must not raise a false alarm
-    print(f"\n{'held-back case':<44}{'right answer':<44}{'right':>8}")
-    for name, (make, right, what) in HELD_BACK.items():
-        k = sum(right(make(runs_for, plan, 20_000 + seed), args.alpha) for seed in range(args.seeds))
-        firsts[f"held back: {name}"] = k
-        print(f"{name:<44}{what:<44}{100 * k / args.seeds:>7.0f}%")
+    chi2_rival, separated = rival_separation()
+    print(f"\nissue 14's pair: on the delay's noise-free runs encoder_harmonic leaves chi2 {chi2_rival:.1f} "
+          f"(sync_delay 0): {'the data separate them' if separated else 'the data cannot separate them'}")
+    held_back = {**HELD_BACK, "70-us sync delay, encoder harmonic rival": (
+        _rival, _rival_right(separated),
+        "sync_delay first, not ambiguous" if separated else "both reported ambiguous")}
+    print(f"\n{'held-back case':<44}{'right answer':<34}{'right':>12}")
+    for name, (make, right, what) in held_back.items():
+        n = args.null if make is _no_std else args.seeds
+        k = sum(right(make(runs_for, plan, 20_000 + seed), args.alpha) for seed in range(n))
+        firsts[f"held back: {name}"] = (k, n)
+        print(f"{name:<44}{what:<34}{k:>5}/{n:<3}{100 * k / n:>4.0f}%")
 
     # the rates against their targets: one-sided binomial tests at the family-wise level
     # CHECK_ALPHA (Bonferroni over the 1 + len(HIDDEN) rates), so that a diagnosis meeting the
@@ -244,19 +294,17 @@ def main(argv=None):
     p_fa = float(stats.binom.sf(alarms - 1, args.null, args.alpha))
     print(f"\nchecks (one-sided binomial, level {level:.2g} each): false-alarm rate <= alpha = "
           f"{args.alpha:g}: p = {p_fa:.3g}; ranks first >= 90 %: smallest p = "
-          f"{min(stats.binom.cdf(k, args.seeds, 0.9) for k in firsts.values()):.3g}")
+          f"{min(stats.binom.cdf(k, n, 0.9) for k, n in firsts.values()):.3g}")
     assert p_fa >= level, f"false-alarm rate {fa:.2f} exceeds alpha = {args.alpha:g} (p = {p_fa:.2g})"
-    for name, k in firsts.items():
-        p_first = stats.binom.cdf(k, args.seeds, 0.9)
-        assert p_first >= level, f"{name} ranks first in only {k}/{args.seeds} seeds (p = {p_first:.2g})"
-    if args.full:  # the issue's targets, on the point estimates
-        assert fa <= 0.10, f"false-alarm rate {fa:.2f} > 0.10"
-        for name, k in firsts.items():
-            assert k >= 0.9 * args.seeds, f"{name} ranks first in only {100 * k / args.seeds:.0f} % of seeds"
-        print("OK: false-alarm rate <= 10 %, every hidden effect ranks first in >= 90 % of seeds")
-    else:
-        print("OK: the false-alarm rate is consistent with alpha and every rank-first rate with >= 90 % "
-              "(--full measures the rates themselves)")
+    for name, (k, n) in firsts.items():
+        p_first = stats.binom.cdf(k, n, 0.9)
+        assert p_first >= level, f"{name}: right in only {k}/{n} seeds (p = {p_first:.2g})"
+    # the issue's targets, on the point estimates (at the CI size too: fixed seeds)
+    assert fa <= 0.10, f"false-alarm rate {fa:.2f} > 0.10"
+    for name, (k, n) in firsts.items():
+        assert k >= 0.9 * n, f"{name}: right in only {100 * k / n:.0f} % of seeds"
+    print("OK: false-alarm rate <= 10 %, every hidden effect ranks first and every held-back case gets "
+          "its right answer in >= 90 % of seeds")
 
 
 if __name__ == "__main__":

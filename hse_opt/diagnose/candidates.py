@@ -230,11 +230,14 @@ def rank(cands):
     return sorted(cands, key=key)
 
 
-def ambiguity(null, cands, bases, alpha):
+def ambiguity(null, cands, bases, alpha, level=None):
     """The best significant candidate and every candidate these runs cannot tell apart from it:
     a significant one that makes it redundant (its score test given the other does not reject
     at ``alpha``: equally adequate fits), or one whose Delta-BIC is within
-    :data:`AMBIGUOUS_DELTA_BIC` of the best's (on the one likelihood scale)."""
+    :data:`AMBIGUOUS_DELTA_BIC` of the best's (on the one likelihood scale) -- unless the two
+    are complementary: each still rejects given the other at the family-wise ``level`` (default
+    ``alpha``), so the data need both (two missing effects, not two explanations of one)."""
+    level = alpha if level is None else level
     sig = [c for c in cands if c.significant and c.effect in bases]
     if not sig:
         return [], cands
@@ -243,17 +246,13 @@ def ambiguity(null, cands, bases, alpha):
     same = []
     if best.delta_bic is not None:
         same += [c.effect for c in cands if c is not best and c.testable and c.delta_bic is not None
-                 and c.delta_bic < 0 and c.delta_bic <= best.delta_bic + AMBIGUOUS_DELTA_BIC]
+                 and c.delta_bic < 0 and c.delta_bic <= best.delta_bic + AMBIGUOUS_DELTA_BIC
+                 and not (c.effect in bases and _given(null, Ub, bases[c.effect]) < level
+                          and _given(null, bases[c.effect], Ub) < level)]
     for c in sig[1:]:
         if c.effect in same:
             continue
-        Uc = bases[c.effect]
-        # the best given c: its part orthogonal to the model and to c
-        U_b_given_c = null.basis(Ub, extra=Uc)
-        r_c = null.r - Uc @ (Uc.T @ null.r)
-        rss_c = float(r_c @ r_c)
-        _, _, p, _ = null.score(U_b_given_c, r=r_c, rss=rss_c, k_extra=Uc.shape[1])
-        if p is None or p >= alpha:
+        if _given(null, Ub, bases[c.effect]) >= alpha:
             same.append(c.effect)
     if not same:
         return [], cands
@@ -261,3 +260,13 @@ def ambiguity(null, cands, bases, alpha):
     cands = [dataclasses.replace(c, ambiguous_with=tuple(g for g in group if g != c.effect))
              if c.effect in group else c for c in cands]
     return group, cands
+
+
+def _given(null, Ua, Ub):
+    """p-value of the score test of signature ``Ua`` given ``Ub`` (both weighted, orthogonal to
+    the model): the part of a orthogonal to b against the residual with b fitted (1.0 when
+    nothing of a is left)."""
+    U = null.basis(Ua, extra=Ub)
+    r = null.r - Ub @ (Ub.T @ null.r)
+    _, _, p, _ = null.score(U, r=r, rss=float(r @ r), k_extra=Ub.shape[1])
+    return 1.0 if p is None else p

@@ -9,6 +9,7 @@ import numpy as np
 from scipy import stats
 
 from ..fit import FitResult, fit_profiled
+from ..fit.checks import zero_scatter
 from ..model import as_model
 from .candidates import ambiguity, candidate_names, covariate_columns, rank, test_candidates
 from .discrimination import discriminating_runs
@@ -52,7 +53,10 @@ def diagnose(runs, model=None, *, fix=None, tilt_known=None, alpha=ALPHA, candid
     UnidentifiableError
         The model itself cannot be fitted to these runs (named parameters).
     ValueError
-        Bad arguments (unknown effect, covariate column not in the runs, alpha outside (0, 1)).
+        Bad arguments (unknown effect, covariate column not in the runs, alpha outside (0, 1)),
+        or heading errors without noise (the model reproduces them to rounding: every test
+        would compare rounding errors). Identical replicates (copies of one measurement) are
+        no error: the tests count each setting once, and a note says so.
     """
     if not (0.0 < alpha < 1.0):
         raise ValueError(f"alpha = {alpha!r}; allowed: a significance level in (0, 1)")
@@ -65,8 +69,16 @@ def diagnose(runs, model=None, *, fix=None, tilt_known=None, alpha=ALPHA, candid
     else:
         f0 = fit_profiled(runs, as_model(model), fix=fix, tilt_known=tilt_known)
     fix.update(fixed_of(f0))
+    zero = zero_scatter(f0)
+    if zero:
+        raise ValueError(f"{runs.source}: {zero}: {'+'.join(f0.model.effect_names)} reproduces them to "
+                         "rounding, and every test of the diagnosis would compare rounding errors; allowed: "
+                         "measured heading errors (hse-opt fit reports the fit itself)")
     null = Null(f0, runs)
     notes = list(dict.fromkeys(f0.notes))
+    if null.n_eff < null.n:
+        notes.append(f"the replicates are identical (copies, not runs measured again): the tests count each "
+                     f"of the {null.n_eff} settings once, not the {null.n} rows")
 
     # comparison: influence and outliers
     lev, cooks, stud = null.influence()
@@ -109,7 +121,7 @@ def diagnose(runs, model=None, *, fix=None, tilt_known=None, alpha=ALPHA, candid
                      "or catalogue effect explains it: the sigmas may be optimistic, or the missing effect "
                      "follows nothing recorded with the runs")
     cands = rank(cands)
-    ambiguous, cands = ambiguity(null, cands, bases, alpha)
+    ambiguous, cands = ambiguity(null, cands, bases, alpha, level)
     proposals = ()
     if len(ambiguous) > 1:
         by = {c.effect: c for c in cands}

@@ -30,6 +30,9 @@ from ._format import num
 ALPHA = 0.05
 #: a projected direction (unit columns) shorter than this is in the span of the model
 _TOL = 1.0 / MAX_CONDITION
+#: replicates whose weighted pure-error sum of squares is below this share of the residual's
+#: are identical (a scatter below 1e-6 of the total)
+_IDENTICAL = 1e-12
 
 
 @dataclass(frozen=True)
@@ -105,7 +108,23 @@ class Null:
         # profiled parameters count as fitted (FitResult.dof already holds that)
         self.k = self.n - int(f.dof)
         self.rss = float(self.r @ self.r)
+        self.n_eff = self._settings(runs)
         self.scale = LikelihoodScale.of(f)
+
+    def _settings(self, runs):
+        """The number of independent runs: ``n``, or -- when every replicate group's runs are
+        identical (copies of one measurement, zero pure error) -- the number of settings. The
+        copies add nothing but weight: the weighted sums of squares are those of one run per
+        setting, so only the degrees of freedom change (and an F test of a function that fits
+        the settings exactly is not F = inf but not possible)."""
+        labels, g = replicate_groups(runs, self.f.measurement)
+        if g == self.n:
+            return self.n
+        w = 1.0 / self.sigma ** 2
+        e = np.asarray(self.f.residuals, float)
+        mean = np.bincount(labels, w * e, g) / np.bincount(labels, w, g)
+        pure = float(np.sum(w * (e - mean[labels]) ** 2))
+        return g if pure <= _IDENTICAL * self.rss else self.n
 
     def within_share(self, Z):
         """Per column of Z (n, q; weighted): the share of its norm left after removing each
@@ -144,7 +163,7 @@ class Null:
         r = self.r if r is None else r
         rss = self.rss if rss is None else rss
         q = U.shape[1]
-        dof = self.n - self.k - k_extra - q
+        dof = self.n_eff - self.k - k_extra - q
         if q < 1 or dof < 1:
             return None, (q, dof), None, None
         s = float(np.sum((U.T @ r) ** 2))
@@ -206,14 +225,13 @@ def lack_of_fit(null, runs):
     D[np.arange(null.n), labels] = 1.0
     U = null.basis(D / null.sigma[:, None])
     F, dof, p, logp = null.score(U)
-    if p is None:
-        return Test("lack of fit", f"{g} replicate groups", None, dof, None, None, "",
-                    "not enough replicate groups beyond the model's parameters")
-    pure = null.rss - float(np.sum((U.T @ null.r) ** 2))
-    if pure <= 1e-12 * max(null.rss, 1e-300):  # pure-error scatter below 1e-6 of the total
+    if null.n_eff < null.n:
         return Test("lack of fit", f"{g} replicate groups", None, dof, None, None, "",
                     "the replicates are identical (zero pure error): no lack-of-fit test; check "
                     "that the repeated runs were really measured again")
+    if p is None:
+        return Test("lack of fit", f"{g} replicate groups", None, dof, None, None, "",
+                    "not enough replicate groups beyond the model's parameters")
     return Test("lack of fit", f"model against {g} replicate-group means (pure error from "
                 f"{dof[1]} degrees of freedom)", F, dof, p, logp)
 

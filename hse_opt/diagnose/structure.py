@@ -121,7 +121,7 @@ def sparse_structure(null, library, bases, alpha, level=None, run=None):
     error) and Bonferroni-corrected over the functions searched, is below the verdict's
     family-wise level ``level``."""
     level = alpha if level is None else level
-    families = [] if run is None or null.n < 4 else [_Family("step", run, null.sigma),
+    families = [] if run is None or null.n_eff < 4 else [_Family("step", run, null.sigma),
                                                       _Family("single", run, null.sigma)]
     n_searched = len(library) + sum(f.size for f in families)
     chosen, B = [], np.zeros((null.n, 0))
@@ -165,7 +165,7 @@ def sparse_structure(null, library, bases, alpha, level=None, run=None):
     M = np.column_stack([null.A, T])
     coef, *_ = np.linalg.lstsq(M, null.r, rcond=None)
     res = null.r - M @ coef
-    dof = null.n - M.shape[1]
+    dof = null.n_eff - M.shape[1]
     fixed = null.scale.kind == "fixed"
     s2 = 1.0 if fixed else (float(res @ res) / dof if dof > 0 else np.nan)
     cov = np.linalg.pinv(M.T @ M) * s2
@@ -200,14 +200,14 @@ def run_order_tests(null, run):
     run off the model (the externally studentised residual's test), each the best column's F
     test Bonferroni-corrected over the columns."""
     out = []
-    if null.n < 4:
+    if null.n_eff < 4:
         return out
     for kind, name, what in (("step", "level shift", "a step in the heading error from one run on"),
                              ("single", "single run", "one run off the model (outlier)")):
         fam = _Family(kind, run, null.sigma)
         sc = fam.scores(null.r, null.Q)
         k = int(np.argmax(sc))
-        dof = null.n - null.k - 1
+        dof = null.n_eff - null.k - 1
         if sc[k] <= 0 or dof < 1:
             out.append(Test(name, what, None, (1, dof), None, None, "", "too few runs for the test"))
             continue

@@ -54,14 +54,22 @@ def outliers(result, runs, alpha=ALPHA):
     return [(int(result.run[i]), float(t[i])) for i in order if p[i] < alpha]
 
 
+def zero_scatter(result):
+    """The sentence saying that the fit's residuals are zero (below :data:`ZERO_SCATTER_ARCSEC`
+    RMS: the model reproduces the data to rounding), or ""."""
+    scatter = float(np.sqrt(np.mean(np.asarray(result.residuals) ** 2))) / units.ARCSEC
+    if scatter >= ZERO_SCATTER_ARCSEC:
+        return ""
+    return (f"the residuals are zero ({scatter:.2g} arcsec RMS): the data carry no noise (generated, or "
+            "copied values)")
+
+
 def check_lines(result, runs):
     """Sentences for the fit's report (empty when nothing needs a look)."""
     out = []
-    scatter = float(np.sqrt(np.mean(np.asarray(result.residuals) ** 2))) / units.ARCSEC
-    if scatter < ZERO_SCATTER_ARCSEC:
-        out.append(f"the residuals are zero ({scatter:.2g} arcsec RMS): the data carry no noise (generated, "
-                   "or copied values); sigmas, tests and uncertainties mean nothing here")
-        return out
+    zero = zero_scatter(result)
+    if zero:
+        return [f"{zero}; sigmas, tests and uncertainties mean nothing here"]
     if result.weighting in ("heading_std", "pure-error") and result.dof > 0:
         p = chi2_sf(result.chi2_red * result.dof, result.dof)
         if not ALPHA / 2 <= p <= 1 - ALPHA / 2:

@@ -12,6 +12,10 @@ from .result import SolverError
 #: (:func:`chi2_noise`): the gyrocompass heading carries ~1e-12 relative rounding (Earth rate
 #: read out of a rate 1e4 times larger)
 _CHI2_NOISE = 1e-6
+#: rounding of a computed heading error, rad (measured: ~2e-13 rad between two evaluations of
+#: the same model): a fit cannot place a parameter more finely than this moves the heading,
+#: which matters only for sigmas near it (noise-free data with tiny heading_std)
+_HEADING_ROUNDING = 1e-12
 
 
 def chi2_noise(chi2):
@@ -61,7 +65,8 @@ def gauss_newton_step(prob, w, z, Z, r=None):
 def gauss_newton(prob, w, z, C, d, max_iter=50, mask=None, tol=1e-6, box=False):
     """Minimise ``|w r(z)|^2 + |L z - Lmu|^2`` subject to ``C z = d`` by Gauss-Newton, each step
     by QR in the null space of ``C``. ``mask`` (k,) bool: only those parameters move.
-    Converged when a step is below ``tol`` of every parameter's sigma. ``box``: give up (not
+    Converged when a step is below ``tol`` of every parameter's sigma (or below what the
+    rounding of the heading, :data:`_HEADING_ROUNDING`, lets it resolve). ``box``: give up (not
     converged) as soon as a step leaves the open box of the bounds, where the solution of
     the bounded problem is another one (IPOPT's).
 
@@ -72,6 +77,7 @@ def gauss_newton(prob, w, z, C, d, max_iter=50, mask=None, tol=1e-6, box=False):
         return z, True
     r = prob.residual(z)
     f_old = prob.objective(z, w, r)
+    tol = max(tol, _HEADING_ROUNDING * float(np.max(w, initial=0.0)))  # in sigmas
     for _ in range(max_iter):
         out = gauss_newton_step(prob, w, z, Z, r)
         if out is None:
