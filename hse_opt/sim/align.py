@@ -52,7 +52,7 @@ import numpy as np
 
 from hse_opt import units
 from hse_opt.sim.rotations import dcm_to_zyx, earth_rate_n, skew
-from hse_opt.sim._fastmath import PhaseTable, cos_sin
+from hse_opt.sim._fastmath import MAX_DEVIATION, PhaseTable, rotate_small
 from hse_opt.sim.rawlog import RawLog
 
 __all__ = ["AlignConfig", "AlignResult", "AlignHistory", "align", "triad", "quantization_arw"]
@@ -232,8 +232,11 @@ def _blocks(log, config):
 
     The projection is linear, so the calibration matrices are applied to block sums: for
     each block the processor forms ``sum cos(alpha_k) x_k``, ``sum sin(alpha_k) x_k`` and
-    ``sum x_k`` of the raw increments ``x_k`` (one batched matrix product), then the 3x3
-    calibration and the turn into b0.
+    ``sum x_k`` of the raw increments ``x_k``, then the 3x3 calibration and the turn into b0.
+    Within block ``b`` the midpoint angle is ``Phi_b + l dphi + d`` (``l < L``, ``dphi`` the
+    mean turn per sample, ``d`` the small deviation of the measured angle): the sums are
+    formed with ``cos``/``sin`` of ``l dphi + d`` (one table of ``L`` entries, ``d`` by its
+    Taylor series) and turned by ``Phi_b`` afterwards.
     """
     n = len(log)
     enc = log.encoder
@@ -254,36 +257,66 @@ def _blocks(log, config):
     L = max(1, min(int(round(rev_samples / m)), nint // m))
     nb = nint // L
     nu = nb * L                                # rows 1 .. nu of the log are used
-    # cos and sin of the encoder angle at each interval's midpoint, chunk by chunk
-    cs = np.empty((2, nu))
-    per_chunk = max(1, _CHUNK_TARGET // L) * L
-    ptab = PhaseTable(span / nint, per_chunk)
-    for i0 in range(0, nu, per_chunk):
-        i1 = min(nu, i0 + per_chunk)
-        e = enc[i0:i1 + 1]
-        amid = e[1:] + e[:-1]
-        amid *= 0.5
-        cos_sin(amid, ptab, out=cs[:, i0:i1])
-    W = cs.reshape(2, nb, L).transpose(1, 0, 2)          # (nb, 2, L)
-    rot = W.sum(axis=2)
+    dphi = span / nint
+    tab = PhaseTable(dphi, L)
+    phi = enc[0] + dphi * (L * np.arange(nb, dtype=float) + 0.5)   # Phi_b, the blocks' start
+    two_lin = tab.dphi * np.arange(2 * L, step=2, dtype=float)     # 2 l dphi
+    calib = (np.asarray(config.C_s_b_cal) @ np.asarray(config.K_g_cal),
+             np.asarray(config.C_s_b_cal) @ np.asarray(config.A_acc_cal))
+    X = [src[1:nu + 1].T.reshape(3, nb, L) for src in (log.gyro, log.accel)]
+    # per block: sums of cos and sin of l dphi + d at each interval's midpoint, and of those
+    # times each raw increment; a group of blocks at a time (the working arrays stay in cache)
+    wsum, Y = np.empty((2, nb)), np.empty((2, 2, 3, nb))   # (sensor, cos/sin, axis, block)
+    per = min(nb, max(1, _CHUNK_TARGET // L))
+    work, W = np.empty((4, per, L)), np.empty((2, per, L))
+    for b0 in range(0, nb, per):
+        b1 = min(nb, b0 + per)
+        g = b1 - b0
+        d, w = work[3, :g], W[:, :g]
+        np.add(enc[b0 * L:b1 * L].reshape(g, L), enc[b0 * L + 1:b1 * L + 1].reshape(g, L), out=d)
+        d -= 2.0 * phi[b0:b1, None]
+        d -= two_lin
+        d *= 0.5                               # midpoint angle - (Phi_b + l dphi)
+        dmax = max(float(d.max()), -float(d.min()))
+        if dmax <= MAX_DEVIATION:
+            rotate_small(tab.c, tab.s, d, w, work[:3, :g], dmax)
+        else:
+            d += 0.5 * two_lin
+            np.cos(d, out=w[0])
+            np.sin(d, out=w[1])
+        np.sum(w, axis=2, out=wsum[:, b0:b1])
+        for k in range(2):
+            _vecdot(w[:, None], X[k][None, :, b0:b1], Y[k, :, :, b0:b1])
+    cph, sph = np.cos(phi), np.sin(phi)
+
+    def turned(c, s):                          # the block sums turned by Phi_b
+        return cph * c - sph * s, sph * c + cph * s
+
+    rc, rs = turned(wsum[0], wsum[1])
     # exact average of a rotating vector over an interval: divide by sinc(d alpha / 2)
     corr = 1.0 / np.sinc(span / nint / (2 * np.pi))    # np.sinc(x) = sin(pi x) / (pi x)
     out = {}
-    for name, src, A in (("dth", log.gyro, np.asarray(config.C_s_b_cal) @ np.asarray(config.K_g_cal)),
-                         ("dv", log.accel, np.asarray(config.C_s_b_cal) @ np.asarray(config.A_acc_cal))):
-        X = src[1:nu + 1].T.reshape(3, nb, L)
-        CS = np.matmul(W, X.transpose(1, 2, 0)) @ A.T     # (nb, 2, 3): sum cos y, sum sin y
-        y = A @ X.sum(axis=2)                            # (3, nb): sum y, y = A x
+    for k, name in enumerate(("dth", "dv")):
+        A = calib[k]
+        yc, ys = turned(Y[k, 0], Y[k, 1])
+        yc, ys = A @ yc, A @ ys                        # sum cos y, sum sin y, y = A x
         s = np.empty((3, nb))
-        s[0] = CS[:, 0, 0] - CS[:, 1, 1]
-        s[1] = CS[:, 1, 0] + CS[:, 0, 1]
+        s[0] = yc[0] - ys[1]
+        s[1] = ys[0] + yc[1]
         s[:2] *= corr
-        s[2] = y[2]
+        s[2] = A[2] @ X[k].sum(axis=2)
         out[name] = s
     out["dth"][2] -= np.diff(enc[0:nu + 1:L])           # the table turn of each block
-    out.update(rot=(rot[:, 0] + 1j * rot[:, 1]) * (corr * dt), L=L, m=m, nb=nb, dt=dt, rate=rate,
+    out.update(rot=(rc + 1j * rs) * (corr * dt), L=L, m=m, nb=nb, dt=dt, rate=rate,
                block_time=L * dt)
     return out
+
+
+def _vecdot(a, b, out):
+    """``sum(a * b, axis=-1)`` with broadcasting into ``out`` (numpy >= 2 has it as a gufunc)."""
+    if hasattr(np, "vecdot"):
+        return np.vecdot(a, b, out=out)
+    return np.einsum("...i,...i->...", a, b, out=out)
 
 
 def _coarse(dth, dv, rot, T):
@@ -296,11 +329,15 @@ def _coarse(dth, dv, rot, T):
     revolutions exactly; the vertical parts are plain means.
     """
     means = []
+    # normal equations of the two complex unknowns (the columns T and rot are nearly
+    # orthogonal: blocks span whole revolutions to within a few samples)
+    n, sr, rr = rot.shape[0], rot.sum(), float(np.vdot(rot, rot).real)
+    det = n * T * T * rr - T * T * abs(sr) ** 2
     for x in (dth, dv):
         z = x[0] + 1j * x[1]
-        A = np.column_stack([np.full(z.shape, T, dtype=complex), rot])
-        sol = np.linalg.lstsq(A, z, rcond=None)[0]
-        means.append(np.array([sol[0].real, sol[0].imag, x[2].mean() / T]))
+        az, bz = T * z.sum(), np.vdot(rot, z)
+        w = (rr * az - T * sr * bz) / det
+        means.append(np.array([w.real, w.imag, x[2].mean() / T]))
     return means
 
 
@@ -374,34 +411,45 @@ def _kalman(Phi, Qd, Rv, P, vel):
     noise variance ``Rv`` each. Returns the attitude states (nb, 3) and their covariance
     (nb, 3, 3) after each update.
 
-    Written for the interpreter: preallocated 9x9 work arrays, ``np.dot`` with ``out=``
-    (single-threaded for these sizes), the 2x2 innovation inverse in closed form."""
+    The covariance recursion does not depend on the data, so it runs first, written for the
+    interpreter: the time update is one matrix-vector product on ``vec(P)`` (``Phi (x) Phi``
+    with ``vec(Qd)`` appended), the measurement update of rank two has its 2x2 innovation
+    inverse in closed form. The gains of all blocks then follow at once, and the state
+    recursion ``x_j = (I - K_j H) Phi x_{j-1} + K_j z_j`` is one 10x10 product per block."""
     dot = np.dot
     nb = vel.shape[1]
-    P = np.array(P, dtype=float)
-    x, xp, dx = np.zeros(9), np.empty(9), np.empty(9)
-    T1, T2, K, Si, r = np.empty((9, 9)), np.empty((9, 9)), np.empty((9, 2)), np.empty((2, 2)), np.empty(2)
-    xs, Ps = np.empty((nb, 3)), np.empty((nb, 3, 3))
-    PhiT = Phi.T.copy()
-    PH, HP = P[:, 3:5], P[3:5]                    # views: P H^T and H P
+    M = np.zeros((82, 82))
+    M[:81, :81] = np.kron(Phi, Phi)
+    M[:81, 81] = Qd.ravel()
+    M[81, 81] = 1.0
+    prior, post = np.empty((nb, 82)), np.empty((nb + 1, 82))
+    post[0, :81] = np.asarray(P, dtype=float).ravel()
+    post[0, 81] = 1.0
+    Pm, Pp = prior[:, :81].reshape(nb, 9, 9), post[:, :81].reshape(nb + 1, 9, 9)
+    Si, G, T = np.empty((2, 2)), np.empty((2, 9)), np.empty((9, 9))
     for j in range(nb):
-        dot(Phi, P, out=T1)
-        dot(T1, PhiT, out=P)
-        P += Qd
-        S00, S11, S01 = P[3, 3] + Rv, P[4, 4] + Rv, P[3, 4]
+        dot(M, post[j], out=prior[j])            # Phi P Phi^T + Qd
+        P = Pm[j]
+        HP = P[3:5]
+        S00, S11, S01 = P.item(3, 3) + Rv, P.item(4, 4) + Rv, P.item(3, 4)
         det = S00 * S11 - S01 * S01
         Si[0, 0], Si[1, 1] = S11 / det, S00 / det
         Si[0, 1] = Si[1, 0] = -S01 / det
-        dot(PH, Si, out=K)
-        dot(Phi, x, out=xp)
-        r[0], r[1] = vel[0, j] - xp[3], vel[1, j] - xp[4]
-        dot(K, r, out=dx)
-        np.add(xp, dx, out=x)
-        dot(K, HP, out=T2)
-        P -= T2
-        xs[j] = x[:3]
-        Ps[j] = P[:3, :3]
-    return xs, Ps
+        dot(Si, HP, out=G)
+        dot(P[:, 3:5], G, out=T)                 # P H^T S^-1 H P
+        np.subtract(P, T, out=Pp[j + 1])
+        post[j + 1, 81] = 1.0
+    S = Pm[:, 3:5, 3:5] + Rv * np.eye(2)
+    K = np.matmul(Pm[:, :, 3:5], np.linalg.inv(S))          # (nb, 9, 2)
+    A = np.zeros((nb, 10, 10))
+    A[:, :9, :9] = Phi - np.matmul(K, Phi[3:5])
+    A[:, :9, 9] = np.matmul(K, vel.T[:, :, None])[:, :, 0]
+    A[:, 9, 9] = 1.0
+    x = np.zeros((nb + 1, 10))
+    x[0, 9] = 1.0
+    for j in range(nb):
+        dot(A[j], x[j], out=x[j + 1])
+    return x[1:, :3], Pp[1:, :3, :3]
 
 
 def align(log, config=None):

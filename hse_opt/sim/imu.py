@@ -101,62 +101,61 @@ def _ripple(table, rate, sin_phase):
 
 
 #: samples per generation chunk: the chunks keep the working arrays in cache; the random
-#: stream is drawn chunk by chunk (gyro noise, then accelerometer noise), so a seeded run is
-#: reproducible for this chunk size.
+#: stream is drawn chunk by chunk (table jitter, gyro noise, then accelerometer noise), so a
+#: seeded run is reproducible for this chunk size.
 CHUNK = 16384
 
+#: the Box-Muller noise of :func:`normal_f32` is bounded: its float32 uniforms keep
+#: ``1 - u >= 2**-24``, so ``|n| <= sqrt(48 ln 2) sigma = 5.77 sigma``
+_NOISE_BOUND = 5.8
 
-class _Sensor:
-    """One sensor triad of the generator: outputs ``M @ v_b`` plus per-row terms, white noise
-    and a pulse counter per row.
 
-    Work is done in counts when the quantum ``q`` is set: everything is pre-scaled by 1/q,
-    the running sum is floored and differenced (remainder carried from chunk to chunk), and
-    the pulses are scaled back by q.
+class _Counter:
+    """The pulse counter of one sensor triad (quantum ``q``, SI): the running sum of the
+    increments is floored to whole pulses and differenced, so the remainder is carried from
+    sample to sample and from chunk to chunk (initial remainder ``phase``, pulses).
+
+    The running sum is kept in int64 fixed point, ``2**bits`` units per pulse: the increments
+    arrive scaled by :attr:`unit` (SI -> units; scaling by a power of two is exact in float),
+    are truncated to whole units (less than ``2**-bits`` pulse per sample), summed exactly
+    (numpy's integer cumulative sum is six times faster than the floating one) and floored
+    by a shift. ``bits`` keeps a chunk's running sum below ``2**60`` for increments up to
+    ``xmax`` (SI, signal and noise): ``2**-bits`` is about ``2**-60`` of the chunk's largest
+    count, finer than a float64 running sum resolves (``2**-52`` of the count).
     """
 
-    def __init__(self, M, v0, bias_dt, sigma, q, phase, extra=(), z=None):
-        self.k = 1.0 / q if q else 1.0
+    def __init__(self, name, q, phase, xmax):
+        pulses = 1.0 + CHUNK * xmax / q                  # largest running count of a chunk
+        self.bits = 60 - math.ceil(math.log2(pulses))
+        if self.bits < 16:
+            raise ValueError(f"{name}: the quantum {q!r} (SI) is too small for the signal: a counter "
+                             f"would count more than 2**44 pulses in {CHUNK} samples; allowed quanta "
+                             "give fewer")
         self.q = q
-        M = np.asarray(M, dtype=float)
-        bias = np.asarray(bias_dt, dtype=float)
-        # outputs = M @ (x, y, z) with x = Ci v0x + Si v0y, y = Ci v0y - Si v0x: one column
-        # per basis row (Ci, Si, z, *extra); ``extra`` are the coefficient vectors of further
-        # basis rows (time-varying biases). A constant z increment ``z`` goes into the bias.
-        cols = [M[:, 0] * v0[0] + M[:, 1] * v0[1], M[:, 0] * v0[1] - M[:, 1] * v0[0]]
-        if z is None:
-            cols += [M[:, 2], *extra]
-        else:
-            bias = bias + M[:, 2] * z
-        self.B = np.column_stack(cols) * self.k
-        self.bias = (bias * self.k)[:, None]
-        self.sigma = sigma * self.k
-        self.rem = None if not q else np.asarray(phase, dtype=float).copy()
+        self.unit = 2.0 ** self.bits / q
+        self.rem = np.floor(np.asarray(phase, dtype=float) * 2.0 ** self.bits).astype(np.int64)
+        self.ibuf = np.empty(3 * CHUNK, dtype=np.int64)
 
-    def rows(self, V, out):
-        """Signal rows ``B @ V + bias`` into ``out`` (3, m), in counts when quantized; ``V``
-        (k, m) holds the basis rows (the first columns of B are used)."""
-        # a (3 x k) by (k x m) product, k <= 5, m <= CHUNK: BLAS stays on one thread below
-        # its threading threshold (m n k < 262144 in OpenBLAS)
-        np.dot(self.B, V[:self.B.shape[1]], out=out)
-        out += self.bias
-        return out
-
-    def finish(self, out, rng, dest):
-        """Noise, quantization; SI increments into ``dest`` (3, m)."""
-        if self.sigma:
-            out += normal_f32(rng, out.shape, self.sigma)
-        if self.rem is None:
-            dest[...] = out
-            return
-        out[:, 0] += self.rem
-        np.cumsum(out, axis=1, out=out)
-        last = out[:, -1].copy()
-        np.floor(out, out=out)
-        self.rem = last - out[:, -1]
-        np.subtract(out[:, 1:], out[:, :-1], out=dest[:, 1:])
-        dest[:, 0] = out[:, 0]
+    def count(self, x, dest):
+        """SI pulse increments into ``dest`` (3, m) from increments ``x`` (3, m) in units."""
+        m = x.shape[1]
+        s = self.ibuf[:3 * m].reshape(3, m)
+        np.copyto(s, x, casting="unsafe")              # truncated to whole units
+        s[:, 0] += self.rem
+        np.cumsum(s, axis=1, out=s)
+        last = s[:, -1].copy()
+        np.right_shift(s, self.bits, out=s)           # floor to whole pulses
+        self.rem = last - (s[:, -1] << self.bits)
+        np.subtract(s[:, 1:], s[:, :-1], out=dest[:, 1:])
+        dest[:, 0] = s[:, 0]
         dest *= self.q
+
+
+def _horizontal_columns(M, v0):
+    """Columns of the outputs ``M @ v_b`` on ``(int cos beta dt, int sin beta dt)`` for the
+    b0 vector ``v0``: ``v_b = rot_z(-beta) v0``, so ``x = cos v0x + sin v0y``,
+    ``y = cos v0y - sin v0x``."""
+    return np.column_stack([M[:, 0] * v0[0] + M[:, 1] * v0[1], M[:, 0] * v0[1] - M[:, 1] * v0[0]])
 
 
 def generate(truth, run, rng=None):
@@ -180,7 +179,17 @@ def generate(truth, run, rng=None):
     Notes
     -----
     Generated in chunks of :data:`CHUNK` samples; the random stream is drawn chunk by chunk
-    (gyro noise, then accelerometer noise).
+    (table jitter, gyro noise, then accelerometer noise).
+
+    Each sensor row is a matrix product ``C @ V`` of a few coefficients and the basis rows
+    ``V`` of a chunk: ``int cos beta' dt``, ``-int sin beta' dt`` (``beta'`` the IMU's turn
+    since the chunk's start phase ``Phi``: the rotation by ``Phi`` is folded into ``C``), a row
+    of ones (constant biases, the Earth rate's vertical part, the temperature's constant
+    part), the turn increment ``d beta`` and the exponentials of the warm-up transients on the
+    sample grid (``exp(-t / tau)`` is a fixed table times a per-chunk factor in ``C``). Only
+    the first, second and fourth rows are computed per chunk. The table angle's deviation
+    from the line ``Phi + k W dt`` (ripple, jitter, thermal mount rotation, < 1e-3 rad) enters
+    ``cos``/``sin`` by its Taylor series (``hse_opt.sim._fastmath``).
     """
     validate_run(truth, run)
     need_rng = (not truth.is_noise_free) or run.alpha0 is None
@@ -196,147 +205,132 @@ def generate(truth, run, rng=None):
     w0 = C_n_b0 @ earth_rate_n(truth.site.latitude)
     f0 = C_n_b0 @ np.array([0.0, 0.0, -truth.site.gravity])
     g, a, enc = truth.gyro, truth.accel, truth.encoder
-    mount, thermal = truth.mount, truth.thermal
+    mount, thermal, tb = truth.mount, truth.thermal, truth.table
     G = np.linalg.inv(mats["K_g"]) @ mats["C_b_s"]      # b -> gyro outputs: K_g^-1 C_b^s
     A = mats["A_acc"] @ mats["C_b_s"]                    # b -> accelerometer outputs
     sf = np.asarray(g.sf_error)[:, None]
     nl = np.asarray(g.sf_nonlinearity)[:, None]
-    scale = bool(np.any(sf) or np.any(nl))
+    scale = bool(np.any(sf) or np.any(nl))              # then the counter sits after the scaling
     bw = np.asarray(g.bias_warmup)
     tc = np.asarray(g.bias_tempco)
     thermal_xi = bool(mount.warmup_xi_z or mount.xi_z_tempco)
-    need_temp = bool(mount.xi_z_tempco or tc.any())
-    gq = 0.0 if scale else g.pulse      # with a scale-factor error, quantize after scaling
-    # time-varying gyro biases as extra basis rows: the warm-up transient's integral over
-    # each interval, -tau d(exp(-t_on / tau)), and the temperature term dt (temp_mid - ref)
-    extra = ([bw * -g.bias_warmup_tau] if bw.any() else []) + ([tc * dt] if tc.any() else [])
-    gyro_s = _Sensor(G, w0, (np.asarray(g.bias) + g.axis_bias * G[:, 2]) * dt,
-                     g.arw * math.sqrt(dt), gq,
-                     rng.uniform(0.0, 1.0, 3) if (gq and rng is not None) else np.full(3, 0.5), extra)
-    gcount = None
-    if scale and g.pulse:
-        gcount = _Sensor(np.eye(3), np.zeros(3), np.zeros(3), 0.0, g.pulse,
-                         rng.uniform(0.0, 1.0, 3) if rng is not None else np.full(3, 0.5))
-    acc_s = _Sensor(A, f0, np.asarray(a.bias) * dt, a.vrw * math.sqrt(dt), a.pulse,
-                    rng.uniform(0.0, 1.0, 3) if (a.pulse and rng is not None) else np.full(3, 0.5),
-                    z=f0[2] * dt)
+    W = run.rate * (1.0 + tb.rate_error)                # true mean table rate
+    wdt = W * dt
+    # the counters' random initial phases (pulses), then the table's first jitter sample
+    gphase = (rng.uniform(0.0, 1.0, 3) if rng is not None else np.full(3, 0.5)) if g.pulse else None
+    aphase = (rng.uniform(0.0, 1.0, 3) if rng is not None else np.full(3, 0.5)) if a.pulse else None
+    jit_last = float(normal_f32(rng, (1,), tb.jitter)[0]) if tb.jitter else 0.0
+
+    # the table angle at the sample boundaries: Phi + k W dt + d_k with the deviation d_k of the
+    # ripple (its constant part folded into Phi), the jitter and the thermal mount rotation
+    # xi_w of the IMU about z_b (C_b^s(t) = C_b^s rot_z(-xi_w)), which adds to the angle the
+    # IMU turns by and its rate to the z increment. Over each interval the angle is taken
+    # linear (the ripple bends it by alpha_ddot dt^2 / 8 ~ 1e-10 rad, xi_w changes by < 1e-9
+    # rad per sample), so int cos(beta) dt = (sin beta_k - sin beta_{k-1}) dt / d beta.
+    nu = _ripple_nu(tb, run.rate) if tb.ripple else 0.0
+    amp = W * tb.ripple / nu if tb.ripple else 0.0      # ripple amplitude, rad
+    tau_xi, tau_b, tau_t = mount.warmup_tau, g.bias_warmup_tau, thermal.tau
+    dtemp = abs(thermal.ambient_c - thermal.reference_c) + abs(thermal.rise_c) + thermal.swing_c
+    xi_bound = (abs(mount.warmup_xi_z) * math.exp(-run.t_start / tau_xi) + abs(mount.xi_z_tempco) * dtemp
+                if thermal_xi else 0.0)
+    d_bound = abs(amp) + _NOISE_BOUND * tb.jitter + min(xi_bound, 1e-3)
+
+    # coefficients (SI per sample) of the basis rows: int cos, -int sin, ones, d beta, the
+    # warm-up and temperature exponentials, the temperature swing
+    hg = _horizontal_columns(G, w0)
+    const_g = (np.asarray(g.bias) + g.axis_bias * G[:, 2] + G[:, 2] * w0[2]) * dt
+    extra = []                                           # (name, coefficient at t_on = 0, tau)
+    if bw.any():   # int b_w exp(-t / tau) over an interval: b_w tau (1 - exp(-dt / tau)) exp(-t_k / tau)
+        extra.append(("bias", bw * tau_b * -math.expm1(-dt / tau_b), tau_b))
+    if tc.any():   # tempco dt (temperature at the interval's midpoint - reference)
+        const_g = const_g + tc * dt * (thermal.ambient_c + thermal.rise_c - thermal.reference_c)
+        extra.append(("temp", tc * dt * -thermal.rise_c * 0.5 * (1.0 + math.exp(-dt / tau_t)), tau_t))
+    swing_row = bool(tc.any() and thermal.swing_c)
+    kg = 4 + len(extra) + swing_row                      # basis rows of the gyros
+    Cg = np.zeros((3, kg))
+    Cg[:, 2] = const_g
+    Cg[:, 3] = G[:, 2]
+    if swing_row:
+        Cg[:, -1] = tc * dt * thermal.swing_c
+    ha = _horizontal_columns(A, f0)
+    Ca = np.zeros((3, 3))
+    Ca[:, 2] = (np.asarray(a.bias) + A[:, 2] * f0[2]) * dt
+
+    # bounds of the increments per sample (SI) for the counters' fixed point
+    xmax_g = ((np.abs(hg).sum(axis=1) * dt + np.abs(G[:, 2]) * (abs(wdt) + 2.0 * d_bound)
+               + np.abs(const_g) + sum(np.abs(c) * math.exp(-run.t_start / t) for _, c, t in extra)
+               + np.abs(tc) * dt * dtemp).max())
+    if scale:
+        xmax_g *= 1.0 + float(np.abs(sf).max()) + float(np.abs(nl).max()) * xmax_g / dt
+    xmax_g += _NOISE_BOUND * g.arw * math.sqrt(dt)
+    xmax_a = ((np.abs(ha).sum(axis=1) * dt + np.abs(Ca[:, 2])).max()
+              + _NOISE_BOUND * a.vrw * math.sqrt(dt))
+    gcount = _Counter("gyro.pulse_arcsec", g.pulse, gphase, xmax_g) if g.pulse else None
+    acount = _Counter("accel.pulse_mps", a.pulse, aphase, xmax_a) if a.pulse else None
+    gunit = gcount.unit if (gcount is not None and not scale) else 1.0
+    aunit = acount.unit if acount is not None else 1.0
+    Cg[:, 2:] *= gunit
+    Ca[:, 2] *= aunit
+    sigma_g = g.arw * math.sqrt(dt) * gunit
+    sigma_a = a.vrw * math.sqrt(dt) * aunit
 
     gyro = np.empty((3, n))
     accel = np.empty((3, n))
     encoder = np.empty(n)
     t_out = np.empty(n)
-    # exp(-t_on / tau) on the chunk grid = exp(-t_on[0] / tau) * exp(-k dt / tau): one table
-    # per time constant, scaled per chunk (exact to a few 1e-16)
-    taus = {}
-    if thermal_xi:
-        taus["xi"] = mount.warmup_tau
-    if bw.any():
-        taus["bias"] = g.bias_warmup_tau
-    if need_temp:
-        taus["temp"] = thermal.tau
-    ktab = dt * np.arange(min(n, CHUNK) + 1, dtype=float)
-    tables = {name: exp_linear(-dt / tau, ktab.size) for name, tau in taus.items()}
-    tb = truth.table
-    W = run.rate * (1.0 + tb.rate_error)             # true mean table rate
-    nu = _ripple_nu(tb, run.rate) if tb.ripple else 0.0
     size = min(n, CHUNK) + 1
-    ptab = PhaseTable(W * dt, size)
-    rtab = PhaseTable(nu * dt, size) if tb.ripple else None
-    kidx = np.arange(size, dtype=float)
-    jit_last = float(normal_f32(rng, (1,), tb.jitter)[0]) if tb.jitter else 0.0
-    buf = np.empty(3 * (size - 1))                    # signal rows, (3, m) views of it
-    vbuf = np.empty((3 + len(extra)) * (size - 1))    # basis rows, (k, m) views of it
+    ptab = PhaseTable(wdt, size)
+    rtab, rsign = None, 1.0
+    if tb.ripple:                 # once per revolution the ripple's phase steps with the table's
+        rtab, rsign = (ptab, math.copysign(1.0, W)) if tb.ripple_order == 1 else (PhaseTable(nu * dt, size), 1.0)
+    ktab = dt * np.arange(size, dtype=float)
+    lin = np.multiply(np.arange(size, dtype=float), wdt)   # the linear turn k W dt
+    # basis rows: int cos, -int sin, ones, d beta, exponentials, swing; (k, m) views of vbuf
+    vbuf = np.empty((kg, size - 1))
+    vbuf[2] = 1.0
+    for j, (_, _, tau) in enumerate(extra):
+        exp_linear(-dt / tau, size - 1, out=vbuf[4 + j])
+    xtab = exp_linear(-dt / tau_xi, size) if thermal_xi else None
+    ttab = exp_linear(-dt / tau_t, size) if mount.xi_z_tempco else None
+    dbuf, xbuf, cs = np.empty(size), np.empty(size), np.empty((2, size))
+    work = np.empty((3, size))
+    obuf = np.empty(3 * (size - 1))
+    ripple_const = -amp * math.sin(tb.ripple_phase) if tb.ripple else 0.0
     for i0 in range(0, n, CHUNK):
         i1 = min(n, i0 + CHUNK)
         m = i1 - i0
         t_first = run.t_start + dt * i0
-        t_on = t_first + ktab[:m + 1]                 # boundaries, time since power-on
-        t_out[i0:i1] = t_on[1:]
-        expo = {name: tab[:m + 1] * math.exp(-t_first / taus[name]) for name, tab in tables.items()}
-        # table angle at the boundaries: alpha = phi0 + W dt k + d_alpha (ripple, jitter)
-        phi0 = alpha0 + W * dt * i0
-        d_alpha = None
+        np.add(ktab[1:m + 1], t_first, out=t_out[i0:i1])
+        phi = alpha0 + wdt * i0 + ripple_const          # Phi: the chunk's start on the line
+        d = None
         if tb.ripple:
-            d_alpha = _ripple(tb, run.rate, rtab.sin(nu * dt * i0 + tb.ripple_phase, m + 1))
+            p0 = nu * dt * i0 + tb.ripple_phase
+            d = np.multiply(rtab.c[:m + 1], amp * math.sin(p0), out=dbuf[:m + 1])
+            np.multiply(rtab.s[:m + 1], amp * rsign * math.cos(p0), out=work[0, :m + 1])
+            d += work[0, :m + 1]
+        jit = None
         if tb.jitter:
-            jit = np.empty(m + 1)
-            jit[0] = jit_last                         # the boundary shared with the last chunk
-            jit[1:] = normal_f32(rng, (m,), tb.jitter)
-            jit_last = jit[-1]
-            d_alpha = jit if d_alpha is None else d_alpha + jit
-        temp = None
-        if need_temp:
-            temp = thermal.ambient_c + thermal.rise_c * (1.0 - expo["temp"])
-            if thermal.swing_c:
-                temp += thermal.swing_c * np.sin(2 * np.pi * t_on / thermal.swing_period
-                                                 + thermal.swing_phase)
-        # The IMU's horizontal axes turn with beta = alpha + xi_w: the thermal rotation xi_w of
-        # the IMU about z_b (C_b^s(t) = C_b^s rot_z(-xi_w)) adds to the table angle, and its
-        # rate to the z increment. Over each interval beta is taken linear (xi_w changes by
-        # < 1e-9 rad per sample), so int cos(beta) dt = (sin beta_k - sin beta_{k-1}) dt / d beta.
-        d_beta = d_alpha
-        if thermal_xi:
-            xi = mount.warmup_xi_z * expo["xi"]
-            if mount.xi_z_tempco:
-                xi += mount.xi_z_tempco * (temp - thermal.reference_c)
-            if np.abs(xi).max() > 1e-3:
-                raise ValueError("mount: the thermal mount rotation exceeds 1e-3 rad (206 arcsec); "
-                                 "allowed |warmup_xi_z + tempco * dT| <= 206 arcsec")
-            d_beta = xi if d_beta is None else d_beta + xi
-        ca, sa = ptab.cos_sin(phi0, m + 1)
-        if d_beta is None:
-            dbeta = W * dt                            # scalar: a constant-rate turn
-        else:
-            if np.abs(d_beta).max() <= MAX_DEVIATION:
-                ca, sa = rotate_small(ca, sa, d_beta)
+            jit = normal_f32(rng, (m,), tb.jitter)
+            if d is None:
+                d = dbuf[:m + 1]
+                d[0] = jit_last
+                d[1:] = jit
             else:
-                beta = W * dt * kidx[:m + 1]
-                beta += phi0
-                beta += d_beta
-                ca, sa = np.cos(beta), np.sin(beta)
-            dbeta = np.diff(d_beta)
-            dbeta += W * dt
-        r = dt / dbeta
-        V = vbuf[:(3 + len(extra)) * m].reshape(-1, m)   # basis rows of this chunk
-        np.subtract(sa[1:], sa[:-1], out=V[0])
-        V[0] *= r                                     # int cos(beta) dt over each interval
-        np.subtract(ca[1:], ca[:-1], out=V[1])
-        V[1] *= -r                                    # int sin(beta) dt
-        np.add(dbeta, w0[2] * dt, out=V[2])           # z increment: turn + Earth rate
-        row = 3
-        if bw.any():
-            np.subtract(expo["bias"][1:], expo["bias"][:-1], out=V[row])
-            row += 1
-        if tc.any():   # thermal terms vary over minutes: midpoint rule, error < 1e-12 relative
-            np.add(temp[1:], temp[:-1], out=V[row])
-            V[row] *= 0.5
-            V[row] -= thermal.reference_c
+                d[0] += jit_last
+                d[1:] += jit
+            jit_last = float(jit[-1])
 
-        out = buf[:3 * m].reshape(3, m)
-        gyro_s.rows(V, out)
-        if scale:
-            out *= 1.0 + sf + nl * (np.abs(out) / dt)
-        if gcount is None:
-            gyro_s.finish(out, rng, gyro[:, i0:i1])
-        else:
-            gyro_s.finish(out, rng, out)                  # noise, SI
-            out *= gcount.k                               # to counts, then quantize
-            gcount.finish(out, rng, gyro[:, i0:i1])
-
-        acc_s.rows(V, out)
-        acc_s.finish(out, rng, accel[:, i0:i1])
-
+        # encoder: alpha_meas(t_k) = alpha(t_k - dt_sync) + sum a_h sin(h alpha + phi_h), rounded
         am = encoder[i0:i1]
         if enc.sync_delay:      # (the jitter of the sample, white: it changes little in dt_sync)
             am[:] = table_angle(tb, run.rate, alpha0,
                                 dt * np.arange(i0 + 1, i1 + 1, dtype=float) - enc.sync_delay)
-            if tb.jitter:
-                am += jit[1:]
+            if jit is not None:
+                am += jit
         else:
-            np.multiply(kidx[1:m + 1], W * dt, out=am)
-            am += phi0
-            if d_alpha is not None:
-                am += d_alpha[1:]
+            np.add(lin[1:m + 1], phi, out=am)
+            if d is not None:
+                am += d[1:]
         if enc.harmonics:
             err = np.zeros(m)
             for h in enc.harmonics:
@@ -344,8 +338,76 @@ def generate(truth, run, rng=None):
             am += err
         if enc.resolution:
             am /= enc.resolution
-            np.round(am, out=am)
+            np.rint(am, out=am)
             am *= enc.resolution
+
+        d_max = d_bound
+        if thermal_xi:
+            xi = np.multiply(xtab[:m + 1], mount.warmup_xi_z * math.exp(-t_first / tau_xi), out=xbuf[:m + 1])
+            if mount.xi_z_tempco:
+                temp = thermal.ambient_c + thermal.rise_c * (1.0 - math.exp(-t_first / tau_t) * ttab[:m + 1])
+                if thermal.swing_c:
+                    temp += thermal.swing_c * np.sin(2 * np.pi * (t_first + ktab[:m + 1]) / thermal.swing_period
+                                                     + thermal.swing_phase)
+                xi += mount.xi_z_tempco * (temp - thermal.reference_c)
+            if xi_bound > 1e-3 and np.abs(xi).max() > 1e-3:
+                raise ValueError("mount: the thermal mount rotation exceeds 1e-3 rad (206 arcsec); "
+                                 "allowed |warmup_xi_z + tempco * dT| <= 206 arcsec")
+            d = xi if d is None else np.add(d, xi, out=d)
+        V = vbuf[:, :m]
+        if d is None:                                   # a constant-rate turn
+            c, s = ptab.c[:m + 1], ptab.s[:m + 1]
+            V[3] = wdt
+            r = dt / wdt
+        else:
+            if d_max > MAX_DEVIATION:
+                d_max = max(float(d.max()), -float(d.min()))
+            if d_max <= MAX_DEVIATION:
+                c, s = rotate_small(ptab.c[:m + 1], ptab.s[:m + 1], d, cs[:, :m + 1], work[:, :m + 1], d_max)
+            else:
+                c, s = np.add(lin[:m + 1], d, out=cs[1, :m + 1]), cs[:, :m + 1]
+                c, s = np.cos(c, out=cs[0, :m + 1]), np.sin(c, out=cs[1, :m + 1])
+            np.subtract(d[1:], d[:-1], out=V[3])
+            V[3] += wdt                                 # the turn over each interval
+            r = np.divide(dt, V[3], out=work[0, :m])
+        np.subtract(s[1:], s[:-1], out=V[0])
+        V[0] *= r                                       # int cos(beta') dt over each interval
+        np.subtract(c[1:], c[:-1], out=V[1])
+        V[1] *= r                                       # -int sin(beta') dt
+        if swing_row:           # thermal terms vary over minutes: midpoint rule, error < 1e-12 relative
+            sw = np.sin(2 * np.pi * (t_first + ktab[:m + 1]) / thermal.swing_period + thermal.swing_phase)
+            np.add(sw[1:], sw[:-1], out=V[-1])
+            V[-1] *= 0.5
+
+        # the turn by Phi in the horizontal coefficients; the transients' factors at t_first
+        cph, sph = math.cos(phi), math.sin(phi)
+        Cg[:, 0] = (cph * hg[:, 0] + sph * hg[:, 1]) * gunit
+        Cg[:, 1] = (sph * hg[:, 0] - cph * hg[:, 1]) * gunit
+        for j, (_, coef, tau) in enumerate(extra):
+            Cg[:, 4 + j] = coef * (math.exp(-t_first / tau) * gunit)
+        Ca[:, 0] = (cph * ha[:, 0] + sph * ha[:, 1]) * aunit
+        Ca[:, 1] = (sph * ha[:, 0] - cph * ha[:, 1]) * aunit
+
+        out = obuf[:3 * m].reshape(3, m)
+        np.dot(Cg, V, out=out)
+        if scale:
+            out *= 1.0 + sf + nl * (np.abs(out) / dt)
+        if sigma_g:
+            out += normal_f32(rng, (3, m), sigma_g)
+        if gcount is None:
+            gyro[:, i0:i1] = out
+        else:
+            if scale:
+                out *= gcount.unit
+            gcount.count(out, gyro[:, i0:i1])
+
+        np.dot(Ca, V[:3], out=out)
+        if sigma_a:
+            out += normal_f32(rng, (3, m), sigma_a)
+        if acount is None:
+            accel[:, i0:i1] = out
+        else:
+            acount.count(out, accel[:, i0:i1])
 
     meta = {"latitude_deg": math.degrees(truth.site.latitude),
             "rate_dps": math.degrees(run.rate), "azimuth_deg": math.degrees(run.azimuth),
