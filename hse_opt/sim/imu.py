@@ -65,8 +65,9 @@ def true_attitude(truth, run):
     gam = truth.stand.mount_tilt[0] + run.tilt[0]
     the = truth.stand.mount_tilt[1] + run.tilt[1]
     az = stand_azimuth_true(truth, run.azimuth)
-    tau_n = np.array([truth.stand.tilt[0], truth.stand.tilt[1], 0.0])
-    C = rotvec_to_dcm(tau_n) @ rot_z(az) @ rot_y(the) @ rot_x(gam)
+    C = rot_z(az) @ rot_y(the) @ rot_x(gam)
+    if any(truth.stand.tilt):
+        C = rotvec_to_dcm(np.array([truth.stand.tilt[0], truth.stand.tilt[1], 0.0])) @ C
     psi, theta, gamma = dcm_to_zyx(C)
     return {"C_b0_n": C, "heading": float(psi), "pitch": float(theta), "roll": float(gamma),
             "azimuth_true": float(az)}
@@ -116,13 +117,17 @@ class _Counter:
     sample to sample and from chunk to chunk (initial remainder ``phase``, pulses).
 
     The running sum is kept in int64 fixed point, ``2**bits`` units per pulse: the increments
-    arrive scaled by :attr:`unit` (SI -> units; scaling by a power of two is exact in float),
-    are truncated to whole units (less than ``2**-bits`` pulse per sample), summed exactly
-    (numpy's integer cumulative sum is six times faster than the floating one) and floored
-    by a shift. ``bits`` keeps a chunk's running sum below ``2**60`` for increments up to
-    ``xmax`` (SI, signal and noise): ``2**-bits`` is about ``2**-60`` of the chunk's largest
-    count, finer than a float64 running sum resolves (``2**-52`` of the count).
+    arrive scaled by :attr:`unit` (SI -> units; scaling by a power of two is exact in float)
+    and offset by :data:`MAGIC` (which rounds them to whole units, less than ``2**-bits``
+    pulse per sample, and makes their bit patterns ``MAGIC`` bits + the integer), are summed
+    exactly (numpy's integer cumulative sum is six times faster than the floating one) and
+    floored by a shift. ``bits`` keeps a chunk's running sum below ``2**60`` for increments
+    up to ``xmax`` (SI, signal and noise): ``2**-bits`` is about ``2**-60`` of the chunk's
+    largest count, finer than a float64 running sum resolves (``2**-52`` of the count).
     """
+
+    #: 1.5 * 2**52: ``x + MAGIC`` holds ``round(x)`` in its low bits for ``|x| < 2**51``
+    MAGIC = 1.5 * 2.0 ** 52
 
     def __init__(self, name, q, phase, xmax):
         pulses = 1.0 + CHUNK * xmax / q                  # largest running count of a chunk
@@ -135,14 +140,19 @@ class _Counter:
         self.unit = 2.0 ** self.bits / q
         self.rem = np.floor(np.asarray(phase, dtype=float) * 2.0 ** self.bits).astype(np.int64)
         self.ibuf = np.empty(3 * CHUNK, dtype=np.int64)
+        # (k + 1) MAGIC's bits, modulo 2**64 like the integer sums that carry them
+        self.ramp = (np.arange(1, CHUNK + 1, dtype=np.uint64)
+                     * np.float64(self.MAGIC).view(np.uint64)).view(np.int64)
 
     def count(self, x, dest):
-        """SI pulse increments into ``dest`` (3, m) from increments ``x`` (3, m) in units."""
+        """SI pulse increments into ``dest`` (3, m) from ``x`` (3, m): the increments in units
+        plus :data:`MAGIC` (``x`` is overwritten)."""
         m = x.shape[1]
         s = self.ibuf[:3 * m].reshape(3, m)
-        np.copyto(s, x, casting="unsafe")              # truncated to whole units
-        s[:, 0] += self.rem
-        np.cumsum(s, axis=1, out=s)
+        b = x.view(np.int64)                            # MAGIC's bits + the rounded increment
+        b[:, 0] += self.rem
+        np.cumsum(b, axis=1, out=s)
+        s -= self.ramp[:m]
         last = s[:, -1].copy()
         np.right_shift(s, self.bits, out=s)           # floor to whole pulses
         self.rem = last - (s[:, -1] << self.bits)
@@ -206,7 +216,7 @@ def generate(truth, run, rng=None):
     f0 = C_n_b0 @ np.array([0.0, 0.0, -truth.site.gravity])
     g, a, enc = truth.gyro, truth.accel, truth.encoder
     mount, thermal, tb = truth.mount, truth.thermal, truth.table
-    G = np.linalg.inv(mats["K_g"]) @ mats["C_b_s"]      # b -> gyro outputs: K_g^-1 C_b^s
+    G = mats["K_g_inv"] @ mats["C_b_s"]                 # b -> gyro outputs: K_g^-1 C_b^s
     A = mats["A_acc"] @ mats["C_b_s"]                    # b -> accelerometer outputs
     sf = np.asarray(g.sf_error)[:, None]
     nl = np.asarray(g.sf_nonlinearity)[:, None]
@@ -271,6 +281,10 @@ def generate(truth, run, rng=None):
     aunit = acount.unit if acount is not None else 1.0
     Cg[:, 2:] *= gunit
     Ca[:, 2] *= aunit
+    if gunit != 1.0:
+        Cg[:, 2] += _Counter.MAGIC                      # the ones row: round for the counter
+    if acount is not None:
+        Ca[:, 2] += _Counter.MAGIC
     sigma_g = g.arw * math.sqrt(dt) * gunit
     sigma_a = a.vrw * math.sqrt(dt) * aunit
 
@@ -399,6 +413,7 @@ def generate(truth, run, rng=None):
         else:
             if scale:
                 out *= gcount.unit
+                out += _Counter.MAGIC
             gcount.count(out, gyro[:, i0:i1])
 
         np.dot(Ca, V[:3], out=out)

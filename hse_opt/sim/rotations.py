@@ -18,6 +18,8 @@ R_ZB_S_IDEAL = np.full(3, -1.0 / math.sqrt(3.0))
 
 def _matrix(rows):
     """``(..., 3, 3)`` from nested rows of broadcastable scalars/arrays."""
+    if all(getattr(e, "ndim", 0) == 0 for row in rows for e in row):   # one matrix: the common case
+        return np.array(rows, dtype=float)
     flat = np.broadcast_arrays(*[np.asarray(e, dtype=float) for row in rows for e in row])
     return np.stack(flat, axis=-1).reshape(flat[0].shape + (3, 3))
 

@@ -626,7 +626,8 @@ def gyro_matrices(truth):
     Returns
     -------
     dict of numpy.ndarray, shape (3, 3)
-        ``K_g`` true (g -> s), ``K_g_cal`` = (I + Lambda) K_g (Eq. 1), ``C_b_s`` true (from
+        ``K_g`` true (g -> s), ``K_g_inv`` its inverse (rows: the gyro sensing axes in s),
+        ``K_g_cal`` = (I + Lambda) K_g (Eq. 1), ``C_b_s`` true (from
         ``r_zb_s_true``), ``C_s_b_cal`` = (I - [xi x]) C_s^b(r_zb_s_calibrated) (Eq. 2),
         ``A_acc`` true accelerometer matrix (s -> accelerometer outputs, scale and
         non-orthogonality), ``Lambda``.
@@ -646,8 +647,8 @@ def gyro_matrices(truth):
     n_yx, n_zx, n_zy = a.nonorth
     A_acc = np.diag(1.0 + np.asarray(a.sf_error)) @ np.array(
         [[1.0, 0.0, 0.0], [n_yx, 1.0, 0.0], [n_zx, n_zy, 1.0]])
-    return {"K_g": K_g, "K_g_cal": K_g_cal, "C_b_s": C_b_s, "C_s_b_cal": C_s_b_cal,
-            "A_acc": A_acc, "Lambda": Lam}
+    return {"K_g": K_g, "K_g_inv": K_g_inv, "K_g_cal": K_g_cal, "C_b_s": C_b_s,
+            "C_s_b_cal": C_s_b_cal, "A_acc": A_acc, "Lambda": Lam}
 
 
 def temperature(thermal, t_on):
@@ -717,8 +718,7 @@ def validate_run(truth, run):
         if not math.isfinite(v):
             raise RunError(name, f"{name} = {v!r} is not allowed: a finite number is required")
     mats = gyro_matrices(truth)
-    axes_s = np.linalg.inv(mats["K_g"])                       # rows: gyro axes in s
-    proj = np.abs(axes_s @ mats["C_b_s"][:, 2])               # |cos| between axis and z_b
+    proj = np.abs(mats["K_g_inv"] @ mats["C_b_s"][:, 2])      # |cos| between gyro axis and z_b
     from hse_opt.sim.rotations import EARTH_RATE
     min_rate = (truth.gyro.lockin + EARTH_RATE) / proj.min()
     if not abs(run.rate) > min_rate:
