@@ -423,7 +423,8 @@ def _kalman(Phi, Qd, Rv, P, vel):
     interpreter: the time update is one matrix-vector product on ``vec(P)`` (``Phi (x) Phi``
     with ``vec(Qd)`` appended), the measurement update of rank two has its 2x2 innovation
     inverse in closed form. The gains of all blocks then follow at once, and the state
-    recursion ``x_j = (I - K_j H) Phi x_{j-1} + K_j z_j`` is one 10x10 product per block."""
+    recursion ``x_j = (I - K_j H) Phi x_{j-1} + K_j z_j`` is a chain of 10x10 products
+    (:func:`_chain`)."""
     dot = _DOT
     nb = vel.shape[1]
     M = np.zeros((82, 82))
@@ -451,17 +452,38 @@ def _kalman(Phi, Qd, Rv, P, vel):
     S00, S11, S01 = Pm[:, 3, 3] + Rv, Pm[:, 4, 4] + Rv, Pm[:, 3, 4]
     det = S00 * S11 - S01 * S01
     U0, U1 = Pm[:, :, 3], Pm[:, :, 4]                    # P H^T, (nb, 9) each
-    K0 = (U0 * (S11 / det)[:, None]) - (U1 * (S01 / det)[:, None])
-    K1 = (U1 * (S00 / det)[:, None]) - (U0 * (S01 / det)[:, None])
+    K = np.empty((nb, 9, 2))
+    np.multiply(U0, (S11 / det)[:, None], out=K[:, :, 0])
+    K[:, :, 0] -= U1 * (S01 / det)[:, None]
+    np.multiply(U1, (S00 / det)[:, None], out=K[:, :, 1])
+    K[:, :, 1] -= U0 * (S01 / det)[:, None]
     A = np.zeros((nb, 10, 10))
-    A[:, :9, :9] = Phi - K0[:, :, None] * Phi[3] - K1[:, :, None] * Phi[4]
-    A[:, :9, 9] = K0 * vel[0][:, None] + K1 * vel[1][:, None]
+    np.subtract(Phi, (K.reshape(nb * 9, 2) @ Phi[3:5]).reshape(nb, 9, 9), out=A[:, :9, :9])
+    A[:, :9, 9] = np.matmul(K, vel.T[:, :, None])[:, :, 0]
     A[:, 9, 9] = 1.0
-    x = np.zeros((nb + 1, 10))
-    x[0, 9] = 1.0
-    for j in range(nb):
-        dot(A[j], x[j], x[j + 1])
-    return x[1:, :3], Pp[1:, :3, :3]
+    x0 = np.zeros(10)
+    x0[9] = 1.0
+    return _chain(A, x0)[1:, :3], Pp[1:, :3, :3]
+
+
+def _chain(A, x0):
+    """All ``x_{j+1} = A_j x_j`` (j < len(A)) from ``x0``: (len(A) + 1, n). Pairs of steps are
+    multiplied out at once and the chain of pairs is solved the same way, so the loop runs
+    over a few steps only; each level fills in its odd steps with one batched product."""
+    nb = A.shape[0]
+    x = np.empty((nb + 1, A.shape[1]))
+    x[0] = x0
+    if nb < 8:
+        for j in range(nb):
+            _DOT(A[j], x[j], x[j + 1])
+        return x
+    h = nb // 2
+    even = _chain(np.matmul(A[1:2 * h:2], A[0:2 * h:2]), x0)     # x_0, x_2, ..., x_2h
+    x[0:2 * h + 1:2] = even
+    x[1:2 * h:2] = np.matmul(A[0:2 * h:2], even[:-1, :, None])[:, :, 0]
+    if nb % 2:
+        _DOT(A[nb - 1], x[nb - 1], x[nb])
+    return x
 
 
 def align(log, config=None):

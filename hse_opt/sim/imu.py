@@ -201,7 +201,8 @@ def generate(truth, run, rng=None):
     from the line ``Phi + k W dt`` (ripple, jitter, thermal mount rotation, < 1e-3 rad) enters
     ``cos``/``sin`` by its Taylor series (``hse_opt.sim._fastmath``).
     """
-    validate_run(truth, run)
+    mats = gyro_matrices(truth)
+    validate_run(truth, run, mats)
     need_rng = (not truth.is_noise_free) or run.alpha0 is None
     if rng is None and need_rng:
         raise ValueError("rng: a numpy.random.Generator is required for a system with noise or "
@@ -209,7 +210,6 @@ def generate(truth, run, rng=None):
     dt = truth.timing.sample_period
     n = int(round(run.duration / dt))
     alpha0 = float(run.alpha0) if run.alpha0 is not None else float(rng.uniform(0.0, 2 * np.pi))
-    mats = gyro_matrices(truth)
     att = true_attitude(truth, run)
     C_n_b0 = att["C_b0_n"].T
     w0 = C_n_b0 @ earth_rate_n(truth.site.latitude)

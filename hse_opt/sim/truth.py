@@ -702,9 +702,9 @@ class RunError(ValueError):
         return type(self), (self.column, self.problem)
 
 
-def validate_run(truth, run):
+def validate_run(truth, run, mats=None):
     """Check a run against the system; :class:`RunError` naming the PLAN column and what is
-    allowed.
+    allowed. ``mats`` is :func:`gyro_matrices` of ``truth`` when the caller has it.
 
     Checks: a finite non-zero rate outside the gyros' lock-in zone (each gyro's input rate
     ``|Omega r_g . r_zb^s|``, less the Earth rate, must exceed ``gyro.lockin_dps``) and below what
@@ -717,7 +717,7 @@ def validate_run(truth, run):
                     ("duration_s", run.duration), ("t_start_s", run.t_start)):
         if not math.isfinite(v):
             raise RunError(name, f"{name} = {v!r} is not allowed: a finite number is required")
-    mats = gyro_matrices(truth)
+    mats = gyro_matrices(truth) if mats is None else mats
     proj = np.abs(mats["K_g_inv"] @ mats["C_b_s"][:, 2])      # |cos| between gyro axis and z_b
     from hse_opt.sim.rotations import EARTH_RATE
     min_rate = (truth.gyro.lockin + EARTH_RATE) / proj.min()
