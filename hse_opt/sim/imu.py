@@ -140,9 +140,6 @@ class _Counter:
         self.unit = 2.0 ** self.bits / q
         self.rem = np.floor(np.asarray(phase, dtype=float) * 2.0 ** self.bits).astype(np.int64)
         self.ibuf = np.empty(3 * CHUNK, dtype=np.int64)
-        # (k + 1) MAGIC's bits, modulo 2**64 like the integer sums that carry them
-        self.ramp = (np.arange(1, CHUNK + 1, dtype=np.uint64)
-                     * np.float64(self.MAGIC).view(np.uint64)).view(np.int64)
 
     def count(self, x, dest):
         """SI pulse increments into ``dest`` (3, m) from ``x`` (3, m): the increments in units
@@ -152,13 +149,18 @@ class _Counter:
         b = x.view(np.int64)                            # MAGIC's bits + the rounded increment
         b[:, 0] += self.rem
         np.cumsum(b, axis=1, out=s)
-        s -= self.ramp[:m]
+        s -= _MAGIC_SUMS[:m]
         last = s[:, -1].copy()
         np.right_shift(s, self.bits, out=s)           # floor to whole pulses
         self.rem = last - (s[:, -1] << self.bits)
         np.subtract(s[:, 1:], s[:, :-1], out=dest[:, 1:])
         dest[:, 0] = s[:, 0]
         dest *= self.q
+
+
+#: ``(k + 1) * MAGIC``'s bits for k < CHUNK, modulo 2**64 like the integer sums that carry them
+_MAGIC_SUMS = (np.arange(1, CHUNK + 1, dtype=np.uint64)
+               * np.float64(_Counter.MAGIC).view(np.uint64)).view(np.int64)
 
 
 def _horizontal_columns(M, v0):
