@@ -4,8 +4,9 @@
 table angle at 500 Hz. The table angle grows almost linearly with the sample index, so:
 
 * a :class:`PhaseTable` holds ``cos`` and ``sin`` of ``k * dphi`` for one chunk length;
-  the values for a chunk starting at phase ``phi0`` follow by the angle-addition formula
-  (four multiplications per sample);
+  a chunk's start phase ``phi0`` is turned in once per chunk by the callers (on their
+  coefficients or block sums), or per sample by the angle-addition formula
+  (:meth:`PhaseTable.cos_sin`);
 * a small deviation ``d`` from the linear phase is folded in with its Taylor series
   (:func:`rotate_small`).
 
@@ -61,12 +62,6 @@ class PhaseTable:
         s = sb * c0
         s += cb * s0
         return c, s
-
-    def sin(self, phi0, m):
-        """Array (m,) of ``sin(phi0 + k dphi)``."""
-        s = self.s[:m] * math.cos(phi0)
-        s += self.c[:m] * math.sin(phi0)
-        return s
 
 
 def exp_linear(rate, n, out=None):

@@ -202,6 +202,12 @@ def generate(truth, run, rng=None):
     the first, second and fourth rows are computed per chunk. The table angle's deviation
     from the line ``Phi + k W dt`` (ripple, jitter, thermal mount rotation, < 1e-3 rad) enters
     ``cos``/``sin`` by its Taylor series (``hse_opt.sim._fastmath``).
+
+    Precision: the white noise is drawn in float32 (:func:`~hse_opt.sim._fastmath.normal_f32`:
+    its rounding, 6e-8 of a sample's noise, is white and far below the quantum it dithers),
+    the signal rows and coefficients are float64 (a gyro increment carries the Earth rate's
+    1e-7 rad beside the table's 1e-3 rad turn per sample), and the counters' running sums are
+    exact int64 fixed point (:class:`_Counter`).
     """
     mats = gyro_matrices(truth)
     validate_run(truth, run, mats)
@@ -287,6 +293,8 @@ def generate(truth, run, rng=None):
         Cg[:, 2] += _Counter.MAGIC                      # the ones row: round for the counter
     if acount is not None:
         Ca[:, 2] += _Counter.MAGIC
+    hg_u, ha_u = hg * gunit, ha * aunit                 # per chunk: turned by Phi
+    extra_u = np.column_stack([c * gunit for _, c, _ in extra]) if extra else None
     sigma_g = g.arw * math.sqrt(dt) * gunit
     sigma_a = a.vrw * math.sqrt(dt) * aunit
 
@@ -397,12 +405,11 @@ def generate(truth, run, rng=None):
 
         # the turn by Phi in the horizontal coefficients; the transients' factors at t_first
         cph, sph = math.cos(phi), math.sin(phi)
-        Cg[:, 0] = (cph * hg[:, 0] + sph * hg[:, 1]) * gunit
-        Cg[:, 1] = (sph * hg[:, 0] - cph * hg[:, 1]) * gunit
-        for j, (_, coef, tau) in enumerate(extra):
-            Cg[:, 4 + j] = coef * (math.exp(-t_first / tau) * gunit)
-        Ca[:, 0] = (cph * ha[:, 0] + sph * ha[:, 1]) * aunit
-        Ca[:, 1] = (sph * ha[:, 0] - cph * ha[:, 1]) * aunit
+        turn = np.array([[cph, sph], [sph, -cph]])
+        Cg[:, :2] = hg_u @ turn
+        if extra:
+            Cg[:, 4:4 + len(extra)] = extra_u * [math.exp(-t_first / tau) for _, _, tau in extra]
+        Ca[:, :2] = ha_u @ turn
 
         out = obuf[:3 * m].reshape(3, m)
         np.dot(Cg, V, out=out)
