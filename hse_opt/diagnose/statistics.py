@@ -11,7 +11,8 @@ linearised extended model would give (the Lagrange-multiplier statistic). It is 
 models linear in their parameters, and independent of the sigmas' absolute scale (only their
 ratios weight the runs). The lack-of-fit test is the same test with one indicator column per
 replicate group. Influence (leverage, Cook's distance, externally studentised residuals) is
-that of the same weighted linear model.
+that of the same weighted linear model. When every replicate group's runs are identical
+(copies of one measurement), ``n`` in the degrees of freedom counts the settings, not the rows.
 """
 from __future__ import annotations
 
