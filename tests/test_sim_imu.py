@@ -269,3 +269,21 @@ def test_pulse_quantization_locks_without_jitter_and_is_white_with_it(rate_dps):
     assert 0.7 * white < rms < 1.4 * white                  # 24 seeds: 15 % standard error
     if rate_dps < 0:
         assert np.sqrt(np.mean(errs[0.0] ** 2)) > 3 * white  # locked: a bias, not noise
+
+
+def test_a_quantum_too_small_for_the_counter_is_named():
+    """The pulse counters sum in int64 fixed point; a quantum so small that a chunk would count
+    more than 2**44 pulses is refused, naming the key and the smallest allowed value."""
+    t = TruthConfig.ideal().updated({"gyro": {"pulse_arcsec": 1e-9}})
+    with pytest.raises(ValueError, match=r"gyro.pulse_arcsec = 1e-09 is too small .* allowed gyro.pulse_arcsec >= "):
+        generate(t, RunSpec(rate=0.7, duration=10.0, alpha0=0.1), np.random.default_rng(0))
+    # 1e-5 arcsec: 3e7 pulses per sample on the z gyro, 5e11 in a chunk; the counter still
+    # carries every pulse against the exact increments' running sum
+    q = 1e-5 * ARCSEC
+    run = RunSpec(rate=0.7, duration=40.0, alpha0=0.1)
+    exact = generate(TruthConfig.ideal(), run)
+    quant = generate(TruthConfig.ideal().updated({"gyro": {"pulse_arcsec": 1e-5}}), run, np.random.default_rng(0))
+    pulses = quant.gyro / q
+    assert np.abs(pulses - np.round(pulses)).max() < 1e-6
+    d = np.cumsum(quant.gyro, axis=0) - np.cumsum(exact.gyro, axis=0)
+    assert np.abs(d).max() < q * (1 + 1e-3) and np.ptp(d, axis=0).min() > 0.5 * q

@@ -37,6 +37,7 @@ import math
 
 import numpy as np
 
+from hse_opt import units
 from hse_opt.sim.rotations import dcm_to_zyx, earth_rate_n, rot_x, rot_y, rot_z, rotvec_to_dcm
 from hse_opt.sim._fastmath import MAX_DEVIATION, PhaseTable, exp_linear, normal_f32, rotate_small
 from hse_opt.sim.rawlog import RawLog
@@ -129,13 +130,12 @@ class _Counter:
     #: 1.5 * 2**52: ``x + MAGIC`` holds ``round(x)`` in its low bits for ``|x| < 2**51``
     MAGIC = 1.5 * 2.0 ** 52
 
-    def __init__(self, name, q, phase, xmax):
+    def __init__(self, name, q, phase, xmax, unit=1.0):
         pulses = 1.0 + CHUNK * xmax / q                  # largest running count of a chunk
         self.bits = 60 - math.ceil(math.log2(pulses))
         if self.bits < 16:
-            raise ValueError(f"{name}: the quantum {q!r} (SI) is too small for the signal: a counter "
-                             f"would count more than 2**44 pulses in {CHUNK} samples; allowed quanta "
-                             "give fewer")
+            raise ValueError(f"{name} = {q / unit:g} is too small for this run: more than 2**44 pulses "
+                             f"in {CHUNK} samples; allowed {name} >= {CHUNK * xmax / 2.0 ** 43 / unit:.3g}")
         self.q = q
         self.unit = 2.0 ** self.bits / q
         self.rem = np.floor(np.asarray(phase, dtype=float) * 2.0 ** self.bits).astype(np.int64)
@@ -283,13 +283,13 @@ def generate(truth, run, rng=None):
     xmax_g += _NOISE_BOUND * g.arw * math.sqrt(dt)
     xmax_a = ((np.abs(ha).sum(axis=1) * dt + np.abs(Ca[:, 2])).max()
               + _NOISE_BOUND * a.vrw * math.sqrt(dt))
-    gcount = _Counter("gyro.pulse_arcsec", g.pulse, gphase, xmax_g) if g.pulse else None
+    gcount = _Counter("gyro.pulse_arcsec", g.pulse, gphase, xmax_g, units.ARCSEC) if g.pulse else None
     acount = _Counter("accel.pulse_mps", a.pulse, aphase, xmax_a) if a.pulse else None
     gunit = gcount.unit if (gcount is not None and not scale) else 1.0
     aunit = acount.unit if acount is not None else 1.0
     Cg[:, 2:] *= gunit
     Ca[:, 2] *= aunit
-    if gunit != 1.0:
+    if gcount is not None and not scale:
         Cg[:, 2] += _Counter.MAGIC                      # the ones row: round for the counter
     if acount is not None:
         Ca[:, 2] += _Counter.MAGIC
