@@ -45,10 +45,11 @@ Measured (this machine, 2026-11; --hidden-seeds 3 --reps 30, the rest at CI size
 (a) z-RMS 1.009 +- 0.071, mean z -0.11 +- 0.10 over 100 campaigns (lambda2 mean 3.97 arcsec,
     true 4.2; the fit's sigma ranges widely with each position's C23, median 2.9 arcsec).
 (b) 3/3 seeds: the paper's model flagged; sync_delay first in 2, the encoder harmonic first in
-    1, the two named as indistinguishable in all 3 (both are rate-odd and the same at every
-    position here); with sync_delay added adequate, RMS 19.5-22.9 -> 6.1-10.8 arcsec against
-    the filter's 1-sigma 11.8 (the 100-Hz processor's sigma is conservative); axis_bias and
-    azimuth_harmonic2 not testable in every seed.
+    1, the two named as indistinguishable in 2 of the 3 (both are rate-odd and the same at
+    every position here; in seed 1 sync_delay leads alone); with sync_delay added adequate,
+    RMS 19.5-22.9 -> 6.1-10.8 arcsec against the filter's 1-sigma 11.8 (the 100-Hz
+    processor's sigma is conservative); axis_bias, azimuth_harmonic2, mount_xi and the tilt
+    covariates not testable in every seed.
 (c) 2.53 h: the paper's plan 9 runs, sigma(lambda2) predicted 2.69, Monte Carlo 2.81 arcsec;
     optimised (moving costs more than it gains here: one position, +60/-60 deg/s x 4) 8 runs,
     0.78 / 0.79 arcsec; ratio 0.29 predicted, 0.28 Monte Carlo.
