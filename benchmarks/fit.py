@@ -12,7 +12,9 @@ only when it would).
 Prints, per size: the first fit (building the model's batch Functions, and compiling them
 with CasADi's jit where used) and the warm fit (median and best of new campaigns of the same
 size, the Functions reused), against the targets (10,000 runs < 1 s, 100 runs < 20 ms, one
-core).
+core). The 100-run fits run as a user's would (the compiled Function is at hand after the
+large fit, so they use it), with ``jit=True``, and with ``jit=False`` (CasADi's virtual
+machine: a machine where nothing was compiled yet).
 
 Run: taskset -c 0 python benchmarks/fit.py      (the script also pins itself to one core)
 """
@@ -63,7 +65,7 @@ def bench(n, target, repeats, rng, **kw):
     cpu1, wall1, f = timed(campaign(n, rng), **kw)
     cpu, wall = np.array([timed(campaign(n, rng), **kw)[:2] for _ in range(repeats)]).T
     k = int(f.free.sum())
-    label = ", jit" if kw.get("jit") else ""
+    label = {None: "", True: ", jit", False: ", virtual machine (jit=False)"}[kw.get("jit")]
     ms = lambda x: f"{x * 1e3:.1f} ms"  # noqa: E731
     print(f"{n:6d} runs{label}: {k} free parameters, {f.method} ({f.status})\n"
           f"        first fit (builds the Functions{', compiles or loads C' if kw.get('jit') or n >= 1000 else ''}): "
@@ -86,6 +88,7 @@ def main():
         print(f"        estimate - truth over sigma: max |z| {np.max(np.abs(z[f.std > 0] / f.std[f.std > 0])):.2f}")
         bench(100, 0.020, 20, rng)
         bench(100, 0.020, 20, rng, jit=True)
+        bench(100, 0.020, 20, rng, jit=False)
 
 
 if __name__ == "__main__":

@@ -103,6 +103,15 @@ def key(f, graph=None):
     return h.hexdigest()[:40]
 
 
+def available(f, graph=None):
+    """Whether :func:`compiled` would return ``f`` without compiling: loaded in this process
+    or in the disk cache (and the cache is on)."""
+    k = key(f, graph)
+    if k in _loaded:
+        return True
+    return enabled() and (cache_dir() / "casadi" / f"{f.name()}-{k}{_SUFFIX}").is_file()
+
+
 def compiled(f, graph=None):
     """``f`` evaluated by compiled C: from this process's memory, else the disk cache, else
     compiled now (and cached). Returns ``f`` itself, with a warning, when compiling fails.
