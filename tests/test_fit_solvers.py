@@ -72,3 +72,27 @@ def test_profile_start_takes_the_grid_optimum(monkeypatch):
         chi2.append(float(rss[0]))
     assert z[j] == pytest.approx(grid[int(np.argmin(chi2))], rel=1e-12)
     assert np.argmin(chi2) % 3  # off the coarse grid (every third point): the fine stage found it
+
+
+def test_a_large_campaign_is_profiled_on_a_spread_subset_with_the_same_fit(monkeypatch):
+    """Above PROFILE_RUNS runs the profile start uses a subset spread in run order (a start
+    value only): the fit equals the one whose profile saw every run, and the profile's model
+    calls see PROFILE_RUNS runs."""
+    runs = twin(MODEL, design(n_sessions=60, per=48), TRUTH, np.random.default_rng(5))
+    sizes = []
+    subset = problem.Problem.subset
+
+    def spy(self, idx):
+        sizes.append(len(idx))
+        return subset(self, idx)
+
+    monkeypatch.setattr(problem.Problem, "subset", spy)
+    spread = fit(runs, MODEL)
+    limit = least_squares.PROFILE_RUNS
+    monkeypatch.setattr(least_squares, "PROFILE_RUNS", 10 ** 9)
+    every = fit(runs, MODEL)
+    assert len(runs.run) == 2880 and sizes == [limit]
+    assert spread.status == every.status == "converged"
+    np.testing.assert_allclose(spread.values, every.values, atol=1e-6 * every.std.max(), rtol=0)
+    z = np.abs(spread.values - every.values) / np.where(every.std > 0, every.std, 1)
+    assert z.max() < 1e-4

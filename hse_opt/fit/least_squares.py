@@ -12,6 +12,10 @@ from .solvers import gauss_newton, gauss_newton_step, solve, subspace
 from .weights import HUBER_C, huber_weights, mad_scale, run_sigma
 
 
+#: the profile start runs on at most this many runs (evenly spread in run order)
+PROFILE_RUNS = 1000
+
+
 def _profile_start(prob, w, z, A_eq, b_eq, lin, given=(), points=25, coarse=3):
     """Start values of the nonlinear parameters from their profiles: each in turn on a grid of
     ``points`` over its range (log-spaced for a positive one, e.g. a time constant), the linear
@@ -20,7 +24,13 @@ def _profile_start(prob, w, z, A_eq, b_eq, lin, given=(), points=25, coarse=3):
     every ``coarse``-th point, then the points between the best one's neighbours. A start far
     from the optimum of a time constant otherwise leaves the solvers on a plateau (IPOPT's
     Maximum_Iterations_Exceeded on a warm-up campaign). ``given``: names whose start the
-    caller chose (kept)."""
+    caller chose (kept). A campaign of more than ``PROFILE_RUNS`` runs is profiled on that many,
+    spread evenly in run order, their weights scaled to the whole campaign's (a start value
+    only: the solver then fits every run)."""
+    n = prob.X.shape[1]
+    if n > PROFILE_RUNS and prob.project is None:
+        runs = np.unique(np.linspace(0, n - 1, PROFILE_RUNS).round().astype(int))
+        prob, w = prob.subset(runs), np.asarray(w)[runs] * np.sqrt(n / len(runs))
     for j in np.flatnonzero(prob.nonlinear):
         if prob.names[j] in given:
             continue

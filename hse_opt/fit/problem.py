@@ -32,6 +32,14 @@ class Problem:
         self.ranges = np.array([q.upper - q.lower for q, f in zip(mm.params, free) if f])
         self._last = (None, None, None)
 
+    def subset(self, runs):
+        """The same problem on the runs ``runs`` (indices; no projector: the position
+        elimination couples every run of a position)."""
+        if self.project is not None:
+            raise ValueError("a problem with a position projector cannot be subset")
+        return Problem(self.mm, self.X[:, runs], self.y[runs], self.p_base, self.free, self.lb, self.ub,
+                       self.A_eq, self.b_eq, self.A_in, self.l_in, self.u_in, self.L, self.Lmu, self.jit)
+
     def p(self, z):
         p = self.p_base.copy()
         p[self.free] = z * self.scale
