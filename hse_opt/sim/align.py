@@ -428,7 +428,7 @@ def _kalman(Phi, Qd, Rv, P, vel):
     dot = _DOT
     nb = vel.shape[1]
     M = np.zeros((82, 82))
-    M[:81, :81] = np.kron(Phi, Phi)
+    M[:81, :81].reshape(9, 9, 9, 9)[...] = Phi[:, None, :, None] * Phi[None, :, None, :]  # Phi (x) Phi
     M[:81, 81] = Qd.ravel()
     M[81, 81] = 1.0
     prior, post = np.empty((nb, 82)), np.empty((nb + 1, 82))
@@ -436,17 +436,23 @@ def _kalman(Phi, Qd, Rv, P, vel):
     post[:, 81] = 1.0
     Pm, Pp = prior[:, :81].reshape(nb, 9, 9), post[:, :81].reshape(nb + 1, 9, 9)
     Si, G, T = np.empty((2, 2)), np.empty((2, 9)), np.empty((9, 9))
+    # the loop's views made once (indexing in the loop costs as much as the products)
+    priors, posts, Pms, Pps = list(prior), list(post), list(Pm), list(Pp[1:])
+    HPs = list(Pm[:, 3:5])
+    HPTs = [h.T for h in HPs]
     for j in range(nb):
-        dot(M, post[j], prior[j])                # Phi P Phi^T + Qd
-        P = Pm[j]
-        HP = P[3:5]
-        S00, S11, S01 = P.item(3, 3) + Rv, P.item(4, 4) + Rv, P.item(3, 4)
+        dot(M, posts[j], priors[j])              # Phi P Phi^T + Qd
+        P = Pms[j]
+        S00, S01, S11 = P.item(30) + Rv, P.item(31), P.item(40) + Rv
         det = S00 * S11 - S01 * S01
-        Si[0, 0], Si[1, 1] = S11 / det, S00 / det
-        Si[0, 1] = Si[1, 0] = -S01 / det
-        dot(Si, HP, G)
-        dot(HP.T, G, T)                          # P H^T S^-1 H P (P symmetric)
-        np.subtract(P, T, out=Pp[j + 1])
+        b = -S01 / det
+        Si[0, 0] = S11 / det
+        Si[0, 1] = b
+        Si[1, 0] = b
+        Si[1, 1] = S00 / det
+        dot(Si, HPs[j], G)
+        dot(HPTs[j], G, T)                       # P H^T S^-1 H P (P symmetric)
+        np.subtract(P, T, out=Pps[j])
     # the gains K = P H^T S^-1 of all blocks (2x2 inverse in closed form), then
     # x_j = A_j x_{j-1} + b_j with A_j = Phi - K_j H Phi and b_j = K_j z_j in 10x10 form
     S00, S11, S01 = Pm[:, 3, 3] + Rv, Pm[:, 4, 4] + Rv, Pm[:, 3, 4]

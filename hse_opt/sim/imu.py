@@ -33,6 +33,7 @@ Physics (``docs/conventions.md``; frames n NED, b0 turntable base, b table top, 
 """
 from __future__ import annotations
 
+import functools
 import math
 
 import numpy as np
@@ -161,6 +162,30 @@ class _Counter:
 #: ``(k + 1) * MAGIC``'s bits for k < CHUNK, modulo 2**64 like the integer sums that carry them
 _MAGIC_SUMS = (np.arange(1, CHUNK + 1, dtype=np.uint64)
                * np.float64(_Counter.MAGIC).view(np.uint64)).view(np.int64)
+
+
+def _readonly(*arrays):
+    for a in arrays:
+        a.setflags(write=False)
+    return arrays
+
+
+@functools.lru_cache(maxsize=8)
+def _grid(dt, dphi, size):
+    """The tables of a chunk of ``size`` sample boundaries, depending only on the sample
+    period and the turn per sample (so shared by the runs of a campaign): cos and sin of
+    ``k dphi`` (:class:`PhaseTable`), the times ``k dt`` and the linear turn ``k dphi``
+    (read-only)."""
+    tab = PhaseTable(dphi, size)
+    _readonly(tab.c, tab.s)
+    k = np.arange(size, dtype=float)
+    return (tab,) + _readonly(dt * k, dphi * k)
+
+
+@functools.lru_cache(maxsize=8)
+def _exp_table(rate, size):
+    """``exp(rate k)`` for ``k < size`` (:func:`exp_linear`), read-only and shared."""
+    return _readonly(exp_linear(rate, size))[0]
 
 
 def _horizontal_columns(M, v0):
@@ -303,19 +328,17 @@ def generate(truth, run, rng=None):
     encoder = np.empty(n)
     t_out = np.empty(n)
     size = min(n, CHUNK) + 1
-    ptab = PhaseTable(wdt, size)
+    ptab, ktab, lin = _grid(dt, wdt, size)
     rtab, rsign = None, 1.0
     if tb.ripple:                 # once per revolution the ripple's phase steps with the table's
-        rtab, rsign = (ptab, math.copysign(1.0, W)) if tb.ripple_order == 1 else (PhaseTable(nu * dt, size), 1.0)
-    ktab = dt * np.arange(size, dtype=float)
-    lin = np.multiply(np.arange(size, dtype=float), wdt)   # the linear turn k W dt
+        rtab, rsign = (ptab, math.copysign(1.0, W)) if tb.ripple_order == 1 else (_grid(dt, nu * dt, size)[0], 1.0)
     # basis rows: int cos, -int sin, ones, d beta, exponentials, swing; (k, m) views of vbuf
     vbuf = np.empty((kg, size - 1))
     vbuf[2] = 1.0
     for j, (_, _, tau) in enumerate(extra):
-        exp_linear(-dt / tau, size - 1, out=vbuf[4 + j])
-    xtab = exp_linear(-dt / tau_xi, size) if thermal_xi else None
-    ttab = exp_linear(-dt / tau_t, size) if mount.xi_z_tempco else None
+        vbuf[4 + j] = _exp_table(-dt / tau, size)[:size - 1]
+    xtab = _exp_table(-dt / tau_xi, size) if thermal_xi else None
+    ttab = _exp_table(-dt / tau_t, size) if mount.xi_z_tempco else None
     dbuf, xbuf, cs = np.empty(size), np.empty(size), np.empty((2, size))
     work = np.empty((3, size))
     obuf = np.empty(3 * (size - 1))

@@ -102,6 +102,7 @@ from __future__ import annotations
 
 import dataclasses
 import difflib
+import functools
 import math
 import sys
 from dataclasses import dataclass, field
@@ -630,8 +631,17 @@ def gyro_matrices(truth):
         ``K_g_cal`` = (I + Lambda) K_g (Eq. 1), ``C_b_s`` true (from
         ``r_zb_s_true``), ``C_s_b_cal`` = (I - [xi x]) C_s^b(r_zb_s_calibrated) (Eq. 2),
         ``A_acc`` true accelerometer matrix (s -> accelerometer outputs, scale and
-        non-orthogonality), ``Lambda``.
+        non-orthogonality), ``Lambda``. The arrays are read-only: they are computed once
+        per configuration (a frozen :class:`TruthConfig`) and shared.
     """
+    try:
+        return dict(_gyro_matrices(truth))
+    except TypeError:                    # an unhashable configuration: not cached
+        return dict(_gyro_matrices.__wrapped__(truth))
+
+
+@functools.lru_cache(maxsize=16)
+def _gyro_matrices(truth):
     g, m, a = truth.gyro, truth.mount, truth.accel
     d_yx, d_zx, d_zy = g.axes_nonorth
     u_y = np.array([math.sin(d_yx), math.cos(d_yx), 0.0])
@@ -647,8 +657,11 @@ def gyro_matrices(truth):
     n_yx, n_zx, n_zy = a.nonorth
     A_acc = np.diag(1.0 + np.asarray(a.sf_error)) @ np.array(
         [[1.0, 0.0, 0.0], [n_yx, 1.0, 0.0], [n_zx, n_zy, 1.0]])
-    return {"K_g": K_g, "K_g_inv": K_g_inv, "K_g_cal": K_g_cal, "C_b_s": C_b_s,
+    mats = {"K_g": K_g, "K_g_inv": K_g_inv, "K_g_cal": K_g_cal, "C_b_s": C_b_s,
             "C_s_b_cal": C_s_b_cal, "A_acc": A_acc, "Lambda": Lam}
+    for m in mats.values():
+        m.setflags(write=False)
+    return mats
 
 
 def temperature(thermal, t_on):
