@@ -177,7 +177,9 @@ def _grid(dt, dphi, size):
     ``k dphi`` (:class:`PhaseTable`), the times ``k dt`` and the linear turn ``k dphi``
     (read-only)."""
     tab = PhaseTable(dphi, size)
-    _readonly(tab.c, tab.s)
+    tab.cs = np.stack([tab.c, tab.s])           # (2, size): cos and sin rows for one product
+    tab.c, tab.s = _readonly(tab.cs[0], tab.cs[1])
+    tab.cs.setflags(write=False)
     k = np.arange(size, dtype=float)
     return (tab,) + _readonly(dt * k, dphi * k)
 
@@ -352,9 +354,7 @@ def generate(truth, run, rng=None):
         d = None
         if tb.ripple:
             p0 = nu * dt * i0 + tb.ripple_phase
-            d = np.multiply(rtab.c[:m + 1], amp * math.sin(p0), out=dbuf[:m + 1])
-            np.multiply(rtab.s[:m + 1], amp * rsign * math.cos(p0), out=work[0, :m + 1])
-            d += work[0, :m + 1]
+            d = np.dot((amp * math.sin(p0), amp * rsign * math.cos(p0)), rtab.cs[:, :m + 1], out=dbuf[:m + 1])
         jit = None
         if tb.jitter:
             jit = normal_f32(rng, (m,), tb.jitter)
@@ -384,7 +384,7 @@ def generate(truth, run, rng=None):
                 err += h.value(am)
             am += err
         if enc.resolution:
-            am /= enc.resolution
+            am *= 1.0 / enc.resolution
             np.rint(am, out=am)
             am *= enc.resolution
 

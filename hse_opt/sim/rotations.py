@@ -73,6 +73,8 @@ def dcm_to_zyx(C):
 
 def earth_rate_n(latitude):
     """Earth rate in NED, rad/s: ``EARTH_RATE (cos L, 0, -sin L)`` (..., 3)."""
+    if isinstance(latitude, float):                  # one latitude: the common case
+        return np.array([EARTH_RATE * math.cos(latitude), 0.0, -EARTH_RATE * math.sin(latitude)])
     c, s = np.cos(latitude), np.sin(latitude)
     return EARTH_RATE * np.stack(np.broadcast_arrays(c, np.zeros_like(c), -s), axis=-1)
 
