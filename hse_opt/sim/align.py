@@ -556,7 +556,10 @@ def align(log, config=None):
     delta = xs.copy()
     delta[:, 0] -= psi_n
     delta[:, 1] -= psi_e
-    C = np.einsum("kij,jl->kil", np.eye(3) + skew(delta), C0)
+    # (I + [delta x]) C0 = C0 + sum_i delta_i [e_i x] C0: one product with the rows of [e_i x] C0
+    zero = np.zeros(3)
+    E = np.concatenate([zero, -C0[2], C0[1], C0[2], zero, -C0[0], -C0[1], C0[0], zero]).reshape(3, 9)
+    C = (C0.ravel() + delta @ E).reshape(nb, 3, 3)
     heading, pitch, roll = dcm_to_zyx(C)
     heading = np.unwrap(heading)
     # 1-sigma: heading from phi_D; pitch and roll from the n-frame tilt turned into b0
