@@ -143,13 +143,17 @@ def compensation_function(fit_result, parameters=None):
     parameters at the estimate, the others at nominal, nonlinear ones as fitted) and the
     covariance factor ``C = L L'`` as constants.
 
-    Two constructions of the same function; the one with fewer operations is returned:
-    the measurement model's ``h(p, x)`` as the fit evaluates it, and (tilt-known fits) the
-    chain rebuilt with the true Earth rate in b0 as a symbol ``w``, so that the constant
-    linear chain from ``w`` to the revolution-averaged rate folds into one small matrix
-    (:func:`hse_opt.model.folding.fold_linear`) before ``w = C_n^b0 omega_ie_n`` is put back.
+    Several constructions of the same function; the cheapest is returned
+    (:func:`hse_opt.model.folding.cost`): the measurement model's ``h(p, x)`` as the fit
+    evaluates it, with its linear parts folded (:func:`hse_opt.model.folding.fold_linear`);
+    for tilt-known fits also the chain rebuilt with the true Earth rate in b0 as a symbol
+    ``w``, so that the constant linear chain from ``w`` to the revolution-averaged rate folds
+    into one small matrix before ``w = C_n^b0 omega_ie_n`` is put back, and each form with the
+    sin and cos of pitch and roll as Taylor series (exact to double rounding for tilts up to
+    ``SMALL_ANGLE`` = 0.2 rad; the validity range holds them within a few degrees).
     """
     from .compensation import compensation_point
+    from .model.folding import cost, fold_linear
 
     mm = fit_result.measurement
     use, p = compensation_point(fit_result, parameters)
@@ -160,15 +164,17 @@ def compensation_function(fit_result, parameters=None):
     for j, i in enumerate(np.flatnonzero(use)):
         p_expr[int(i)] = p[i] + q[j] * mm.scale[i]
     zero = ca.DM.zeros(q.shape[0])
-    from .model.folding import fold_linear
 
     built = [_direct(mm, p_expr, x, q, zero, L)]
     built.append(fold_linear([x], built[0]))
-    folded = _folded(fit_result.model, mm, p_expr, x, q, zero, L) if fit_result.tilt_known else None
-    if folded is not None:
-        built.append(folded)
-    outputs = min((ca.cse(o) for o in built),  # one evaluation of each shared subexpression
-                  key=lambda o: ca.Function("n", [x], o).n_instructions())
+    if fit_result.tilt_known:
+        folded = _folded(fit_result.model, mm, p_expr, x, q, zero, L)
+        built += [folded] if folded is not None else []
+        # pitch and roll are small (the validity range): their sin/cos as Taylor series
+        small = [(0, RunInputs.INDEX["pitch"]), (0, RunInputs.INDEX["roll"])]
+        built += [fold_linear([x], b, small=small) for b in list(built)]
+    outputs = min((ca.cse(o) for o in built),  # shared subexpressions once
+                  key=lambda o: cost(ca.Function("n", [x], o)))
     return ca.Function(f"{ENTRY_POINT}_model", [x], outputs, ["x"], ["correction_rad", "sigma_rad"])
 
 

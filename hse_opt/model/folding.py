@@ -17,9 +17,11 @@ combinations are written out in full wherever they are used, which can cost more
 original graph when a combination of many atoms feeds many nonlinear operations: compare
 ``n_instructions()`` and keep the smaller (as :func:`hse_opt.export.compensation_function` does).
 """
+import math
+
 import casadi as ca
 
-__all__ = ["fold_linear"]
+__all__ = ["fold_linear", "cost", "SMALL_ANGLE"]
 
 _LINEAR = {ca.OP_ADD, ca.OP_SUB, ca.OP_NEG, ca.OP_MUL, ca.OP_DIV, ca.OP_TWICE, ca.OP_ASSIGN}
 
@@ -56,7 +58,41 @@ def _scale(a, s):
     return _Lin({k: v * s for k, v in a.coef.items()}, a.const * s)
 
 
-def fold_linear(inputs, outputs, max_terms=16):
+#: sin and cos of a ``small`` input by their Taylor series to x^11 / x^12: exact to double
+#: rounding for |x| <= SMALL_ANGLE rad (remainder < 5e-16 |x|)
+SMALL_ANGLE = 0.2
+_SIN = [(-1) ** k / math.factorial(2 * k + 1) for k in range(6)]
+_COS = [(-1) ** k / math.factorial(2 * k) for k in range(7)]
+
+
+def _series(x, coefficients, odd):
+    """Horner in x^2: ``x * sum c_k x^2k`` (odd) or ``sum c_k x^2k``."""
+    x2 = x * x
+    s = ca.SX(coefficients[-1])
+    for c in reversed(coefficients[:-1]):
+        s = s * x2 + c
+    return x * s if odd else s
+
+
+def cost(f):
+    """A rough operation count of SX Function ``f`` for choosing between forms: each
+    instruction 1, each call of a transcendental function (sin, cos, atan2, exp, ...) 40."""
+    plain = {ca.OP_INPUT, ca.OP_OUTPUT, ca.OP_CONST, ca.OP_ADD, ca.OP_SUB, ca.OP_MUL, ca.OP_DIV,
+             ca.OP_NEG, ca.OP_SQ, ca.OP_TWICE, ca.OP_ASSIGN, ca.OP_FABS, ca.OP_SIGN, ca.OP_IF_ELSE_ZERO}
+    ops = [f.instruction_id(k) for k in range(f.n_instructions())]
+    return len(ops) + 39 * sum(op not in plain for op in ops)
+
+
+def _small_atom(a, small_atoms):
+    """The small input ``a`` is exactly (coefficient 1, no constant), else None."""
+    if a.const == 0.0 and len(a.coef) == 1:
+        (k, c), = a.coef.items()
+        if c == 1.0 and k in small_atoms:
+            return small_atoms[k]
+    return None
+
+
+def fold_linear(inputs, outputs, max_terms=16, small=()):
     """Rewrite ``outputs`` (list of SX in the symbols ``inputs``) with their linear parts folded.
 
     Parameters
@@ -66,6 +102,10 @@ def fold_linear(inputs, outputs, max_terms=16):
     outputs : list of casadi.SX
     max_terms : int
         A linear combination of more atoms is written out and becomes an atom.
+    small : sequence of (int, int)
+        ``(input, element)`` of inputs known to be small angles (e.g. pitch and roll): their
+        sin and cos become Taylor series (exact to double rounding for |x| <= SMALL_ANGLE;
+        a polynomial costs a fraction of a libm call).
 
     Returns
     -------
@@ -97,6 +137,8 @@ def fold_linear(inputs, outputs, max_terms=16):
         return atom(write(a)) if len(a.coef) > max_terms else a
 
     in_nz = [[x.nz[i] for i in range(x.nnz())] for x in inputs]
+    small = set(map(tuple, small))
+    small_atoms = {}  # atom id -> SX of a small input
     out = [[ca.SX(0)] * o.nnz() for o in outputs]
     work = [None] * f.sz_w()
     for k in range(f.n_instructions()):
@@ -104,6 +146,8 @@ def fold_linear(inputs, outputs, max_terms=16):
         i_in, i_out = f.instruction_input(k), f.instruction_output(k)
         if op == ca.OP_INPUT:
             work[i_out[0]] = atom(in_nz[i_in[0]][i_in[1]])
+            if (i_in[0], i_in[1]) in small:
+                small_atoms[len(atoms) - 1] = in_nz[i_in[0]][i_in[1]]
         elif op == ca.OP_OUTPUT:
             out[i_out[0]][i_out[1]] = write(work[i_in[0]])
         elif op == ca.OP_CONST:
@@ -128,6 +172,9 @@ def fold_linear(inputs, outputs, max_terms=16):
             else:
                 r = atom(ca.SX.binary(op, write(a), write(b)))
             work[i_out[0]] = r
+        elif op in (ca.OP_SIN, ca.OP_COS) and _small_atom(work[i_in[0]], small_atoms) is not None:
+            x = _small_atom(work[i_in[0]], small_atoms)
+            work[i_out[0]] = atom(_series(x, _SIN, True) if op == ca.OP_SIN else _series(x, _COS, False))
         else:
             args = [write(work[i]) for i in i_in]
             if all(work[i].is_constant for i in i_in):
