@@ -200,11 +200,11 @@ def _folded(model, mm, p_expr, x, q, zero, L):
     parts = [ca.substitute(e, q, zero) for e in
              (omega_b0, ca.jacobian(omega_b0, q), errors.reference_error, ca.jacobian(errors.reference_error, q))]
     omega0, d_omega, ref0, d_ref = fold_linear([x, w], parts)
-    w_true = ca.mtimes(c_b0_n(op.psi, op.theta, op.gamma).T, frames.earth_rate_n(op.L))
+    C_n_b0 = c_b0_n(op.psi, op.theta, op.gamma).T
+    w_true = ca.mtimes(C_n_b0, frames.earth_rate_n(op.L))
     omega0, d_omega, ref0, d_ref = (ca.substitute(e, w, w_true) for e in (omega0, d_omega, ref0, d_ref))
     # heading_error_gyrocompass for an orthonormal C_n^b0 (down . east = 0, |down| = 1):
     # -atan2(omega . east, omega . north), and its gradient in omega
-    C_n_b0 = c_b0_n(op.psi, op.theta, op.gamma).T
     north, east = C_n_b0[:, 0], C_n_b0[:, 1]
     e0, n0 = ca.dot(omega0, east), ca.dot(omega0, north)
     g0 = -ca.atan2(e0, n0)
