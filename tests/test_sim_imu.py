@@ -226,6 +226,34 @@ def test_fast_normal_is_standard_normal():
         assert abs(np.corrcoef(z[lag:], z[:-lag])[0, 1]) < 5 / math.sqrt(z.size)
 
 
+def test_uniforms_from_whole_words_are_the_generators_float32_uniforms():
+    """``uniform_bits`` read from the 64-bit words equals numpy's own
+    ``Generator.random(dtype=float32)`` for every bit generator, including one left with a
+    pending half word (then it falls back) and MT19937 (32-bit words: never split); the
+    Box-Muller noise built on it equals the textbook float32 formulas on numpy's uniforms."""
+    from hse_opt.sim._fastmath import box_muller_f32, splits_words, uniform_bits
+    for bg in (np.random.PCG64, np.random.PCG64DXSM, np.random.SFC64, np.random.Philox, np.random.MT19937):
+        for pending in (False, True):
+            ref, ours = np.random.Generator(bg(9)), np.random.Generator(bg(9))
+            if pending:                                  # leaves half a word behind
+                ref.random(3, dtype=np.float32), ours.random(3, dtype=np.float32)
+            split = splits_words(ours)
+            assert split == (bg is not np.random.MT19937 and not pending)
+            for k in (2, 1000, 49152):
+                u = ref.random(k, dtype=np.float32)
+                bits = uniform_bits(ours, k, split)
+                np.testing.assert_array_equal(bits.astype(np.float32) * np.float32(2.0 ** -24), u)
+            assert ref.random() == ours.random()         # the streams stay in step
+    ref, ours = np.random.default_rng(4), np.random.default_rng(4)
+    u = ref.random(2000, dtype=np.float32)
+    z = box_muller_f32(uniform_bits(ours, 2000, True).reshape(2, 1000), (1.5, 0.25))
+    for i, sig in enumerate((1.5, 0.25)):
+        r1, a1 = u[1000 * i:1000 * i + 500], u[1000 * i + 500:1000 * (i + 1)]
+        rad = np.sqrt(np.float32(-2.0) * np.log(np.float32(1.0) - r1)) * np.float32(sig)
+        ang = a1 * np.float32(2.0 * math.pi)
+        np.testing.assert_array_equal(z[i], np.concatenate([np.cos(ang) * rad, np.sin(ang) * rad]))
+
+
 def test_table_jitter_is_seen_by_gyros_and_encoder_alike():
     """A system whose only imperfection is the table's servo jitter (here 5 arcsec) aligns
     exactly: the gyros and the encoder see the same jittered angle."""

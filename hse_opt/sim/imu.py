@@ -40,7 +40,8 @@ import numpy as np
 
 from hse_opt import units
 from hse_opt.sim.rotations import dcm_to_zyx, earth_rate_n, rot_x, rot_y, rot_z, rotvec_to_dcm
-from hse_opt.sim._fastmath import MAX_DEVIATION, PhaseTable, exp_linear, normal_f32, rotate_small
+from hse_opt.sim._fastmath import (MAX_DEVIATION, PhaseTable, box_muller_f32, exp_linear, normal_f32,
+                                   rotate_small, splits_words, uniform_bits)
 from hse_opt.sim.rawlog import RawLog
 from hse_opt.sim.truth import gyro_matrices, temperature, validate_run
 
@@ -114,45 +115,59 @@ _NOISE_BOUND = 5.8
 
 
 class _Counter:
-    """The pulse counter of one sensor triad (quantum ``q``, SI): the running sum of the
-    increments is floored to whole pulses and differenced, so the remainder is carried from
-    sample to sample and from chunk to chunk (initial remainder ``phase``, pulses).
+    """The pulse counters of stacked sensor triads (3 rows each, quantum ``q`` per triad, SI):
+    the running sum of the increments is floored to whole pulses and differenced, so the
+    remainder is carried from sample to sample and from chunk to chunk (initial remainder
+    ``phase``, pulses).
 
     The running sum is kept in int64 fixed point, ``2**bits`` units per pulse: the increments
-    arrive scaled by :attr:`unit` (SI -> units; scaling by a power of two is exact in float)
-    and offset by :data:`MAGIC` (which rounds them to whole units, less than ``2**-bits``
-    pulse per sample, and makes their bit patterns ``MAGIC`` bits + the integer), are summed
-    exactly (numpy's integer cumulative sum is six times faster than the floating one) and
-    floored by a shift. ``bits`` keeps a chunk's running sum below ``2**60`` for increments
-    up to ``xmax`` (SI, signal and noise): ``2**-bits`` is about ``2**-60`` of the chunk's
-    largest count, finer than a float64 running sum resolves (``2**-52`` of the count).
+    arrive scaled by the triad's :attr:`units` entry (SI -> units; scaling by a power of two
+    is exact in float) and offset by :data:`MAGIC` (which rounds them to whole units, less
+    than ``2**-bits`` pulse per sample, and makes their bit patterns ``MAGIC`` bits + the
+    integer), are summed exactly (numpy's integer cumulative sum is six times faster than the
+    floating one) and floored by a shift. ``bits`` keeps a chunk's running sum below ``2**60``
+    for increments up to ``xmax`` (SI, signal and noise): ``2**-bits`` is about ``2**-60`` of
+    the chunk's largest count, finer than a float64 running sum resolves (``2**-52`` of the
+    count).
+
+    Parameters
+    ----------
+    triads : list of (name, q, phase, xmax, unit)
+        Per triad: the TOML key for messages, the quantum (SI), the initial remainders (3,),
+        the largest increment per sample (SI) and the unit of ``name`` (for messages).
     """
 
     #: 1.5 * 2**52: ``x + MAGIC`` holds ``round(x)`` in its low bits for ``|x| < 2**51``
     MAGIC = 1.5 * 2.0 ** 52
 
-    def __init__(self, name, q, phase, xmax, unit=1.0):
-        pulses = 1.0 + CHUNK * xmax / q                  # largest running count of a chunk
-        self.bits = 60 - math.ceil(math.log2(pulses))
-        if self.bits < 16:
-            raise ValueError(f"{name} = {q / unit:g} is too small for this run: more than 2**44 pulses "
-                             f"in {CHUNK} samples; allowed {name} >= {CHUNK * xmax / 2.0 ** 43 / unit:.3g}")
-        self.q = q
-        self.unit = 2.0 ** self.bits / q
-        self.rem = np.floor(np.asarray(phase, dtype=float) * 2.0 ** self.bits).astype(np.int64)
-        self.ibuf = np.empty(3 * CHUNK, dtype=np.int64)
+    def __init__(self, triads):
+        bits = []
+        for name, q, _, xmax, unit in triads:
+            pulses = 1.0 + CHUNK * xmax / q              # largest running count of a chunk
+            bits.append(60 - math.ceil(math.log2(pulses)))
+            if bits[-1] < 16:
+                raise ValueError(f"{name} = {q / unit:g} is too small for this run: more than 2**44 "
+                                 f"pulses in {CHUNK} samples; allowed {name} >= "
+                                 f"{CHUNK * xmax / 2.0 ** 43 / unit:.3g}")
+        #: per triad: SI -> units of the running sum
+        self.units = [2.0 ** b / t[1] for b, t in zip(bits, triads)]
+        self.bits = np.repeat(np.array(bits, dtype=np.int64), 3)
+        self.q = np.repeat([t[1] for t in triads], 3)[:, None]
+        self.rem = np.concatenate([np.floor(np.asarray(t[2], dtype=float) * 2.0 ** b)
+                                   for b, t in zip(bits, triads)]).astype(np.int64)
+        self.ibuf = np.empty(self.bits.size * CHUNK, dtype=np.int64)
 
     def count(self, x, dest):
-        """SI pulse increments into ``dest`` (3, m) from ``x`` (3, m): the increments in units
+        """SI pulse increments into ``dest`` (k, m) from ``x`` (k, m): the increments in units
         plus :data:`MAGIC` (``x`` is overwritten)."""
-        m = x.shape[1]
-        s = self.ibuf[:3 * m].reshape(3, m)
+        k, m = x.shape
+        s = self.ibuf[:k * m].reshape(k, m)
         b = x.view(np.int64)                            # MAGIC's bits + the rounded increment
         b[:, 0] += self.rem
         np.cumsum(b, axis=1, out=s)
         s -= _MAGIC_SUMS[:m]
         last = s[:, -1].copy()
-        np.right_shift(s, self.bits, out=s)           # floor to whole pulses
+        np.right_shift(s, self.bits[:, None], out=s)  # floor to whole pulses
         self.rem = last - (s[:, -1] << self.bits)
         np.subtract(s[:, 1:], s[:, :-1], out=dest[:, 1:])
         dest[:, 0] = s[:, 0]
@@ -265,6 +280,7 @@ def generate(truth, run, rng=None):
     gphase = (rng.uniform(0.0, 1.0, 3) if rng is not None else np.full(3, 0.5)) if g.pulse else None
     aphase = (rng.uniform(0.0, 1.0, 3) if rng is not None else np.full(3, 0.5)) if a.pulse else None
     jit_last = float(normal_f32(rng, (1,), tb.jitter)[0]) if tb.jitter else 0.0
+    split = rng is not None and splits_words(rng)       # uniforms from whole 64-bit words
 
     # the table angle at the sample boundaries: Phi + k W dt + d_k with the deviation d_k of the
     # ripple (its constant part folded into Phi), the jitter and the thermal mount rotation
@@ -292,14 +308,15 @@ def generate(truth, run, rng=None):
         extra.append(("temp", tc * dt * -thermal.rise_c * 0.5 * (1.0 + math.exp(-dt / tau_t)), tau_t))
     swing_row = bool(tc.any() and thermal.swing_c)
     kg = 4 + len(extra) + swing_row                      # basis rows of the gyros
-    Cg = np.zeros((3, kg))
-    Cg[:, 2] = const_g
-    Cg[:, 3] = G[:, 2]
+    # the coefficients of the six outputs: rows 0-2 the gyros (every basis row), rows 3-5 the
+    # accelerometers (int cos, -int sin, ones)
+    C = np.zeros((6, kg))
+    C[:3, 2] = const_g
+    C[:3, 3] = G[:, 2]
     if swing_row:
-        Cg[:, -1] = tc * dt * thermal.swing_c
+        C[:3, -1] = tc * dt * thermal.swing_c
     ha = _horizontal_columns(A, f0)
-    Ca = np.zeros((3, 3))
-    Ca[:, 2] = (np.asarray(a.bias) + A[:, 2] * f0[2]) * dt
+    C[3:, 2] = (np.asarray(a.bias) + A[:, 2] * f0[2]) * dt
 
     # bounds of the increments per sample (SI) for the counters' fixed point
     xmax_g = ((np.abs(hg).sum(axis=1) * dt + np.abs(G[:, 2]) * (abs(wdt) + 2.0 * d_bound)
@@ -308,25 +325,29 @@ def generate(truth, run, rng=None):
     if scale:
         xmax_g *= 1.0 + float(np.abs(sf).max()) + float(np.abs(nl).max()) * xmax_g / dt
     xmax_g += _NOISE_BOUND * g.arw * math.sqrt(dt)
-    xmax_a = ((np.abs(ha).sum(axis=1) * dt + np.abs(Ca[:, 2])).max()
+    xmax_a = ((np.abs(ha).sum(axis=1) * dt + np.abs(C[3:, 2])).max()
               + _NOISE_BOUND * a.vrw * math.sqrt(dt))
-    gcount = _Counter("gyro.pulse_arcsec", g.pulse, gphase, xmax_g, units.ARCSEC) if g.pulse else None
-    acount = _Counter("accel.pulse_mps", a.pulse, aphase, xmax_a) if a.pulse else None
-    gunit = gcount.unit if (gcount is not None and not scale) else 1.0
-    aunit = acount.unit if acount is not None else 1.0
-    Cg[:, 2:] *= gunit
-    Ca[:, 2] *= aunit
-    if gcount is not None and not scale:
-        Cg[:, 2] += _Counter.MAGIC                      # the ones row: round for the counter
-    if acount is not None:
-        Ca[:, 2] += _Counter.MAGIC
-    hg_u, ha_u = hg * gunit, ha * aunit                 # per chunk: turned by Phi
+    # one counter for the triads with a quantum: rows `counted` of the six outputs
+    triads = ([("gyro.pulse_arcsec", g.pulse, gphase, xmax_g, units.ARCSEC)] if g.pulse else []) + \
+             ([("accel.pulse_mps", a.pulse, aphase, xmax_a, 1.0)] if a.pulse else [])
+    counter = _Counter(triads) if triads else None
+    counted = slice(0 if g.pulse else 3, 6 if a.pulse else 3)
+    gunit = counter.units[0] if (g.pulse and not scale) else 1.0
+    aunit = counter.units[-1] if a.pulse else 1.0
+    C[:3, 2:] *= gunit
+    C[3:, 2] *= aunit
+    if g.pulse and not scale:
+        C[:3, 2] += _Counter.MAGIC                      # the ones row: round for the counter
+    if a.pulse:
+        C[3:, 2] += _Counter.MAGIC
+    H = np.vstack([hg * gunit, ha * aunit])            # per chunk: turned by Phi
     extra_u = np.column_stack([c * gunit for _, c, _ in extra]) if extra else None
-    sigma_g = g.arw * math.sqrt(dt) * gunit
-    sigma_a = a.vrw * math.sqrt(dt) * aunit
+    # the white noises drawn per chunk after the table's jitter: gyros then accelerometers
+    sigmas = [(rows3, sig) for rows3, sig in ((slice(0, 3), g.arw * math.sqrt(dt) * gunit),
+                                              (slice(3, 6), a.vrw * math.sqrt(dt) * aunit)) if sig]
+    noise_rows = slice(sigmas[0][0].start, sigmas[-1][0].stop) if sigmas else None
 
-    gyro = np.empty((3, n))
-    accel = np.empty((3, n))
+    imu = np.empty((6, n))                              # gyros then accelerometers
     encoder = np.empty(n)
     t_out = np.empty(n)
     size = min(n, CHUNK) + 1
@@ -343,7 +364,7 @@ def generate(truth, run, rng=None):
     ttab = _exp_table(-dt / tau_t, size) if mount.xi_z_tempco else None
     dbuf, xbuf, cs = np.empty(size), np.empty(size), np.empty((2, size))
     work = np.empty((3, size))
-    obuf = np.empty(3 * (size - 1))
+    obuf = np.empty(6 * (size - 1))
     ripple_const = -amp * math.sin(tb.ripple_phase) if tb.ripple else 0.0
     for i0 in range(0, n, CHUNK):
         i1 = min(n, i0 + CHUNK)
@@ -351,13 +372,22 @@ def generate(truth, run, rng=None):
         t_first = run.t_start + dt * i0
         np.add(ktab[1:m + 1], t_first, out=t_out[i0:i1])
         phi = alpha0 + wdt * i0 + ripple_const          # Phi: the chunk's start on the line
+        # the chunk's random numbers in the stream's order: the table's jitter, then the gyros'
+        # and the accelerometers' white noise (one draw of uniforms, see box_muller_f32)
+        jit = noise = None
+        if tb.jitter or sigmas:
+            hj, h3 = ((m + 1) // 2 if tb.jitter else 0), (3 * m + 1) // 2
+            u = uniform_bits(rng, 2 * hj + 2 * h3 * len(sigmas), split)
+            if tb.jitter:
+                jit = box_muller_f32(u[None, :2 * hj], (tb.jitter,))[0, :m]
+            if sigmas:
+                noise = box_muller_f32(u[2 * hj:].reshape(len(sigmas), 2 * h3), [sig for _, sig in sigmas])
+                noise = noise[:, :3 * m].reshape(3 * len(sigmas), m)
         d = None
         if tb.ripple:
             p0 = nu * dt * i0 + tb.ripple_phase
             d = np.dot((amp * math.sin(p0), amp * rsign * math.cos(p0)), rtab.cs[:, :m + 1], out=dbuf[:m + 1])
-        jit = None
         if tb.jitter:
-            jit = normal_f32(rng, (m,), tb.jitter)
             if d is None:
                 d = dbuf[:m + 1]
                 d[0] = jit_last
@@ -429,35 +459,27 @@ def generate(truth, run, rng=None):
         # the turn by Phi in the horizontal coefficients; the transients' factors at t_first
         cph, sph = math.cos(phi), math.sin(phi)
         turn = np.array([[cph, sph], [sph, -cph]])
-        Cg[:, :2] = hg_u @ turn
+        C[:, :2] = H @ turn
         if extra:
-            Cg[:, 4:4 + len(extra)] = extra_u * [math.exp(-t_first / tau) for _, _, tau in extra]
-        Ca[:, :2] = ha_u @ turn
+            C[:3, 4:4 + len(extra)] = extra_u * [math.exp(-t_first / tau) for _, _, tau in extra]
 
-        out = obuf[:3 * m].reshape(3, m)
-        np.dot(Cg, V, out=out)
+        out = obuf[:6 * m].reshape(6, m)
+        np.dot(C, V, out=out)
         if scale:
-            out *= 1.0 + sf + nl * (np.abs(out) / dt)
-        if sigma_g:
-            out += normal_f32(rng, (3, m), sigma_g)
-        if gcount is None:
-            gyro[:, i0:i1] = out
-        else:
-            if scale:
-                out *= gcount.unit
-                out += _Counter.MAGIC
-            gcount.count(out, gyro[:, i0:i1])
-
-        np.dot(Ca, V[:3], out=out)
-        if sigma_a:
-            out += normal_f32(rng, (3, m), sigma_a)
-        if acount is None:
-            accel[:, i0:i1] = out
-        else:
-            acount.count(out, accel[:, i0:i1])
+            out[:3] *= 1.0 + sf + nl * (np.abs(out[:3]) / dt)
+        if noise is not None:
+            out[noise_rows] += noise
+        if scale and g.pulse:
+            out[:3] *= counter.units[0]
+            out[:3] += _Counter.MAGIC
+        if counter is not None:
+            counter.count(out[counted], imu[counted, i0:i1])
+        if counted != slice(0, 6):
+            keep = slice(3, 6) if g.pulse else slice(0, 3) if a.pulse else slice(0, 6)
+            imu[keep, i0:i1] = out[keep]
 
     meta = {"latitude_deg": math.degrees(truth.site.latitude),
             "rate_dps": math.degrees(run.rate), "azimuth_deg": math.degrees(run.azimuth),
             "t_start_s": float(run.t_start), "source": "hse_opt.sim",
             "temp_c": float(np.mean(temperature(thermal, run.t_start + np.linspace(0, n * dt, 201))))}
-    return RawLog._trusted(t_out, gyro.T, accel.T, encoder, meta)
+    return RawLog._trusted(t_out, imu[:3].T, imu[3:].T, encoder, meta)
