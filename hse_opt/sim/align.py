@@ -45,13 +45,14 @@ of the revolution-averaged rate gives ``heading estimated - true = -dw_E / (w_ie
 """
 from __future__ import annotations
 
+import functools
 import math
 from dataclasses import dataclass, field
 
 import numpy as np
 
 from hse_opt import units
-from hse_opt.sim.rotations import dcm_to_zyx, earth_rate_n, skew
+from hse_opt.sim.rotations import dcm_to_zyx, earth_rate_n
 from hse_opt.sim._fastmath import MAX_DEVIATION, PhaseTable, rotate_small
 from hse_opt.sim.rawlog import RawLog
 
@@ -246,14 +247,15 @@ def _blocks(log, config):
     """
     n = len(log)
     enc = log.encoder
-    span = enc[-1] - enc[0]
-    duration = log.t[-1] - log.t[0]
+    # the geometry in Python floats (the same IEEE operations as on numpy scalars, cheaper)
+    span = float(enc[-1]) - float(enc[0])
+    duration = float(log.t[-1]) - float(log.t[0])
     rate = span / duration
-    if not abs(span) >= 2 * np.pi:
-        raise ValueError(f"raw log: the table turned {abs(span) / (2 * np.pi):.5f} revolutions; "
+    if not abs(span) >= 2 * math.pi:
+        raise ValueError(f"raw log: the table turned {abs(span) / (2 * math.pi):.5f} revolutions; "
                          "the alignment needs at least one whole revolution")
     dt = duration / (n - 1)
-    rev_samples = 2 * np.pi / (abs(rate) * dt)
+    rev_samples = 2 * math.pi / (abs(rate) * dt)
     # at least 3 blocks per revolution: the table-fixed (once per revolution) states stay
     # observable
     m = max(3, int(round(rev_samples * dt * config.filter_rate)))
@@ -267,12 +269,14 @@ def _blocks(log, config):
     tab = PhaseTable(dphi, L)
     phi = enc[0] + dphi * (L * np.arange(nb, dtype=float) + 0.5)   # Phi_b, the blocks' start
     two_lin = tab.dphi * np.arange(2 * L, step=2, dtype=float)     # 2 l dphi
-    calib = (np.asarray(config.C_s_b_cal) @ np.asarray(config.K_g_cal),
-             np.asarray(config.C_s_b_cal) @ np.asarray(config.A_acc_cal))
-    X = [src[1:nu + 1].T.reshape(3, nb, L) for src in (log.gyro, log.accel)]
-    # per block: sums of cos and sin of l dphi + d at each interval's midpoint, and of those
-    # times each raw increment; a group of blocks at a time (the working arrays stay in cache)
+    calib = _calibration(config)
+    X = [src[1:nu + 1].reshape(nb, L, 3) for src in (log.gyro, log.accel)]
+    XT = [x.transpose(2, 0, 1) for x in X]     # (axis, block, sample)
+    # per block: sums of cos and sin of l dphi + d at each interval's midpoint, of those
+    # times each raw increment, and of the increments; a group of blocks at a time (the
+    # working arrays stay in cache)
     wsum, Y = np.empty((2, nb)), np.empty((2, 2, 3, nb))   # (sensor, cos/sin, axis, block)
+    xsum = np.empty((2, nb, 3))
     per = min(nb, max(1, _CHUNK_TARGET // L))
     work, W = np.empty((4, per, L)), np.empty((2, per, L))
     for b0 in range(0, nb, per):
@@ -292,7 +296,8 @@ def _blocks(log, config):
             np.sin(d, out=w[1])
         np.sum(w, axis=2, out=wsum[:, b0:b1])
         for k in range(2):
-            _vecdot(w[:, None], X[k][None, :, b0:b1], Y[k, :, :, b0:b1])
+            _vecdot(w[:, None], XT[k][None, :, b0:b1], Y[k, :, :, b0:b1])
+            np.sum(X[k][b0:b1], axis=1, out=xsum[k, b0:b1])
     cph, sph = np.cos(phi), np.sin(phi)
 
     def turned(c, s):                          # the block sums turned by Phi_b
@@ -300,7 +305,8 @@ def _blocks(log, config):
 
     rc, rs = turned(wsum[0], wsum[1])
     # exact average of a rotating vector over an interval: divide by sinc(d alpha / 2)
-    corr = 1.0 / np.sinc(span / nint / (2 * np.pi))    # np.sinc(x) = sin(pi x) / (pi x)
+    y = math.pi * (span / nint / (2 * math.pi))
+    corr = 1.0 / (np.sin(y) / y)
     out = {}
     for k, name in enumerate(("dth", "dv")):
         A = calib[k]
@@ -310,12 +316,23 @@ def _blocks(log, config):
         s[0] = yc[0] - ys[1]
         s[1] = ys[0] + yc[1]
         s[:2] *= corr
-        s[2] = A[2] @ X[k].sum(axis=2)
+        s[2] = A[2] @ np.ascontiguousarray(xsum[k].T)
         out[name] = s
     out["dth"][2] -= np.diff(enc[0:nu + 1:L])           # the table turn of each block
     out.update(rot=(rc + 1j * rs) * (corr * dt), L=L, m=m, nb=nb, dt=dt, rate=rate,
                block_time=L * dt)
     return out
+
+
+@functools.lru_cache(maxsize=8)
+def _calibration(config):
+    """The processor's gyro and accelerometer matrices, raw outputs -> b:
+    ``C~_s^b K~_g`` and ``C~_s^b A~_a`` (read-only)."""
+    C = np.asarray(config.C_s_b_cal)
+    mats = (C @ np.asarray(config.K_g_cal), C @ np.asarray(config.A_acc_cal))
+    for a in mats:
+        a.flags.writeable = False
+    return mats
 
 
 def _vecdot(a, b, out):
@@ -356,11 +373,14 @@ def _expm(A):
     nrm = np.abs(A).sum(axis=0).max()
     sq = max(0, int(math.ceil(math.log2(nrm))) + 1) if nrm > 0 else 0
     X = A * (0.5 ** sq)
-    E, term, tmp = np.eye(n), np.eye(n), np.empty((n, n))
+    # the terms X^k / k! in one array, summed in order (k = 0, 1, ...) by one reduction
+    terms, tmp = np.empty((17, n, n)), np.empty((n, n))
+    term = list(terms)
+    term[0][...] = np.eye(n)
     for k in range(1, 17):
-        _DOT(term, X, tmp)
-        np.multiply(tmp, 1.0 / k, out=term)
-        E += term
+        _DOT(term[k - 1], X, tmp)
+        np.multiply(tmp, 1.0 / k, out=term[k])
+    E = np.add.reduce(terms, axis=0)
     for _ in range(sq):
         _DOT(E, E, tmp)
         E, tmp = tmp, E
@@ -389,8 +409,8 @@ def _filter_matrices(C0, w_n, g, rate, T, dt, config):
     the sample period (s), for the pulse quantization noise."""
     F = np.zeros((9, 9))
     # attitude error (N, E; D held): phi_dot = -[w x] phi - C0[:, :2] x_g
-    Wx = skew(w_n)
-    F[0:2, 0:3] = -Wx[0:2, :]
+    wN, wE, wD = (float(v) for v in w_n)
+    F[0, 1], F[0, 2], F[1, 0], F[1, 2] = wD, -wE, -wD, wN          # -[w x], rows N, E
     F[0:2, 5:7] = -C0[0:2, 0:2]
     # velocity error: v_dot = f^n x phi + C0[:2, :2] x_a, f^n = (0, 0, -g)
     F[3, 1] = g
@@ -422,37 +442,43 @@ def _kalman(Phi, Qd, Rv, P, vel):
     The covariance recursion does not depend on the data, so it runs first, written for the
     interpreter: the time update is one matrix-vector product on ``vec(P)`` (``Phi (x) Phi``
     with ``vec(Qd)`` appended), the measurement update of rank two has its 2x2 innovation
-    inverse in closed form. The gains of all blocks then follow at once, and the state
-    recursion ``x_j = (I - K_j H) Phi x_{j-1} + K_j z_j`` is a chain of 10x10 products
-    (:func:`_chain`)."""
+    inverse in closed form; every product works in one fixed buffer, and one copy per block
+    records the prior and the posterior's attitude rows. The gains of all blocks then follow
+    at once, and the state recursion ``x_j = (I - K_j H) Phi x_{j-1} + K_j z_j`` is a chain
+    of 10x10 products (:func:`_chain`)."""
     dot = _DOT
     nb = vel.shape[1]
     M = np.zeros((82, 82))
-    M[:81, :81].reshape(9, 9, 9, 9)[...] = Phi[:, None, :, None] * Phi[None, :, None, :]  # Phi (x) Phi
+    np.multiply(Phi[:, None, :, None], Phi[None, :, None, :],
+                out=M[:81, :81].reshape(9, 9, 9, 9))          # Phi (x) Phi
     M[:81, 81] = Qd.ravel()
     M[81, 81] = 1.0
-    prior, post = np.empty((nb, 82)), np.empty((nb + 1, 82))
-    post[0, :81] = np.asarray(P, dtype=float).ravel()
-    post[:, 81] = 1.0
-    Pm, Pp = prior[:, :81].reshape(nb, 9, 9), post[:, :81].reshape(nb + 1, 9, 9)
+    # one buffer: the prior vec(P) (82, ending in 1) then the posterior (82); per block the
+    # prior and the posterior's rows 0-2 (contiguous) are recorded
+    buf = np.empty(164)
+    prior, post = buf[:82], buf[82:]
+    Pm, Pp = prior[:81].reshape(9, 9), post[:81].reshape(9, 9)
+    HP = Pm[3:5]
+    HPT = HP.T
+    post[:81] = np.asarray(P, dtype=float).ravel()
+    post[81] = 1.0
+    rec = buf[:109]
+    hist = np.empty((nb, 109))
     Si, G, T = np.empty((2, 2)), np.empty((2, 9)), np.empty((9, 9))
-    # the loop's views made once (indexing in the loop costs as much as the products)
-    priors, posts, Pms, Pps = list(prior), list(post), list(Pm), list(Pp[1:])
-    HPs = list(Pm[:, 3:5])
-    HPTs = [h.T for h in HPs]
-    for j in range(nb):
-        dot(M, posts[j], priors[j])              # Phi P Phi^T + Qd
-        P = Pms[j]
-        S00, S01, S11 = P.item(30) + Rv, P.item(31), P.item(40) + Rv
+    for h in hist:
+        dot(M, post, prior)                      # Phi P Phi^T + Qd
+        S00, S01, S11 = Pm.item(30) + Rv, Pm.item(31), Pm.item(40) + Rv
         det = S00 * S11 - S01 * S01
         b = -S01 / det
         Si[0, 0] = S11 / det
         Si[0, 1] = b
         Si[1, 0] = b
         Si[1, 1] = S00 / det
-        dot(Si, HPs[j], G)
-        dot(HPTs[j], G, T)                       # P H^T S^-1 H P (P symmetric)
-        np.subtract(P, T, out=Pps[j])
+        dot(Si, HP, G)
+        dot(HPT, G, T)                           # P H^T S^-1 H P (P symmetric)
+        np.subtract(Pm, T, out=Pp)
+        h[...] = rec
+    Pm = hist[:, :81].reshape(nb, 9, 9)
     # the gains K = P H^T S^-1 of all blocks (2x2 inverse in closed form), then
     # x_j = A_j x_{j-1} + b_j with A_j = Phi - K_j H Phi and b_j = K_j z_j in 10x10 form
     S00, S11, S01 = Pm[:, 3, 3] + Rv, Pm[:, 4, 4] + Rv, Pm[:, 3, 4]
@@ -469,7 +495,7 @@ def _kalman(Phi, Qd, Rv, P, vel):
     A[:, 9, 9] = 1.0
     x0 = np.zeros(10)
     x0[9] = 1.0
-    return _chain(A, x0)[1:, :3], Pp[1:, :3, :3]
+    return _chain(A, x0)[1:, :3], hist[:, 82:].reshape(nb, 3, 9)[:, :, :3]
 
 
 def _chain(A, x0):
@@ -526,7 +552,7 @@ def align(log, config=None):
     n_rev = nb // m
     w_mean, f_mean = _coarse(dth, dv, blk["rot"], T)
     C0 = triad(f_mean, w_mean)
-    g = float(np.linalg.norm(f_mean))
+    g = math.sqrt(f_mean.dot(f_mean))
 
     # open-loop navigation solution from C0 (heading held), at block ends
     r = C0 @ dth - (w_n * T)[:, None]              # n-frame angle residual per block
@@ -538,11 +564,16 @@ def align(log, config=None):
     zr = r[0] + 1j * r[1]
     z = -np.cumsum(zr * rot) / rot                # psi at the end of each block
     psi_n, psi_e = z.real, z.imag
-    pn0 = np.concatenate([[0.0], psi_n[:-1]])
-    pe0 = np.concatenate([[0.0], psi_e[:-1]])
-    dvn = fn[0] + g * T * 0.5 * (pe0 + psi_e)
-    dve = fn[1] - g * T * 0.5 * (pn0 + psi_n)
-    vel = np.vstack([np.cumsum(dvn), np.cumsum(dve)])
+    # the velocity increments with the mean tilt over each block (psi is 0 at the start)
+    dvel = np.empty((2, nb))
+    dvel[0, 0], dvel[1, 0] = psi_e[0], psi_n[0]
+    np.add(psi_e[:-1], psi_e[1:], out=dvel[0, 1:])
+    np.add(psi_n[:-1], psi_n[1:], out=dvel[1, 1:])
+    gT = g * T * 0.5
+    dvel[0] *= gT
+    dvel[1] *= -gT
+    dvel += fn[:2]
+    vel = np.cumsum(dvel, axis=1)
 
     Phi, Qd = _filter_matrices(C0, w_n, g, blk["rate"], T, blk["dt"], config)
     Rv = config.accel_pulse ** 2 / 12.0 + config.velocity_floor ** 2
@@ -550,33 +581,34 @@ def align(log, config=None):
                  config.velocity_floor ** 2, config.velocity_floor ** 2,
                  config.sigma0_gyro_bias ** 2, config.sigma0_gyro_bias ** 2,
                  config.sigma0_accel_bias ** 2, config.sigma0_accel_bias ** 2])
-    xs, Ps = _kalman(Phi, Qd, Rv, P, vel)
+    delta, Ps = _kalman(Phi, Qd, Rv, P, vel)
 
     # corrected attitude: C = (I + [(phi - psi) x]) C0, psi = (psi_N, psi_E, 0)
-    delta = xs.copy()
     delta[:, 0] -= psi_n
     delta[:, 1] -= psi_e
     # (I + [delta x]) C0 = C0 + sum_i delta_i [e_i x] C0: one product with the rows of [e_i x] C0
     zero = np.zeros(3)
     E = np.concatenate([zero, -C0[2], C0[1], C0[2], zero, -C0[0], -C0[1], C0[0], zero]).reshape(3, 9)
     C = (C0.ravel() + delta @ E).reshape(nb, 3, 3)
-    heading, pitch, roll = dcm_to_zyx(C)
-    heading = np.unwrap(heading)
+    # per block: heading, pitch, roll and their 1-sigmas, rows of one array (for the means)
+    out = np.empty((6, nb))
+    out[0], out[1], out[2] = dcm_to_zyx(C)
+    heading = out[0]
+    if not heading.max() - heading.min() < math.pi:     # else np.unwrap is the identity
+        heading[...] = np.unwrap(heading)
     # 1-sigma: heading from phi_D; pitch and roll from the n-frame tilt turned into b0
     ch, sh = np.cos(heading), np.sin(heading)
     Pnn, Pee, Pne = Ps[:, 0, 0], Ps[:, 1, 1], Ps[:, 0, 1]
     var_roll = ch * ch * Pnn + 2 * ch * sh * Pne + sh * sh * Pee
     var_pitch = sh * sh * Pnn - 2 * ch * sh * Pne + ch * ch * Pee
-    hist = AlignHistory(t=T * k, heading=heading, pitch=pitch,
-                        roll=roll, heading_std=np.sqrt(Ps[:, 2, 2]), pitch_std=np.sqrt(var_pitch),
-                        roll_std=np.sqrt(var_roll))
+    np.sqrt(Ps[:, 2, 2], out=out[3])
+    np.sqrt(var_pitch, out=out[4])
+    np.sqrt(var_roll, out=out[5])
+    hist = AlignHistory(T * k, *out)
     w = min(nb, config.smoothing_revolutions * m)
-    sel = slice(nb - w, nb)
+    means = (np.add.reduce(out[:, nb - w:], axis=1) / w).tolist()   # each row's np.mean
     ch0, cp0, cr0 = dcm_to_zyx(C0)
     return AlignResult(
-        heading=float(np.mean(heading[sel])), pitch=float(np.mean(pitch[sel])),
-        roll=float(np.mean(roll[sel])), heading_std=float(np.mean(hist.heading_std[sel])),
-        pitch_std=float(np.mean(hist.pitch_std[sel])), roll_std=float(np.mean(hist.roll_std[sel])),
-        coarse_heading=float(ch0), coarse_pitch=float(cp0), coarse_roll=float(cr0),
+        *means, coarse_heading=float(ch0), coarse_pitch=float(cp0), coarse_roll=float(cr0),
         rate=float(blk["rate"]), n_revolutions=int(n_rev), block_samples=int(blk["L"]),
         blocks_per_revolution=int(m), history=hist)
