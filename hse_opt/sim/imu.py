@@ -464,7 +464,7 @@ def generate(truth, run, rng=None):
             C[:3, 4:4 + len(extra)] = extra_u * [math.exp(-t_first / tau) for _, _, tau in extra]
 
         out = obuf[:6 * m].reshape(6, m)
-        np.dot(C, V, out=out)
+        np.matmul(C, V, out=out)
         if scale:
             out[:3] *= 1.0 + sf + nl * (np.abs(out[:3]) / dt)
         if noise is not None:
