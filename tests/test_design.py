@@ -397,6 +397,30 @@ def test_solver_failures_raise_with_the_status(monkeypatch):
         approximate_design(np.column_stack([np.ones_like(X), X]), "D")
 
 
+def test_a_linear_algebra_error_in_one_solver_falls_back_to_the_next(monkeypatch):
+    """A singular matrix met inside the first conic solver's run (LinAlgError, not cvxpy's
+    SolverError) hands the program to the next solver, whose weights are the D-optimal ones
+    of the closed form below; with every solver failing, the error names each."""
+    from hse_opt.design import approximate as approx
+    real = approx._run_solver
+
+    def first_fails(problem, name):
+        if name == approx.SOLVERS[0]:
+            raise np.linalg.LinAlgError("Singular matrix")
+        return real(problem, name)
+    monkeypatch.setattr(approx, "_run_solver", first_fails)
+    # straight-line regression on [-1, 1]: the D-optimal design puts half the weight at each end
+    x = np.linspace(-1.0, 1.0, 11)
+    runs = approximate_design(np.column_stack([np.ones_like(x), x]), "D").runs
+    np.testing.assert_allclose(runs[[0, -1]] / runs.sum(), 0.5, atol=1e-4)
+
+    def all_fail(problem, name):
+        raise np.linalg.LinAlgError("Singular matrix")
+    monkeypatch.setattr(approx, "_run_solver", all_fail)
+    with pytest.raises(DesignError, match="LinAlgError"):
+        approximate_design(np.column_stack([np.ones_like(x), x]), "D")
+
+
 def test_ipopt_failure_raises_with_its_return_status(monkeypatch):
     import casadi as ca
     real = ca.nlpsol

@@ -292,8 +292,9 @@ def _solve(problem, solver):
             with warnings.catch_warnings():  # an inaccurate solution is judged by its certificate
                 warnings.simplefilter("ignore", UserWarning)
                 _run_solver(problem, name)
-        except cp.error.SolverError as err:
-            tried.append(f"{name}: solver error ({str(err).splitlines()[0]})")
+        except (cp.error.SolverError, np.linalg.LinAlgError) as err:  # LinAlgError: a singular
+            # information matrix met in cvxpy's own evaluation of the objective
+            tried.append(f"{name}: solver error ({type(err).__name__}: {str(err).splitlines()[0]})")
             continue
         if problem.status in (cp.OPTIMAL, cp.OPTIMAL_INACCURATE):
             return problem.status, name
