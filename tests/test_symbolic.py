@@ -278,3 +278,30 @@ def test_encoder_harmonic_averages_out_at_first_order():
     assert abs(h) < 1e-6 * ARCSEC
     with pytest.raises(ValueError, match="unknown effect 'encoder'"):
         effect("encoder")
+
+
+def test_the_effect_catalogues_own_example_runs_and_a_table_fixed_bias_averages_out():
+    """The "declaring a new effect" example of ``hse_opt.model.effects`` runs as printed, and
+    its effect is physical: a gyro bias fixed in the table top turns with it, so its
+    revolution mean (the heading) is zero, while a bias of that size fixed in the base
+    would move the heading by up to b / (w_ie cos L) (Eq. 12)."""
+    import textwrap
+
+    from hse_opt.model import effects
+    code = textwrap.dedent(effects.__doc__.split("::\n", 1)[1])
+    namespace = {}
+    exec(code, namespace)  # noqa: S102 - the package's own docstring
+    mm = namespace["model"].measurement(True)
+    assert "bias_xb" in mm.names and not set(mm.names) & {"xi_x", "xi_y"}  # no clash with mount_xi
+    X = np.zeros((mm.n_x, 4))
+    X[0] = [-0.8, -0.2, 0.3, 0.7]                   # rate, rad/s
+    X[1] = [0.4, 1.9, 3.3, 5.0]                     # heading
+    X[2:4] = 1e-3
+    X[4] = 0.49
+    X[6] = 600.0
+    p = np.array(mm.nominal, dtype=float)
+    h0 = mm.predict(p, X)
+    p[list(mm.names).index("bias_xb")] = 0.5 * units.DEG_PER_H
+    moved = mm.predict(p, X) - h0
+    fixed_in_base = 0.5 * units.DEG_PER_H / (frames.EARTH_RATE * np.cos(0.49))   # ~0.04 rad
+    assert np.abs(moved).max() < 1e-9 * fixed_in_base

@@ -13,16 +13,16 @@ Declaring a new effect takes a few lines::
     from hse_opt.model import Effect, Param, paper_model
     from hse_opt import units
 
-    class XiX(Effect):
-        '''IMU mount turned about x_b: a xi_x error of the calibrated C_s^b.'''
-        name = "xi_x"
-        params = (Param("xi_x", "arcsec", units.ARCSEC, 0.0, -600.0, 600.0,
-                        "mount rotation about x_b"),)
+    class TableBiasX(Effect):
+        '''A gyro bias fixed in the table top along x_b (it turns with the table).'''
+        name = "table_bias_x"
+        params = (Param("bias_xb", "deg/h", units.DEG_PER_H, 0.0, -1.0, 1.0,
+                        "gyro bias along x_b"),)
 
         def act(self, p, op, errors):
-            errors.add_xi(ca.vertcat(p["xi_x"], 0, 0))
+            errors.add_gyro_bias_b(ca.vertcat(p["bias_xb"], 0, 0))
 
-    model = paper_model() + XiX()
+    model = paper_model() + TableBiasX()
 """
 from dataclasses import dataclass
 
