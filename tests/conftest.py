@@ -32,3 +32,16 @@ def random_case(rng, eps_max=1e-4, xi_max=1e-4, tilt_max=2e-3, rate_max_dps=100.
         L=rng.uniform(-lat_max_deg, lat_max_deg) * units.DEG,
         r=r / np.linalg.norm(r),
     )
+
+
+#: the diagnosis tests' campaigns: the paper's two parameters and the default stand's mount tilt
+DIAGNOSTIC_BASE = {"offset": 3.0, "lambda2": 4.2}
+DIAGNOSTIC_TILT = (-120 * units.ARCSEC, -55 * units.ARCSEC)
+
+
+def campaign(values, seed, plan=None, **kw):
+    """Runs of :func:`hse_opt.validation.synthetic.model_runs` on the diagnostic plan (or
+    ``plan``) with ``DIAGNOSTIC_BASE`` updated by ``values`` and noise seeded by ``seed``."""
+    from hse_opt.validation.synthetic import diagnostic_plan, model_runs
+    return model_runs(diagnostic_plan() if plan is None else plan, {**DIAGNOSTIC_BASE, **values},
+                      np.random.default_rng(seed), base_tilt=DIAGNOSTIC_TILT, **kw)

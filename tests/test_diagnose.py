@@ -18,26 +18,21 @@ import numpy as np
 import pytest
 from scipy import stats
 
+from conftest import DIAGNOSTIC_BASE, DIAGNOSTIC_TILT, campaign
 from hse_opt import units
 from hse_opt.cli import main
 from hse_opt.data import Plan, Runs, load_runs, save_plan, save_runs
 from hse_opt.datasets import paper_table1
 from hse_opt.diagnose import compare, diagnose, refine
 from hse_opt.fit import as_model, fit
-from hse_opt.information import UnidentifiableError
 from hse_opt.model import CATALOGUE, Effect, Param
 from hse_opt.validation.synthetic import diagnostic_plan, model_runs
 
 # a RuntimeWarning (overflow, invalid value) is a numerical defect here, not noise
 pytestmark = pytest.mark.filterwarnings("error::RuntimeWarning")
 
-BASE = {"offset": 3.0, "lambda2": 4.2}
-BASE_TILT = (-120 * units.ARCSEC, -55 * units.ARCSEC)
+BASE, BASE_TILT = DIAGNOSTIC_BASE, DIAGNOSTIC_TILT
 
-
-def campaign(values, seed, plan=None, **kw):
-    return model_runs(diagnostic_plan() if plan is None else plan, {**BASE, **values},
-                      np.random.default_rng(seed), base_tilt=BASE_TILT, **kw)
 
 
 def concat(*tables):

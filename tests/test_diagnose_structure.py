@@ -4,6 +4,7 @@ refits by :func:`hse_opt.fit.fit`, and the documented plausibility ranges."""
 import numpy as np
 import pytest
 
+from conftest import DIAGNOSTIC_BASE, DIAGNOSTIC_TILT, campaign
 from hse_opt import units
 from hse_opt.diagnose import diagnose, refine
 from hse_opt.fit import fit
@@ -11,13 +12,8 @@ from hse_opt.validation.synthetic import diagnostic_plan, model_runs
 
 pytestmark = pytest.mark.filterwarnings("error::RuntimeWarning")
 
-BASE = {"offset": 3.0, "lambda2": 4.2}
-BASE_TILT = (-120 * units.ARCSEC, -55 * units.ARCSEC)
+BASE, BASE_TILT = DIAGNOSTIC_BASE, DIAGNOSTIC_TILT
 
-
-def campaign(values, seed, plan=None, **kw):
-    return model_runs(diagnostic_plan() if plan is None else plan, {**BASE, **values},
-                      np.random.default_rng(seed), base_tilt=BASE_TILT, **kw)
 
 
 def test_level_shift_is_found_named_and_modelled_with_a_covariate():

@@ -318,7 +318,7 @@ def certificate(prob, loss, h, w, mus, tangent=None):
     Lagrangian's maximum over the feasible set, itself at most its value at ``w`` plus the
     Frank-Wolfe gap (a concave function lies below its tangent). ``tangent``: the value at
     ``w`` of the linear lower bound of the loss whose gradient ``h`` is (default: the loss)."""
-    cost, slot, n_slots, budget, max_runs = prob.cost, prob.slot, prob.n_slots, prob.budget, prob.max_runs
+    cost, slot, n_slots, max_runs = prob.cost, prob.slot, prob.n_slots, prob.max_runs
     if max_runs is None:
         per_slot = np.full(n_slots, -np.inf)
         np.maximum.at(per_slot, slot, h / cost)
