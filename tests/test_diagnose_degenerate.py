@@ -116,6 +116,26 @@ def test_copies_count_once():
     assert thrice.lack_of_fit.p_value is None and "identical" in thrice.lack_of_fit.note
 
 
+def test_copies_have_the_influence_of_their_setting():
+    """A campaign with one run 40 arcsec off, each run written three times: every copy gets
+    its setting's leverage (the copies' sum), Cook's distance and studentised residual, those
+    of the campaign diagnosed once, and the outlier is the off run's three copies."""
+    runs = model_runs(diagnostic_plan(), {"offset": 3.0, "lambda2": 4.2}, np.random.default_rng(5),
+                      base_tilt=BASE_TILT).replace(heading_std=None)
+    h = runs.heading_err.copy()
+    h[9] += 40 * units.ARCSEC
+    runs = runs.replace(heading_err=h)
+    cols = {k: np.repeat(v, 3) for k, v in runs.to_columns().items()}
+    tripled = Runs.from_columns({**cols, "run": np.arange(3 * len(runs))}, source="copies")
+    once, thrice = diagnose(runs, refit=False), diagnose(tripled, refit=False)
+    for name in ("leverage", "cooks", "studentized"):
+        np.testing.assert_allclose(getattr(thrice, name), np.repeat(getattr(once, name), 3), rtol=1e-6)
+    assert once.outliers == (int(runs.run[9]),)
+    assert thrice.outliers == (27, 28, 29)
+    assert sorted(thrice.influential) == sorted(3 * i + j for i in np.searchsorted(runs.run, once.influential)
+                                               for j in range(3))
+
+
 def test_noise_free_runs_with_the_smallest_allowed_sigma_fit_without_a_solver_failure():
     """heading_std 0.01 arcsec (the loaders' lower limit) on noise-free runs: the fit converges to
     the values the data were made from (before: Gauss-Newton gave up, its steps below rounding),

@@ -82,7 +82,7 @@ def diagnose(runs, model=None, *, fix=None, tilt_known=None, alpha=ALPHA, candid
 
     # comparison: influence and outliers
     lev, cooks, stud = null.influence()
-    outliers, influential = flag_runs(f0.run, lev, cooks, stud, null.k, alpha)
+    outliers, influential = flag_runs(f0.run, lev, cooks, stud, null.k, alpha, null.n_eff)
     if np.any(lev > 1 - 1e-9):
         notes.append("runs " + ", ".join(str(int(r)) for r in f0.run[lev > 1 - 1e-9])
                      + " alone determine a parameter (leverage 1): their residuals are 0 by construction")

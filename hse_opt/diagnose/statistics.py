@@ -12,7 +12,8 @@ models linear in their parameters, and independent of the sigmas' absolute scale
 ratios weight the runs). The lack-of-fit test is the same test with one indicator column per
 replicate group. Influence (leverage, Cook's distance, externally studentised residuals) is
 that of the same weighted linear model. When every replicate group's runs are identical
-(copies of one measurement), ``n`` in the degrees of freedom counts the settings, not the rows.
+(copies of one measurement), ``n`` in the degrees of freedom counts the settings, not the rows,
+and each copy carries its setting's influence.
 """
 from __future__ import annotations
 
@@ -109,23 +110,24 @@ class Null:
         # profiled parameters count as fitted (FitResult.dof already holds that)
         self.k = self.n - int(f.dof)
         self.rss = float(self.r @ self.r)
-        self.n_eff = self._settings(runs)
+        self.copies = self._copies(runs)
+        self.n_eff = self.n if self.copies is None else int(self.copies.max()) + 1
         self.scale = LikelihoodScale.of(f)
 
-    def _settings(self, runs):
-        """The number of independent runs: ``n``, or -- when every replicate group's runs are
-        identical (copies of one measurement, zero pure error) -- the number of settings. The
-        copies add nothing but weight: the weighted sums of squares are those of one run per
-        setting, so only the degrees of freedom change (and an F test of a function that fits
-        the settings exactly is not F = inf but not possible)."""
+    def _copies(self, runs):
+        """Each run's setting (labels 0 .. g-1) when every replicate group's runs are identical
+        (copies of one measurement, zero pure error), else None. The copies add nothing but
+        weight: the weighted sums of squares are those of one run per setting, so the degrees
+        of freedom count the settings (and an F test of a function that fits the settings
+        exactly is not F = inf but not possible)."""
         labels, g = replicate_groups(runs, self.f.measurement)
         if g == self.n:
-            return self.n
+            return None
         w = 1.0 / self.sigma ** 2
         e = np.asarray(self.f.residuals, float)
         mean = np.bincount(labels, w * e, g) / np.bincount(labels, w, g)
         pure = float(np.sum(w * (e - mean[labels]) ** 2))
-        return g if pure <= _IDENTICAL * self.rss else self.n
+        return labels if pure <= _IDENTICAL * self.rss else None
 
     def within_share(self, Z):
         """Per column of Z (n, q; weighted): the share of its norm left after removing each
@@ -173,15 +175,22 @@ class Null:
         return F, (q, dof), float(stats.f.sf(F, q, dof)), f_logsf(F, q, dof)
 
     def influence(self):
-        """Leverage, Cook's distance and externally studentised residuals per run."""
+        """Leverage, Cook's distance and externally studentised residuals per run. Copies of
+        one measurement are one run of their summed weight: their setting's leverage (the sum
+        of theirs), residual and statistics, given to each copy."""
         h = np.clip(np.sum(self.Q ** 2, axis=1), 0.0, 1.0)
         n, k = self.n, self.Q.shape[1]
         e = self.r
+        if self.copies is not None:
+            lab, n = self.copies, self.n_eff
+            c = np.bincount(lab, minlength=n)
+            h = np.clip(np.bincount(lab, h, n), 0.0, 1.0)[lab]
+            e = e * np.sqrt(c[lab])                 # the setting's weighted residual
         s2 = self.rss / (n - k) if n > k else np.nan
         with np.errstate(divide="ignore", invalid="ignore"):
             one_h = 1.0 - h
             cooks = e ** 2 * h / (k * s2 * one_h ** 2)
-            s2_i = ((n - k) * s2 - e ** 2 / one_h) / (n - k - 1) if n - k - 1 > 0 else np.full(n, np.nan)
+            s2_i = ((n - k) * s2 - e ** 2 / one_h) / (n - k - 1) if n - k - 1 > 0 else np.full(e.size, np.nan)
             stud = e / np.sqrt(s2_i * one_h)
         bad = one_h < 1e-9
         cooks[bad], stud[bad] = np.nan, np.nan
@@ -202,17 +211,19 @@ def f_logsf(F, q, dof):
 
 
 
-def flag_runs(run, lev, cooks, stud, k, alpha):
+def flag_runs(run, lev, cooks, stud, k, alpha, n=None):
     """Outliers (externally studentised residual rejecting at ``alpha``, Bonferroni over the
-    runs) and the runs the fit hinges on (Cook's distance above the median of F(k, n - k), or
-    leverage above 0.5), as run ids, most extreme first."""
-    n = run.size
+    ``n`` independent runs, default every run) and the runs the fit hinges on (Cook's distance
+    above the median of F(k, n - k), or leverage above 0.5), as run ids, most extreme first."""
+    n = run.size if n is None else n
     with np.errstate(invalid="ignore"):
-        p = n * 2.0 * stats.t.sf(np.abs(stud), n - k - 1) if n - k - 1 > 0 else np.full(n, np.nan)
+        p = n * 2.0 * stats.t.sf(np.abs(stud), n - k - 1) if n - k - 1 > 0 else np.full(run.size, np.nan)
     cut = stats.f.ppf(0.5, k, n - k) if n > k else np.inf
     cooks = np.nan_to_num(cooks, nan=np.inf)  # leverage 1: the fit rests on the run entirely
-    outliers = tuple(int(run[i]) for i in np.argsort(-np.nan_to_num(np.abs(stud))) if p[i] < alpha)
-    influential = tuple(int(run[i]) for i in np.argsort(-cooks) if cooks[i] > cut or lev[i] > 0.5)
+    outliers = tuple(int(run[i]) for i in np.argsort(-np.nan_to_num(np.abs(stud)), kind="stable")
+                     if p[i] < alpha)
+    influential = tuple(int(run[i]) for i in np.argsort(-cooks, kind="stable")
+                         if cooks[i] > cut or lev[i] > 0.5)
     return outliers, influential
 
 
