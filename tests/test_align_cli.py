@@ -151,3 +151,23 @@ def test_no_log_aligned_writes_nothing(tmp_path, capsys):
     assert main(["align", str(tmp_path / "x.npz"), "-o", str(out), "--no-progress"]) == 2
     assert not out.exists() and "nothing written" in capsys.readouterr().err
     assert main(["align", str(tmp_path / "missing.npz"), "-o", str(out)]) == 2
+
+
+def test_aligned_repeats_of_one_setting_are_replicates(tmp_path):
+    """Runs aligned from raw logs carry the rate measured by the encoder, which differs from
+    repeat to repeat (the table's ripple, the encoder's steps); repeats of one commanded
+    setting are still one replicate group, and the two settings two."""
+    from hse_opt.fit import replicate_groups
+    d = tmp_path / "logs"
+    d.mkdir()
+    for i, rate in enumerate((40.0, 40.0, 40.0, -40.0, -40.0)):
+        spec = RunSpec(rate=rate * units.DEG_PER_S, azimuth=np.radians(30.0), duration=20.0, t_start=900.0 + 30 * i)
+        log = generate(TRUTH, spec, np.random.default_rng(100 + i))
+        object.__setattr__(log, "meta", {**log.meta, "run": i})
+        save_rawlog(log, d / f"r{i}.npz")
+    out = tmp_path / "RUNS.csv"
+    assert main(["align", str(d), "-o", str(out), "--no-progress"]) == 0
+    runs = load_runs(out)
+    assert len(set(runs.rate.tolist())) == 5                    # five different measured rates
+    labels, groups = replicate_groups(runs)
+    assert groups == 2 and len(set(labels[:3])) == 1 and len(set(labels[3:])) == 1

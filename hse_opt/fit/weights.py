@@ -14,22 +14,40 @@ from ..model.inputs import RUN_FIELDS, RunInputs
 HUBER_C = 1.345
 
 
+#: rates within this share of each other are one setting: a rate measured from the encoder
+#: (``hse-opt align``) differs from run to run by the table's ripple and the encoder's
+#: quantization, 1e-5 - 1e-4 of it; the heading error follows the rate, so 1e-3 of it moves
+#: a 10-arcsec HSE by 0.01 arcsec
+RATE_RTOL = 1e-3
+
+
+def _clusters(x, tol):
+    """Labels of ``x`` (n,) grouped where sorted neighbours are within ``tol`` (n,) of each
+    other (so measured values of one setting group, and no rounding boundary splits them)."""
+    order = np.argsort(x, kind="stable")
+    xs = np.asarray(x, float)[order]
+    labels = np.empty(x.size, dtype=np.int64)
+    labels[order] = np.concatenate([[0], np.cumsum(np.diff(xs) > tol[order][1:])]) if x.size else []
+    return labels
+
+
 def replicate_groups(runs, mm=None, tilt_tol=10 * units.ARCSEC):
     """Replicate groups: runs with the same settings share a label. Returns ``(labels, n_groups)``.
 
-    Settings are the rate, azimuth (for an unsurveyed position: the position), duration and
-    latitude, the tilt (pitch and roll within
-    ``tilt_tol``: measured tilts carry noise) and -- for a measurement model ``mm`` whose
-    heading depends on them (a warm-up, a covariate effect) -- time since power-on and the
-    covariate columns: runs the model tells apart are not replicates, or their modelled
+    Settings are the rate (within :data:`RATE_RTOL` of it: a measured rate), azimuth (for an
+    unsurveyed position: the position), duration and latitude, the tilt (pitch and roll
+    within ``tilt_tol`` of a neighbour's: measured tilts carry noise) and -- for a measurement model ``mm``
+    whose heading depends on them (a warm-up, a covariate effect) -- time since power-on and
+    the covariate columns: runs the model tells apart are not replicates, or their modelled
     differences would count as noise. Without ``mm`` the tilt counts when the runs have it."""
     # an unsurveyed position's runs carry their own headings as azimuths: the position is the setting
     group, _ = runs.reference_groups()
     azimuth = np.where(group < 0, np.mod(runs.azimuth, 2 * np.pi), 10.0 + group)
-    cols = [np.round(np.asarray(a, float) / 1e-9)
-            for a in (runs.rate, azimuth, runs.duration, runs.latitude)]
+    rate = np.asarray(runs.rate, float)
+    cols = [_clusters(rate, RATE_RTOL * np.abs(rate) + 1e-9)]
+    cols += [np.round(np.asarray(a, float) / 1e-9) for a in (azimuth, runs.duration, runs.latitude)]
     if runs.pitch is not None and (mm is None or mm.tilt_known):
-        cols += [np.round(np.asarray(runs.pitch) / tilt_tol), np.round(np.asarray(runs.roll) / tilt_tol)]
+        cols += [_clusters(np.asarray(a, float), np.full(len(a), tilt_tol)) for a in (runs.pitch, runs.roll)]
     if mm is not None:
         X = mm.inputs_from_runs(runs)
         used = _inputs_used(mm)
