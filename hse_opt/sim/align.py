@@ -60,6 +60,12 @@ __all__ = ["AlignConfig", "AlignResult", "AlignHistory", "align", "triad", "quan
 
 _CHUNK_TARGET = 16384
 
+#: the rows of ``[e_i x] C0`` (i = 0, 1, 2; 9 each) as entries of ``C0.ravel()`` with signs
+_E_INDEX = np.array([0, 0, 0, 6, 7, 8, 3, 4, 5, 6, 7, 8, 0, 0, 0, 0, 1, 2, 3, 4, 5, 0, 1, 2, 0, 0, 0])
+_E_SIGN = np.array([0, 0, 0, -1, -1, -1, 1, 1, 1, 1, 1, 1, 0, 0, 0, -1, -1, -1, -1, -1, -1, 1, 1, 1,
+                    0, 0, 0], dtype=float)
+_E_INDEX.flags.writeable = _E_SIGN.flags.writeable = False
+
 #: ``np.dot`` without its ``__array_function__`` dispatch (a third of its cost on 9x9
 #: matrices; the filter makes a few thousand such products per log)
 _DOT = getattr(np.dot, "_implementation", np.dot)
@@ -217,8 +223,8 @@ def triad(f_b0, w_b0):
     w_b0 : array_like, shape (3,)
         Angular rate, rad/s.
     """
-    f0, f1, f2 = (float(v) for v in np.asarray(f_b0, dtype=float))
-    w0, w1, w2 = (float(v) for v in np.asarray(w_b0, dtype=float))
+    f0, f1, f2 = np.asarray(f_b0, dtype=float).tolist()
+    w0, w1, w2 = np.asarray(w_b0, dtype=float).tolist()
     k = -1.0 / math.sqrt(f0 * f0 + f1 * f1 + f2 * f2)
     d0, d1, d2 = f0 * k, f1 * k, f2 * k
     e0, e1, e2 = d1 * w2 - d2 * w1, d2 * w0 - d0 * w2, d0 * w1 - d1 * w0       # d x w
@@ -360,7 +366,7 @@ def _coarse(dth, dv, rot, T):
         z = x[0] + 1j * x[1]
         az, bz = T * z.sum(), np.vdot(rot, z)
         w = (rr * az - T * sr * bz) / det
-        means.append(np.array([w.real, w.imag, x[2].mean() / T]))
+        means.append(np.array([w.real, w.imag, x[2].sum() / n / T]))     # sum / n: np.mean
     return means
 
 
@@ -409,16 +415,15 @@ def _filter_matrices(C0, w_n, g, rate, T, dt, config):
     the sample period (s), for the pulse quantization noise."""
     F = np.zeros((9, 9))
     # attitude error (N, E; D held): phi_dot = -[w x] phi - C0[:, :2] x_g
-    wN, wE, wD = (float(v) for v in w_n)
+    wN, wE, wD = w_n.tolist()
     F[0, 1], F[0, 2], F[1, 0], F[1, 2] = wD, -wE, -wD, wN          # -[w x], rows N, E
     F[0:2, 5:7] = -C0[0:2, 0:2]
     # velocity error: v_dot = f^n x phi + C0[:2, :2] x_a, f^n = (0, 0, -g)
     F[3, 1] = g
     F[4, 0] = -g
     F[3:5, 7:9] = C0[0:2, 0:2]
-    J = np.array([[0.0, -1.0], [1.0, 0.0]]) * rate
-    F[5:7, 5:7] = J
-    F[7:9, 7:9] = J
+    F[5, 6] = F[7, 8] = -rate                   # rate [[0, -1], [1, 0]]
+    F[6, 5] = F[8, 7] = rate
     Qc = np.zeros((9, 9))
     Qc[0, 0] = Qc[1, 1] = config.arw ** 2 + quantization_arw(config.gyro_pulse, rate, dt) ** 2
     Qc[3, 3] = Qc[4, 4] = config.vrw ** 2
@@ -587,8 +592,7 @@ def align(log, config=None):
     delta[:, 0] -= psi_n
     delta[:, 1] -= psi_e
     # (I + [delta x]) C0 = C0 + sum_i delta_i [e_i x] C0: one product with the rows of [e_i x] C0
-    zero = np.zeros(3)
-    E = np.concatenate([zero, -C0[2], C0[1], C0[2], zero, -C0[0], -C0[1], C0[0], zero]).reshape(3, 9)
+    E = (C0.ravel()[_E_INDEX] * _E_SIGN).reshape(3, 9)
     C = (C0.ravel() + delta @ E).reshape(nb, 3, 3)
     # per block: heading, pitch, roll and their 1-sigmas, rows of one array (for the means)
     out = np.empty((6, nb))
