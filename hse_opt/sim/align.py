@@ -470,18 +470,17 @@ def _kalman(Phi, Qd, Rv, P, vel):
     rec = buf[:109]
     hist = np.empty((nb, 109))
     Si, G, T = np.empty((2, 2)), np.empty((2, 9)), np.empty((9, 9))
+    si, item, sub = Si.ravel(), Pm.item, np.subtract      # looked up once
     for h in hist:
         dot(M, post, prior)                      # Phi P Phi^T + Qd
-        S00, S01, S11 = Pm.item(30) + Rv, Pm.item(31), Pm.item(40) + Rv
+        S00, S01, S11 = item(30) + Rv, item(31), item(40) + Rv
         det = S00 * S11 - S01 * S01
-        b = -S01 / det
-        Si[0, 0] = S11 / det
-        Si[0, 1] = b
-        Si[1, 0] = b
-        Si[1, 1] = S00 / det
+        si[1] = si[2] = -S01 / det
+        si[0] = S11 / det
+        si[3] = S00 / det
         dot(Si, HP, G)
         dot(HPT, G, T)                           # P H^T S^-1 H P (P symmetric)
-        np.subtract(Pm, T, out=Pp)
+        sub(Pm, T, out=Pp)
         h[...] = rec
     Pm = hist[:, :81].reshape(nb, 9, 9)
     # the gains K = P H^T S^-1 of all blocks (2x2 inverse in closed form), then
