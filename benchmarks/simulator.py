@@ -1,7 +1,8 @@
 """Simulator benchmark (issue 3, item 7): prints its figures.
 
-One 10-minute run at 500 Hz (the paper-like default system, 40 deg/s): time to generate the
-raw data, time to align it, peak memory; generate + align of a 10-minute and a 1-minute run
+1-minute runs one after the other (first, in a fresh process); one 10-minute run at 500 Hz
+(the paper-like default system, 40 deg/s): time to generate the raw data, time to align it,
+peak memory; generate + align of a 10-minute and a 1-minute run
 against the time of drawing their Gaussian noise in float64 (``rng.standard_normal``), side by
 side (issue 19: <= 1.5x and <= 2x); then runs per second of a 1,000-run campaign with
 ``--jobs`` local processes.
@@ -70,6 +71,27 @@ def one_run(repeats):
           f"({rss_before:.0f} MB before the first run)   (target <= 150 MB)")
 
 
+def short_runs(repeats):
+    """generate and align of 1-minute runs one after the other (a campaign of short runs), first
+    thing in the process: their working arrays are allocated and freed on every run, so this
+    is where fresh memory pages would cost (see ``hse_opt.sim.imu._Workspace``)."""
+    truth = TruthConfig.default()
+    cfg = AlignConfig.from_truth(truth)
+    rng = np.random.default_rng(0)
+    run = RunSpec(rate=40 * DEG_PER_S, azimuth=0.3, duration=60.0, t_start=7200.0)
+    align(generate(truth, run, rng), cfg)
+    tg, ta = [], []
+    for _ in range(repeats):
+        c0 = time.process_time()
+        log = generate(truth, run, rng)
+        c1 = time.process_time()
+        align(log, cfg)
+        tg.append(c1 - c0)
+        ta.append(time.process_time() - c1)
+    print(f"1-minute runs in a loop ({repeats}, CPU, median): generate {1e3 * statistics.median(tg):.2f} ms, "
+          f"align {1e3 * statistics.median(ta):.2f} ms")
+
+
 def noise_count(truth, n):
     """Gaussian draws of one run of ``n`` samples: 3 per sample for the gyros' angle random
     walk, 3 for the accelerometers' white noise, 1 for the table's jitter (when present)."""
@@ -123,6 +145,7 @@ def main(argv=None):
     p.add_argument("--runs", type=int, default=1000)
     p.add_argument("--jobs", type=int, default=2)
     a = p.parse_args(argv)
+    short_runs(10 * a.repeats)
     one_run(a.repeats)
     floor_ratio(a.repeats)
     if a.runs:
