@@ -40,7 +40,7 @@ import numpy as np
 
 from hse_opt import units
 from hse_opt.sim.rotations import dcm_to_zyx, earth_rate_n, rot_x, rot_y, rot_z, rotvec_to_dcm
-from hse_opt.sim._fastmath import (MAX_DEVIATION, PhaseTable, box_muller_f32, exp_linear, normal_f32,
+from hse_opt.sim._fastmath import (MAX_DEVIATION, PhaseTable, box_muller_f32, exp_linear,
                                    rotate_small, splits_words, uniform_bits)
 from hse_opt.sim.rawlog import RawLog
 from hse_opt.sim.truth import gyro_matrices, temperature, validate_run
@@ -302,8 +302,8 @@ def generate(truth, run, rng=None):
     # the counters' random initial phases (pulses), then the table's first jitter sample
     gphase = (rng.uniform(0.0, 1.0, 3) if rng is not None else np.full(3, 0.5)) if g.pulse else None
     aphase = (rng.uniform(0.0, 1.0, 3) if rng is not None else np.full(3, 0.5)) if a.pulse else None
-    jit_last = float(normal_f32(rng, (1,), tb.jitter)[0]) if tb.jitter else 0.0
     split = rng is not None and splits_words(rng)       # uniforms from whole 64-bit words
+    jit_last = 0.0                                      # (drawn with the first chunk's jitter)
 
     # the table angle at the sample boundaries: Phi + k W dt + d_k with the deviation d_k of the
     # ripple (its constant part folded into Phi), the jitter and the thermal mount rotation
@@ -398,15 +398,21 @@ def generate(truth, run, rng=None):
         np.add(ktab[1:m + 1], t_first, out=t_out[i0:i1])
         phi = alpha0 + wdt * i0 + ripple_const          # Phi: the chunk's start on the line
         # the chunk's random numbers in the stream's order: the table's jitter, then the gyros'
-        # and the accelerometers' white noise (one draw of uniforms, see box_muller_f32)
+        # and the accelerometers' white noise (one draw of uniforms, see box_muller_f32); the
+        # first chunk's draw starts with the pair of the jitter at the run's start
         jit = noise = None
         if tb.jitter or sigmas:
             hj, h3 = ((m + 1) // 2 if tb.jitter else 0), (3 * m + 1) // 2
-            u = uniform_bits(rng, 2 * hj + 2 * h3 * len(sigmas), split)
-            if tb.jitter:
+            lead = 2 if (tb.jitter and i0 == 0) else 0
+            u = uniform_bits(rng, lead + 2 * hj + 2 * h3 * len(sigmas), split)
+            if lead:            # that pair and the chunk's own, transformed together
+                z = box_muller_f32(np.concatenate((u[:1], u[2:2 + hj], u[1:2], u[2 + hj:2 + 2 * hj]))[None],
+                                   (tb.jitter,))[0]
+                jit_last, jit = float(z[0]), np.concatenate((z[1:hj + 1], z[hj + 2:]))[:m]
+            elif tb.jitter:
                 jit = box_muller_f32(u[None, :2 * hj], (tb.jitter,))[0, :m]
             if sigmas:
-                noise = box_muller_f32(u[2 * hj:].reshape(len(sigmas), 2 * h3), [sig for _, sig in sigmas])
+                noise = box_muller_f32(u[lead + 2 * hj:].reshape(len(sigmas), 2 * h3), [sig for _, sig in sigmas])
                 noise = noise[:, :3 * m].reshape(3 * len(sigmas), m)
         d = None
         if tb.ripple:

@@ -457,6 +457,18 @@ class TruthConfig:
     stand: StandConfig = StandConfig()
     thermal: ThermalConfig = ThermalConfig()
 
+    def __hash__(self):
+        """The sections' hash, computed once: a frozen configuration keys the simulator's
+        caches of its matrices and tables, looked up on every run."""
+        h = self.__dict__.get("_hash")
+        if h is None:
+            h = hash(tuple(getattr(self, f.name) for f in dataclasses.fields(self)))
+            object.__setattr__(self, "_hash", h)
+        return h
+
+    def __getstate__(self):          # the hash is not carried to another process
+        return {k: v for k, v in self.__dict__.items() if k != "_hash"}
+
     def __post_init__(self):
         for name in ("r_zb_s_true", "r_zb_s_calibrated"):
             r = np.asarray(getattr(self.mount, name))
