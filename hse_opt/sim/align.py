@@ -446,11 +446,16 @@ def _kalman(Phi, Qd, Rv, P, vel):
 
     The covariance recursion does not depend on the data, so it runs first, written for the
     interpreter: the time update is one matrix-vector product on ``vec(P)`` (``Phi (x) Phi``
-    with ``vec(Qd)`` appended), the measurement update of rank two has its 2x2 innovation
-    inverse in closed form; every product works in one fixed buffer, and one copy per block
-    records the prior and the posterior's attitude rows. The gains of all blocks then follow
-    at once, and the state recursion ``x_j = (I - K_j H) Phi x_{j-1} + K_j z_j`` is a chain
-    of 10x10 products (:func:`_chain`)."""
+    with ``vec(Qd)`` appended); the measurement update is Joseph's form
+    ``P+ = (I - K H) P (I - K H)^T + Rv K K^T = W blockdiag(P, Rv I) W^T`` with
+    ``W = [I - K H, K]`` and the 2x2 innovation inverse in closed form. (The short form
+    ``P - P H^T S^-1 H P`` subtracts nearly equal numbers: the velocity variance falls from
+    its prior to about ``Rv`` in every update, and with a noise-free tuning the heading drifted
+    by 0.3 arcsec over 10 minutes from a long-double evaluation of the same filter; Joseph's
+    form stays within 1e-5 arcsec.) Every product works in fixed buffers, and one copy per
+    block records the gain and the posterior's attitude rows. The state recursion
+    ``x_j = (I - K_j H) Phi x_{j-1} + K_j z_j`` then is a chain of 10x10 products
+    (:func:`_chain`)."""
     dot = _DOT
     nb = vel.shape[1]
     M = np.zeros((82, 82))
@@ -458,19 +463,25 @@ def _kalman(Phi, Qd, Rv, P, vel):
                 out=M[:81, :81].reshape(9, 9, 9, 9))          # Phi (x) Phi
     M[:81, 81] = Qd.ravel()
     M[81, 81] = 1.0
-    # one buffer: the prior vec(P) (82, ending in 1) then the posterior (82); per block the
-    # prior and the posterior's rows 0-2 (contiguous) are recorded
-    buf = np.empty(164)
-    prior, post = buf[:82], buf[82:]
-    Pm, Pp = prior[:81].reshape(9, 9), post[:81].reshape(9, 9)
+    prior = np.empty(82)
+    Pm = prior[:81].reshape(9, 9)
     HP = Pm[3:5]
-    HPT = HP.T
+    # one buffer: W^T = [(I - K H)^T; K^T] (11x9), then the posterior vec(P+) (82, ending in
+    # 1); per block K^T and the posterior's rows 0-2 (contiguous) are recorded
+    buf = np.empty(99 + 82)
+    WT, post = buf[:99].reshape(11, 9), buf[99:]
+    Pp = post[:81].reshape(9, 9)
+    WT[:9] = np.eye(9)
+    IKHT, Q, G, W = WT[:9], WT[3:5], WT[9:], WT.T     # (I - K H)^T, its rows 3, 4; K^T; W
+    E2 = IKHT[3:5].copy()                              # H
     post[:81] = np.asarray(P, dtype=float).ravel()
     post[81] = 1.0
-    rec = buf[:109]
-    hist = np.empty((nb, 109))
-    Si, G, T = np.empty((2, 2)), np.empty((2, 9)), np.empty((9, 9))
-    si, item, sub = Si.ravel(), Pm.item, np.subtract      # looked up once
+    rec = buf[81:126]
+    hist = np.empty((nb, 45))
+    Z = np.empty((11, 9))                              # blockdiag(P, Rv I) W^T
+    ZP, ZR = Z[:9], Z[9:]
+    Si = np.empty((2, 2))
+    si, item, sub, mul = Si.ravel(), Pm.item, np.subtract, np.multiply    # looked up once
     for h in hist:
         dot(M, post, prior)                      # Phi P Phi^T + Qd
         S00, S01, S11 = item(30) + Rv, item(31), item(40) + Rv
@@ -478,28 +489,21 @@ def _kalman(Phi, Qd, Rv, P, vel):
         si[1] = si[2] = -S01 / det
         si[0] = S11 / det
         si[3] = S00 / det
-        dot(Si, HP, G)
-        dot(HPT, G, T)                           # P H^T S^-1 H P (P symmetric)
-        sub(Pm, T, out=Pp)
+        dot(Si, HP, G)                           # K^T = S^-1 H P
+        sub(E2, G, out=Q)
+        dot(Pm, IKHT, ZP)
+        mul(G, Rv, out=ZR)
+        dot(W, Z, Pp)
         h[...] = rec
-    Pm = hist[:, :81].reshape(nb, 9, 9)
-    # the gains K = P H^T S^-1 of all blocks (2x2 inverse in closed form), then
     # x_j = A_j x_{j-1} + b_j with A_j = Phi - K_j H Phi and b_j = K_j z_j in 10x10 form
-    S00, S11, S01 = Pm[:, 3, 3] + Rv, Pm[:, 4, 4] + Rv, Pm[:, 3, 4]
-    det = S00 * S11 - S01 * S01
-    U0, U1 = Pm[:, :, 3], Pm[:, :, 4]                    # P H^T, (nb, 9) each
-    K = np.empty((nb, 9, 2))
-    np.multiply(U0, (S11 / det)[:, None], out=K[:, :, 0])
-    K[:, :, 0] -= U1 * (S01 / det)[:, None]
-    np.multiply(U1, (S00 / det)[:, None], out=K[:, :, 1])
-    K[:, :, 1] -= U0 * (S01 / det)[:, None]
+    K = hist[:, :18].reshape(nb, 2, 9).transpose(0, 2, 1)
     A = np.zeros((nb, 10, 10))
-    np.subtract(Phi, (K.reshape(nb * 9, 2) @ Phi[3:5]).reshape(nb, 9, 9), out=A[:, :9, :9])
+    np.subtract(Phi, np.matmul(K, Phi[3:5]), out=A[:, :9, :9])
     A[:, :9, 9] = np.matmul(K, vel.T[:, :, None])[:, :, 0]
     A[:, 9, 9] = 1.0
     x0 = np.zeros(10)
     x0[9] = 1.0
-    return _chain(A, x0)[1:, :3], hist[:, 82:].reshape(nb, 3, 9)[:, :, :3]
+    return _chain(A, x0)[1:, :3], hist[:, 18:].reshape(nb, 3, 9)[:, :, :3]
 
 
 def _chain(A, x0):
