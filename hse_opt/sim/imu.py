@@ -35,6 +35,7 @@ from __future__ import annotations
 
 import functools
 import math
+import types
 
 import numpy as np
 
@@ -43,7 +44,7 @@ from hse_opt.sim.rotations import dcm_to_zyx, earth_rate_n, rot_x, rot_y, rot_z,
 from hse_opt.sim._fastmath import (MAX_DEVIATION, PhaseTable, box_muller_f32, exp_linear,
                                    rotate_small, splits_words, uniform_bits)
 from hse_opt.sim.rawlog import RawLog
-from hse_opt.sim.truth import gyro_matrices, temperature, validate_run
+from hse_opt.sim.truth import RunSpec, gyro_matrices, temperature, validate_run
 
 __all__ = ["generate", "true_attitude", "table_angle", "stand_azimuth_true"]
 
@@ -228,6 +229,55 @@ def _exp_table(rate, size):
     return _readonly(exp_linear(rate, size))[0]
 
 
+def _configuration(truth):
+    """What :func:`generate` needs of the configuration alone (:class:`types.SimpleNamespace`,
+    read-only arrays), computed once per frozen configuration: ``mats``
+    (:func:`~hse_opt.sim.truth.gyro_matrices`), ``G = K_g^-1 C_b^s`` (b -> gyro outputs),
+    ``A`` (b -> accelerometer outputs), the scale-factor columns ``sf``, ``nl`` and whether
+    they act (``scale``), the gyro biases ``bias`` and tempcos ``tc``, the warm-up and
+    temperature transients ``extra`` ((name, coefficient per sample at t_on = 0, tau)), the
+    tempco's constant part per sample ``const_tc`` (or None), ``swing_row`` and the number of
+    gyro basis rows ``kg``."""
+    try:
+        return _configuration_cached(truth)
+    except TypeError:                    # an unhashable configuration: not cached
+        return _configuration_cached.__wrapped__(truth)
+
+
+@functools.lru_cache(maxsize=8)
+def _configuration_cached(truth):
+    mats = gyro_matrices(truth)
+    g, thermal, dt = truth.gyro, truth.thermal, truth.timing.sample_period
+    tau_b, tau_t = g.bias_warmup_tau, thermal.tau
+    sf = np.asarray(g.sf_error)[:, None]
+    nl = np.asarray(g.sf_nonlinearity)[:, None]
+    bw = np.asarray(g.bias_warmup)
+    tc = np.asarray(g.bias_tempco)
+    extra, const_tc = [], None                           # (name, coefficient at t_on = 0, tau)
+    if bw.any():   # int b_w exp(-t / tau) over an interval: b_w tau (1 - exp(-dt / tau)) exp(-t_k / tau)
+        extra.append(("bias", bw * tau_b * -math.expm1(-dt / tau_b), tau_b))
+    if tc.any():   # tempco dt (temperature at the interval's midpoint - reference)
+        const_tc = tc * dt * (thermal.ambient_c + thermal.rise_c - thermal.reference_c)
+        extra.append(("temp", tc * dt * -thermal.rise_c * 0.5 * (1.0 + math.exp(-dt / tau_t)), tau_t))
+    swing_row = bool(tc.any() and thermal.swing_c)
+    cfg = types.SimpleNamespace(
+        mats=mats, G=mats["K_g_inv"] @ mats["C_b_s"], A=mats["A_acc"] @ mats["C_b_s"], sf=sf, nl=nl,
+        scale=bool(np.any(sf) or np.any(nl)), bias=np.asarray(g.bias, dtype=float), tc=tc, extra=extra,
+        const_tc=const_tc, swing_row=swing_row, kg=4 + len(extra) + swing_row)
+    _readonly(cfg.G, cfg.A, sf, nl, cfg.bias, tc, *(c for _, c, _ in extra),
+              *(() if const_tc is None else (const_tc,)))
+    return cfg
+
+
+@functools.lru_cache(maxsize=64)
+def _base_vectors(truth, azimuth, tilt):
+    """The Earth rate and the specific force in b0 (rad/s, m/s^2; read-only) for a stand
+    azimuth reading and a deliberate tilt (rad): a campaign repeats its few stand settings."""
+    C_n_b0 = true_attitude(truth, RunSpec(rate=1.0, azimuth=azimuth, tilt=tilt))["C_b0_n"].T
+    return _readonly(C_n_b0 @ earth_rate_n(truth.site.latitude),
+                     C_n_b0 @ np.array([0.0, 0.0, -truth.site.gravity]))
+
+
 def _horizontal_columns(M, v0):
     """Columns of the outputs ``M @ v_b`` on ``(int cos beta dt, int sin beta dt)`` for the
     b0 vector ``v0``: ``v_b = rot_z(-beta) v0``, so ``x = cos v0x + sin v0y``,
@@ -274,8 +324,8 @@ def generate(truth, run, rng=None):
     1e-7 rad beside the table's 1e-3 rad turn per sample), and the counters' running sums are
     exact int64 fixed point (:class:`_Counter`).
     """
-    mats = gyro_matrices(truth)
-    validate_run(truth, run, mats)
+    cfg = _configuration(truth)
+    validate_run(truth, run, cfg.mats)
     need_rng = (not truth.is_noise_free) or run.alpha0 is None
     if rng is None and need_rng:
         raise ValueError("rng: a numpy.random.Generator is required for a system with noise or "
@@ -283,19 +333,11 @@ def generate(truth, run, rng=None):
     dt = truth.timing.sample_period
     n = int(round(run.duration / dt))
     alpha0 = float(run.alpha0) if run.alpha0 is not None else float(rng.uniform(0.0, 2 * np.pi))
-    att = true_attitude(truth, run)
-    C_n_b0 = att["C_b0_n"].T
-    w0 = C_n_b0 @ earth_rate_n(truth.site.latitude)
-    f0 = C_n_b0 @ np.array([0.0, 0.0, -truth.site.gravity])
+    w0, f0 = _base_vectors(truth, float(run.azimuth), tuple(float(v) for v in run.tilt))
     g, a, enc = truth.gyro, truth.accel, truth.encoder
     mount, thermal, tb = truth.mount, truth.thermal, truth.table
-    G = mats["K_g_inv"] @ mats["C_b_s"]                 # b -> gyro outputs: K_g^-1 C_b^s
-    A = mats["A_acc"] @ mats["C_b_s"]                    # b -> accelerometer outputs
-    sf = np.asarray(g.sf_error)[:, None]
-    nl = np.asarray(g.sf_nonlinearity)[:, None]
-    scale = bool(np.any(sf) or np.any(nl))              # then the counter sits after the scaling
-    bw = np.asarray(g.bias_warmup)
-    tc = np.asarray(g.bias_tempco)
+    G, A, sf, nl, scale, tc = cfg.G, cfg.A, cfg.sf, cfg.nl, cfg.scale, cfg.tc
+    extra, swing_row, kg = cfg.extra, cfg.swing_row, cfg.kg
     thermal_xi = bool(mount.warmup_xi_z or mount.xi_z_tempco)
     W = run.rate * (1.0 + tb.rate_error)                # true mean table rate
     wdt = W * dt
@@ -313,7 +355,7 @@ def generate(truth, run, rng=None):
     # rad per sample), so int cos(beta) dt = (sin beta_k - sin beta_{k-1}) dt / d beta.
     nu = _ripple_nu(tb, run.rate) if tb.ripple else 0.0
     amp = W * tb.ripple / nu if tb.ripple else 0.0      # ripple amplitude, rad
-    tau_xi, tau_b, tau_t = mount.warmup_tau, g.bias_warmup_tau, thermal.tau
+    tau_xi, tau_t = mount.warmup_tau, thermal.tau
     dtemp = abs(thermal.ambient_c - thermal.reference_c) + abs(thermal.rise_c) + thermal.swing_c
     xi_bound = (abs(mount.warmup_xi_z) * math.exp(-run.t_start / tau_xi) + abs(mount.xi_z_tempco) * dtemp
                 if thermal_xi else 0.0)
@@ -322,15 +364,9 @@ def generate(truth, run, rng=None):
     # coefficients (SI per sample) of the basis rows: int cos, -int sin, ones, d beta, the
     # warm-up and temperature exponentials, the temperature swing
     hg = _horizontal_columns(G, w0)
-    const_g = (np.asarray(g.bias) + g.axis_bias * G[:, 2] + G[:, 2] * w0[2]) * dt
-    extra = []                                           # (name, coefficient at t_on = 0, tau)
-    if bw.any():   # int b_w exp(-t / tau) over an interval: b_w tau (1 - exp(-dt / tau)) exp(-t_k / tau)
-        extra.append(("bias", bw * tau_b * -math.expm1(-dt / tau_b), tau_b))
-    if tc.any():   # tempco dt (temperature at the interval's midpoint - reference)
-        const_g = const_g + tc * dt * (thermal.ambient_c + thermal.rise_c - thermal.reference_c)
-        extra.append(("temp", tc * dt * -thermal.rise_c * 0.5 * (1.0 + math.exp(-dt / tau_t)), tau_t))
-    swing_row = bool(tc.any() and thermal.swing_c)
-    kg = 4 + len(extra) + swing_row                      # basis rows of the gyros
+    const_g = (cfg.bias + g.axis_bias * G[:, 2] + G[:, 2] * w0[2]) * dt
+    if cfg.const_tc is not None:
+        const_g = const_g + cfg.const_tc
     # the coefficients of the six outputs: rows 0-2 the gyros (every basis row), rows 3-5 the
     # accelerometers (int cos, -int sin, ones)
     C = np.zeros((6, kg))
