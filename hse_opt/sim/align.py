@@ -53,7 +53,7 @@ import numpy as np
 
 from hse_opt import units
 from hse_opt.sim.rotations import dcm_to_zyx, earth_rate_n
-from hse_opt.sim._fastmath import MAX_DEVIATION, PhaseTable, rotate_small
+from hse_opt.sim._fastmath import MAX_DEVIATION, SMALL_DEVIATION, PhaseTable
 from hse_opt.sim.rawlog import RawLog
 
 __all__ = ["AlignConfig", "AlignResult", "AlignHistory", "align", "triad", "quantization_arw"]
@@ -276,34 +276,35 @@ def _blocks(log, config):
     phi = enc[0] + dphi * (L * np.arange(nb, dtype=float) + 0.5)   # Phi_b, the blocks' start
     two_lin = tab.dphi * np.arange(2 * L, step=2, dtype=float)     # 2 l dphi
     calib = _calibration(config)
-    X = [src[1:nu + 1].reshape(nb, L, 3) for src in (log.gyro, log.accel)]
-    XT = [x.transpose(2, 0, 1) for x in X]     # (axis, block, sample)
-    # per block: sums of cos and sin of l dphi + d at each interval's midpoint, of those
-    # times each raw increment, and of the increments; a group of blocks at a time (the
-    # working arrays stay in cache)
-    wsum, Y = np.empty((2, nb)), np.empty((2, 2, 3, nb))   # (sensor, cos/sin, axis, block)
-    xsum = np.empty((2, nb, 3))
+    # per block: sums of cos and sin of l dphi + d at each interval's midpoint, and sums of
+    # those and of 1 times each raw increment (gyros then accelerometers: channels 0-5); a
+    # group of blocks at a time (the working arrays stay in cache)
+    wsum, Y = np.empty((2, nb)), np.empty((3, 6, nb))   # (cos/sin/1, channel, block)
     per = min(nb, max(1, _CHUNK_TARGET // L))
-    work, W = np.empty((4, per, L)), np.empty((2, per, L))
+    work, W = np.empty((5, per, L)), np.empty((3, per, L))
+    W[2] = 1.0
+    ones = np.ones(L)
+    srcs = [(x[:, 1:nu + 1].reshape(x.shape[0], nb, L), Y[:, k:k + x.shape[0]])
+            for x, k in _channels(log)]                 # (channel, block, sample)
     for b0 in range(0, nb, per):
         b1 = min(nb, b0 + per)
         g = b1 - b0
-        d, w = work[3, :g], W[:, :g]
-        np.add(enc[b0 * L:b1 * L].reshape(g, L), enc[b0 * L + 1:b1 * L + 1].reshape(g, L), out=d)
-        d -= 2.0 * phi[b0:b1, None]
-        d -= two_lin
-        d *= 0.5                               # midpoint angle - (Phi_b + l dphi)
-        dmax = max(float(d.max()), -float(d.min()))
-        if dmax <= MAX_DEVIATION:
-            rotate_small(tab.c, tab.s, d, w, work[:3, :g], dmax)
+        d2, q, w = work[0, :g], work[1, :g], W[:2, :g]
+        np.add(enc[b0 * L:b1 * L].reshape(g, L), enc[b0 * L + 1:b1 * L + 1].reshape(g, L), out=d2)
+        d2 -= 2.0 * phi[b0:b1, None]
+        d2 -= two_lin                          # 2 (midpoint angle - (Phi_b + l dphi))
+        np.multiply(d2, d2, out=q)
+        q_max = float(q.max())
+        if q_max <= 4 * MAX_DEVIATION ** 2:    # (the comparison is False for NaN)
+            _rotate_half(tab.c, tab.s, d2, q, w, work[2:, :g], q_max > 4 * SMALL_DEVIATION ** 2)
         else:
-            d += 0.5 * two_lin
-            np.cos(d, out=w[0])
-            np.sin(d, out=w[1])
-        np.sum(w, axis=2, out=wsum[:, b0:b1])
-        for k in range(2):
-            _vecdot(w[:, None], XT[k][None, :, b0:b1], Y[k, :, :, b0:b1])
-            np.sum(X[k][b0:b1], axis=1, out=xsum[k, b0:b1])
+            d2 += two_lin
+            d2 *= 0.5
+            np.cos(d2, out=w[0])
+            np.sin(d2, out=w[1])
+        np.matmul(w, ones, out=wsum[:, b0:b1])
+        for x, y in srcs:
+            _vecdot(W[:, None, :g], x[None, :, b0:b1], y[:, :, b0:b1])
     cph, sph = np.cos(phi), np.sin(phi)
 
     def turned(c, s):                          # the block sums turned by Phi_b
@@ -316,13 +317,13 @@ def _blocks(log, config):
     out = {}
     for k, name in enumerate(("dth", "dv")):
         A = calib[k]
-        yc, ys = turned(Y[k, 0], Y[k, 1])
+        yc, ys = turned(Y[0, 3 * k:3 * k + 3], Y[1, 3 * k:3 * k + 3])
         yc, ys = A @ yc, A @ ys                        # sum cos y, sum sin y, y = A x
         s = np.empty((3, nb))
         s[0] = yc[0] - ys[1]
         s[1] = ys[0] + yc[1]
         s[:2] *= corr
-        s[2] = A[2] @ np.ascontiguousarray(xsum[k].T)
+        s[2] = A[2] @ Y[2, 3 * k:3 * k + 3]
         out[name] = s
     out["dth"][2] -= np.diff(enc[0:nu + 1:L])           # the table turn of each block
     out.update(rot=(rc + 1j * rs) * (corr * dt), L=L, m=m, nb=nb, dt=dt, rate=rate,
@@ -339,6 +340,46 @@ def _calibration(config):
     for a in mats:
         a.flags.writeable = False
     return mats
+
+
+def _rotate_half(c, s, d2, q, out, work, fourth):
+    """cos and sin of ``phase + d2 / 2`` into ``out`` (2, ...) from ``c = cos(phase)``,
+    ``s = sin(phase)``, a small ``d2`` (``|d2| / 2 <= MAX_DEVIATION``) and ``q = d2^2``, by
+    the series ``cos d = 1 - d^2 / 2 (+ d^4 / 24 if fourth)``, ``sin d = d - d^3 / 6``
+    (as :func:`hse_opt.sim._fastmath.rotate_small`, with the halving folded into the
+    coefficients); ``q`` is overwritten, ``work`` (3, ...) is scratch."""
+    cd, tmp = work[0], work[1]
+    if fourth:                                 # 1 + q (q / 384 - 1 / 8)
+        np.multiply(q, 1.0 / 384.0, out=cd)
+        cd -= 0.125
+        cd *= q
+    else:
+        np.multiply(q, -0.125, out=cd)
+    cd += 1.0
+    sd = q                                     # d2 (1 / 2 - q / 48)
+    sd *= -1.0 / 48.0
+    sd += 0.5
+    sd *= d2
+    cn, sn = out[0], out[1]
+    np.multiply(s, sd, out=tmp)
+    np.multiply(c, cd, out=cn)
+    cn -= tmp
+    np.multiply(c, sd, out=tmp)
+    np.multiply(s, cd, out=sn)
+    sn += tmp
+
+
+def _channels(log):
+    """The raw increments as rows (channel, sample) with the index of their first channel:
+    ``[(gyro and accelerometers (6, n), 0)]`` when the log holds them as the rows of one
+    array (as :func:`hse_opt.sim.imu.generate` writes them), else ``[(gyro (3, n), 0),
+    (accel (3, n), 3)]``."""
+    g, a = log.gyro.T, log.accel.T
+    if (g.strides == a.strides and g.shape == a.shape and g.dtype == a.dtype == np.float64
+            and a.ctypes.data == g.ctypes.data + 3 * g.strides[0]):
+        # the six rows are those of gyro and accel: a view of exactly their elements
+        return [(np.lib.stride_tricks.as_strided(g, (6, g.shape[1]), g.strides, writeable=False), 0)]
+    return [(g, 0), (a, 3)]
 
 
 def _vecdot(a, b, out):
@@ -372,25 +413,37 @@ def _coarse(dth, dv, rot, T):
 
 def _expm(A):
     """Matrix exponential by scaling and squaring of a 16-term Taylor series (after scaling
-    the 1-norm is <= 1/2: truncation error < 1e-19 relative). Written with np.dot so that it
-    stays single-threaded (scipy.linalg.expm wakes BLAS worker threads that then spin)."""
+    the 1-norm is <= 1/2: truncation error < 1e-19 relative), the series evaluated by
+    Paterson and Stockmeyer's scheme: ``X^0 .. X^3`` combined with the coefficients in one
+    product, then Horner's rule in ``X^4``. Written with np.dot so that it stays
+    single-threaded (scipy.linalg.expm wakes BLAS worker threads that then spin)."""
     A = np.asarray(A, dtype=float)
     n = A.shape[0]
     nrm = np.abs(A).sum(axis=0).max()
     sq = max(0, int(math.ceil(math.log2(nrm))) + 1) if nrm > 0 else 0
-    X = A * (0.5 ** sq)
-    # the terms X^k / k! in one array, summed in order (k = 0, 1, ...) by one reduction
-    terms, tmp = np.empty((17, n, n)), np.empty((n, n))
-    term = list(terms)
-    term[0][...] = np.eye(n)
-    for k in range(1, 17):
-        _DOT(term[k - 1], X, tmp)
-        np.multiply(tmp, 1.0 / k, out=term[k])
-    E = np.add.reduce(terms, axis=0)
+    pw = np.empty((4, n, n))                   # X^0 .. X^3
+    pw[0] = np.eye(n)
+    np.multiply(A, 0.5 ** sq, out=pw[1])
+    _DOT(pw[1], pw[1], pw[2])
+    _DOT(pw[2], pw[1], pw[3])
+    X4 = _DOT(pw[2], pw[2])
+    # B_j = sum_i X^i / (4 j + i)!, j = 0 .. 3; the sum is B_0 + X4 (B_1 + X4 (B_2 + X4 (B_3
+    # + X4 / 16!)))
+    B = _DOT(_PS_COEF, pw.reshape(4, n * n)).reshape(4, n, n)
+    E, tmp = np.multiply(X4, 1.0 / math.factorial(16)), np.empty((n, n))
+    E += B[3]
+    for j in (2, 1, 0):
+        _DOT(E, X4, tmp)
+        np.add(tmp, B[j], out=E)
     for _ in range(sq):
         _DOT(E, E, tmp)
         E, tmp = tmp, E
     return E
+
+
+#: the Taylor coefficients 1 / (4 j + i)! of :func:`_expm` (row j, column i)
+_PS_COEF = np.array([[1.0 / math.factorial(4 * j + i) for i in range(4)] for j in range(4)])
+_PS_COEF.flags.writeable = False
 
 
 def quantization_arw(pulse, rate, dt):
@@ -482,6 +535,7 @@ def _kalman(Phi, Qd, Rv, P, vel):
     ZP, ZR = Z[:9], Z[9:]
     Si = np.empty((2, 2))
     si, item, sub, mul = Si.ravel(), Pm.item, np.subtract, np.multiply    # looked up once
+    rv = np.array(Rv)                                  # (a 0-d array multiplies faster)
     for h in hist:
         dot(M, post, prior)                      # Phi P Phi^T + Qd
         S00, S01, S11 = item(30) + Rv, item(31), item(40) + Rv
@@ -492,7 +546,7 @@ def _kalman(Phi, Qd, Rv, P, vel):
         dot(Si, HP, G)                           # K^T = S^-1 H P
         sub(E2, G, out=Q)
         dot(Pm, IKHT, ZP)
-        mul(G, Rv, out=ZR)
+        mul(G, rv, out=ZR)
         dot(W, Z, Pp)
         h[...] = rec
     # x_j = A_j x_{j-1} + b_j with A_j = Phi - K_j H Phi and b_j = K_j z_j in 10x10 form
