@@ -53,12 +53,12 @@ import numpy as np
 
 from hse_opt import units
 from hse_opt.sim.rotations import dcm_to_zyx, earth_rate_n
-from hse_opt.sim._fastmath import MAX_DEVIATION, SMALL_DEVIATION, PhaseTable
+from hse_opt.sim._fastmath import MAX_DEVIATION, SMALL_DEVIATION
 from hse_opt.sim.rawlog import RawLog
 
 __all__ = ["AlignConfig", "AlignResult", "AlignHistory", "align", "triad", "quantization_arw"]
 
-_CHUNK_TARGET = 16384
+_CHUNK_TARGET = 32768
 
 #: the rows of ``[e_i x] C0`` (i = 0, 1, 2; 9 each) as entries of ``C0.ravel()`` with signs
 _E_INDEX = np.array([0, 0, 0, 6, 7, 8, 3, 4, 5, 6, 7, 8, 0, 0, 0, 0, 1, 2, 3, 4, 5, 0, 1, 2, 0, 0, 0])
@@ -272,9 +272,10 @@ def _blocks(log, config):
     nb = nint // L
     nu = nb * L                                # rows 1 .. nu of the log are used
     dphi = span / nint
-    tab = PhaseTable(dphi, L)
     phi = enc[0] + dphi * (L * np.arange(nb, dtype=float) + 0.5)   # Phi_b, the blocks' start
-    two_lin = tab.dphi * np.arange(2 * L, step=2, dtype=float)     # 2 l dphi
+    lin = dphi * np.arange(L, dtype=float)                         # l dphi
+    cos_lin, sin_lin = np.cos(lin), np.sin(lin)
+    two_lin = lin * 2.0
     calib = _calibration(config)
     # per block: sums of cos and sin of l dphi + d at each interval's midpoint, and sums of
     # those and of 1 times each raw increment (gyros then accelerometers: channels 0-5); a
@@ -296,7 +297,7 @@ def _blocks(log, config):
         np.multiply(d2, d2, out=q)
         q_max = float(q.max())
         if q_max <= 4 * MAX_DEVIATION ** 2:    # (the comparison is False for NaN)
-            _rotate_half(tab.c, tab.s, d2, q, w, work[2:, :g], q_max > 4 * SMALL_DEVIATION ** 2)
+            _rotate_half(cos_lin, sin_lin, d2, q, w, work[2:, :g], q_max > 4 * SMALL_DEVIATION ** 2)
         else:
             d2 += two_lin
             d2 *= 0.5
@@ -550,9 +551,10 @@ def _kalman(Phi, Qd, Rv, P, vel):
         dot(W, Z, Pp)
         h[...] = rec
     # x_j = A_j x_{j-1} + b_j with A_j = Phi - K_j H Phi and b_j = K_j z_j in 10x10 form
-    K = hist[:, :18].reshape(nb, 2, 9).transpose(0, 2, 1)
+    K = np.empty((nb, 9, 2))
+    K[...] = hist[:, :18].reshape(nb, 2, 9).transpose(0, 2, 1)
     A = np.zeros((nb, 10, 10))
-    np.subtract(Phi, np.matmul(K, Phi[3:5]), out=A[:, :9, :9])
+    np.subtract(Phi, (K.reshape(nb * 9, 2) @ Phi[3:5]).reshape(nb, 9, 9), out=A[:, :9, :9])
     A[:, :9, 9] = np.matmul(K, vel.T[:, :, None])[:, :, 0]
     A[:, 9, 9] = 1.0
     x0 = np.zeros(10)
