@@ -282,7 +282,7 @@ def _blocks(log, config):
     # group of blocks at a time (the working arrays stay in cache)
     wsum, Y = np.empty((2, nb)), np.empty((3, 6, nb))   # (cos/sin/1, channel, block)
     per = min(nb, max(1, _CHUNK_TARGET // L))
-    work, W = np.empty((5, per, L)), np.empty((3, per, L))
+    work, W = np.empty((4, per, L)), np.empty((3, per, L))
     W[2] = 1.0
     ones = np.ones(L)
     srcs = [(x[:, 1:nu + 1].reshape(x.shape[0], nb, L), Y[:, k:k + x.shape[0]])
@@ -348,7 +348,7 @@ def _rotate_half(c, s, d2, q, out, work, fourth):
     ``s = sin(phase)``, a small ``d2`` (``|d2| / 2 <= MAX_DEVIATION``) and ``q = d2^2``, by
     the series ``cos d = 1 - d^2 / 2 (+ d^4 / 24 if fourth)``, ``sin d = d - d^3 / 6``
     (as :func:`hse_opt.sim._fastmath.rotate_small`, with the halving folded into the
-    coefficients); ``q`` is overwritten, ``work`` (3, ...) is scratch."""
+    coefficients); ``q`` is overwritten, ``work`` (2, ...) is scratch."""
     cd, tmp = work[0], work[1]
     if fourth:                                 # 1 + q (q / 384 - 1 / 8)
         np.multiply(q, 1.0 / 384.0, out=cd)
