@@ -35,7 +35,10 @@ Steps
    (they rotate at the table rate: ``d/dt x = Omega [[0, -1], [1, 0]] x``). The model is
    time invariant, so the transition and process noise matrices are computed once (Van Loan).
    Measurement: zero velocity (the navigation velocity) after each block, noise variance
-   ``accel_pulse^2 / 12 + velocity_floor^2`` per axis (the velocity pulse remainder).
+   ``accel_pulse^2 / 12 + velocity_floor^2`` per axis (the velocity pulse remainder). The
+   covariance update is Joseph's form ``(I - K H) P (I - K H)^T + K R K^T``: the velocity
+   variance falls by orders of magnitude in every update, and the short form
+   ``P - K H P`` loses those digits to cancellation.
 6. Whole-revolution smoothing: the reported angles are the mean of the block estimates over
    the last ``smoothing_revolutions`` revolutions, with the filter's 1-sigma averaged over
    the same blocks.
