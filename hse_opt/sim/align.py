@@ -553,13 +553,23 @@ def _kalman(Phi, Qd, Rv, P, vel):
         mul(G, rv, out=ZR)
         dot(W, Z, Pp)
         h[...] = rec
-    # x_j = A_j x_{j-1} + b_j with A_j = Phi - K_j H Phi and b_j = K_j z_j in 10x10 form
-    K = np.empty((nb, 9, 2))
-    K[...] = hist[:, :18].reshape(nb, 2, 9).transpose(0, 2, 1)
-    A = np.zeros((nb, 10, 10))
-    np.subtract(Phi, (K.reshape(nb * 9, 2) @ Phi[3:5]).reshape(nb, 9, 9), out=A[:, :9, :9])
-    A[:, :9, 9] = np.matmul(K, vel.T[:, :, None])[:, :, 0]
-    A[:, 9, 9] = 1.0
+    # x_j = A_j x_{j-1} + b_j with A_j = Phi - K_j H Phi and b_j = K_j z_j in 10x10 form: the
+    # top 9 rows [A_j, b_j] of all blocks by one product, then copied whole rows at a time
+    G = hist[:, :18].reshape(nb, 2, 9)                 # K_j^T
+    R = np.zeros((2, 10))
+    R[:, :9] = Phi[3:5]                                # H Phi
+    top = (G.transpose(0, 2, 1).reshape(nb * 9, 2) @ R).reshape(nb, 9, 10)
+    Phi_top = np.zeros((9, 10))
+    Phi_top[:, :9] = Phi
+    np.subtract(Phi_top, top, out=top)
+    b = top[:, :, 9]
+    np.multiply(G[:, 0], vel[0, :, None], out=b)
+    b += G[:, 1] * vel[1, :, None]
+    A = np.empty((nb, 10, 10))
+    Af = A.reshape(nb, 100)
+    Af[:, :90] = top.reshape(nb, 90)
+    Af[:, 90:] = 0.0
+    Af[:, 99] = 1.0
     x0 = np.zeros(10)
     x0[9] = 1.0
     return _chain(A, x0)[1:, :3], hist[:, 18:].reshape(nb, 3, 9)[:, :, :3]
