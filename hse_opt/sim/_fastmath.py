@@ -97,6 +97,13 @@ def rotate_small(c, s, d, out, work, dmax):
     sd *= -1.0 / 6.0
     sd += 1.0
     sd *= d
+    return rotate(c, s, cd, sd, out, tmp)
+
+
+def rotate(c, s, cd, sd, out, tmp):
+    """``(cos, sin)`` of ``phase + d`` written into ``out`` (2, ...) from those of ``phase``
+    (``c``, ``s``) and of ``d`` (``cd``, ``sd``), by the angle-addition formulas; ``tmp`` is
+    scratch of their shape."""
     cn, sn = out[0], out[1]
     np.multiply(s, sd, out=tmp)
     np.multiply(c, cd, out=cn)

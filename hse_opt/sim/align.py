@@ -56,7 +56,7 @@ import numpy as np
 
 from hse_opt import units
 from hse_opt.sim.rotations import dcm_to_zyx, earth_rate_n
-from hse_opt.sim._fastmath import MAX_DEVIATION, SMALL_DEVIATION
+from hse_opt.sim._fastmath import MAX_DEVIATION, SMALL_DEVIATION, rotate
 from hse_opt.sim.rawlog import RawLog
 
 __all__ = ["AlignConfig", "AlignResult", "AlignHistory", "align", "triad", "quantization_arw"]
@@ -364,13 +364,7 @@ def _rotate_half(c, s, d2, q, out, work, fourth):
     sd *= -1.0 / 48.0
     sd += 0.5
     sd *= d2
-    cn, sn = out[0], out[1]
-    np.multiply(s, sd, out=tmp)
-    np.multiply(c, cd, out=cn)
-    cn -= tmp
-    np.multiply(c, sd, out=tmp)
-    np.multiply(s, cd, out=sn)
-    sn += tmp
+    rotate(c, s, cd, sd, out, tmp)
 
 
 def _channels(log):
