@@ -269,10 +269,18 @@ def _configuration_cached(truth):
     return cfg
 
 
-@functools.lru_cache(maxsize=64)
 def _base_vectors(truth, azimuth, tilt):
     """The Earth rate and the specific force in b0 (rad/s, m/s^2; read-only) for a stand
-    azimuth reading and a deliberate tilt (rad): a campaign repeats its few stand settings."""
+    azimuth reading and a deliberate tilt (rad), cached: a campaign repeats its few stand
+    settings."""
+    try:
+        return _base_vectors_cached(truth, azimuth, tilt)
+    except TypeError:                    # an unhashable configuration: not cached
+        return _base_vectors_cached.__wrapped__(truth, azimuth, tilt)
+
+
+@functools.lru_cache(maxsize=64)
+def _base_vectors_cached(truth, azimuth, tilt):
     C_n_b0 = true_attitude(truth, RunSpec(rate=1.0, azimuth=azimuth, tilt=tilt))["C_b0_n"].T
     return _readonly(C_n_b0 @ earth_rate_n(truth.site.latitude),
                      C_n_b0 @ np.array([0.0, 0.0, -truth.site.gravity]))
