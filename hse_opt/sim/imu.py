@@ -44,7 +44,7 @@ from hse_opt.sim.rotations import dcm_to_zyx, earth_rate_n, rot_x, rot_y, rot_z,
 from hse_opt.sim._fastmath import (MAX_DEVIATION, PhaseTable, box_muller_f32, exp_linear,
                                    rotate_small, splits_words, uniform_bits)
 from hse_opt.sim.rawlog import RawLog
-from hse_opt.sim.truth import RunSpec, gyro_matrices, temperature, validate_run
+from hse_opt.sim.truth import RunSpec, gyro_matrices, per_configuration, temperature, validate_run
 
 __all__ = ["generate", "true_attitude", "table_angle", "stand_azimuth_true"]
 
@@ -110,7 +110,7 @@ def _ripple(table, rate, sin_phase):
 #: seeded run is reproducible for this chunk size.
 CHUNK = 16384
 
-#: the Box-Muller noise of :func:`normal_f32` is bounded: its float32 uniforms keep
+#: the Box-Muller noise of :func:`~hse_opt.sim._fastmath.box_muller_f32` is bounded: its float32 uniforms keep
 #: ``1 - u >= 2**-24``, so ``|n| <= sqrt(48 ln 2) sigma = 5.77 sigma``
 _NOISE_BOUND = 5.8
 
@@ -156,13 +156,12 @@ class _Counter:
         self.q = np.repeat([t[1] for t in triads], 3)[:, None]
         self.rem = np.concatenate([np.floor(np.asarray(t[2], dtype=float) * 2.0 ** b)
                                    for b, t in zip(bits, triads)]).astype(np.int64)
-        self.ibuf = None                                # int64 (k * chunk) scratch, set by the caller
 
-    def count(self, x, dest):
+    def count(self, x, dest, scratch):
         """SI pulse increments into ``dest`` (k, m) from ``x`` (k, m): the increments in units
-        plus :data:`MAGIC` (``x`` is overwritten)."""
+        plus :data:`MAGIC` (``x`` is overwritten); ``scratch``: int64, at least k * m."""
         k, m = x.shape
-        s = self.ibuf[:k * m].reshape(k, m)
+        s = scratch[:k * m].reshape(k, m)
         b = x.view(np.int64)                            # MAGIC's bits + the rounded increment
         b[:, 0] += self.rem
         np.cumsum(b, axis=1, out=s)
@@ -229,6 +228,7 @@ def _exp_table(rate, size):
     return _readonly(exp_linear(rate, size))[0]
 
 
+@per_configuration(maxsize=8)
 def _configuration(truth):
     """What :func:`generate` needs of the configuration alone (:class:`types.SimpleNamespace`,
     read-only arrays), computed once per frozen configuration: ``mats``
@@ -238,14 +238,6 @@ def _configuration(truth):
     temperature transients ``extra`` ((name, coefficient per sample at t_on = 0, tau)), the
     tempco's constant part per sample ``const_tc`` (or None), ``swing_row`` and the number of
     gyro basis rows ``kg``."""
-    try:
-        return _configuration_cached(truth)
-    except TypeError:                    # an unhashable configuration: not cached
-        return _configuration_cached.__wrapped__(truth)
-
-
-@functools.lru_cache(maxsize=8)
-def _configuration_cached(truth):
     mats = gyro_matrices(truth)
     g, thermal, dt = truth.gyro, truth.thermal, truth.timing.sample_period
     tau_b, tau_t = g.bias_warmup_tau, thermal.tau
@@ -269,18 +261,11 @@ def _configuration_cached(truth):
     return cfg
 
 
+@per_configuration(maxsize=64)
 def _base_vectors(truth, azimuth, tilt):
     """The Earth rate and the specific force in b0 (rad/s, m/s^2; read-only) for a stand
     azimuth reading and a deliberate tilt (rad), cached: a campaign repeats its few stand
     settings."""
-    try:
-        return _base_vectors_cached(truth, azimuth, tilt)
-    except TypeError:                    # an unhashable configuration: not cached
-        return _base_vectors_cached.__wrapped__(truth, azimuth, tilt)
-
-
-@functools.lru_cache(maxsize=64)
-def _base_vectors_cached(truth, azimuth, tilt):
     C_n_b0 = true_attitude(truth, RunSpec(rate=1.0, azimuth=azimuth, tilt=tilt))["C_b0_n"].T
     return _readonly(C_n_b0 @ earth_rate_n(truth.site.latitude),
                      C_n_b0 @ np.array([0.0, 0.0, -truth.site.gravity]))
@@ -326,7 +311,7 @@ def generate(truth, run, rng=None):
     from the line ``Phi + k W dt`` (ripple, jitter, thermal mount rotation, < 1e-3 rad) enters
     ``cos``/``sin`` by its Taylor series (``hse_opt.sim._fastmath``).
 
-    Precision: the white noise is drawn in float32 (:func:`~hse_opt.sim._fastmath.normal_f32`:
+    Precision: the white noise is drawn in float32 (:func:`~hse_opt.sim._fastmath.box_muller_f32`:
     its rounding, 6e-8 of a sample's noise, is white and far below the quantum it dithers),
     the signal rows and coefficients are float64 (a gyro increment carries the Earth rate's
     1e-7 rad beside the table's 1e-3 rad turn per sample), and the counters' running sums are
@@ -432,8 +417,7 @@ def generate(truth, run, rng=None):
     ttab = _exp_table(-dt / tau_t, size) if mount.xi_z_tempco else None
     dbuf, xbuf, cs, work = ws.take(size), ws.take(size), ws.take(2, size), ws.take(3, size)
     obuf = ws.take(6 * (size - 1))
-    if counter is not None:
-        counter.ibuf = ws.take(counter.bits.size * (size - 1), dtype=np.int64)
+    ibuf = ws.take(counter.bits.size * (size - 1), dtype=np.int64) if counter is not None else None
     ripple_const = -amp * math.sin(tb.ripple_phase) if tb.ripple else 0.0
     for i0 in range(0, n, CHUNK):
         i1 = min(n, i0 + CHUNK)
@@ -548,7 +532,7 @@ def generate(truth, run, rng=None):
             out[:3] *= counter.units[0]
             out[:3] += _Counter.MAGIC
         if counter is not None:
-            counter.count(out[counted], imu[counted, i0:i1])
+            counter.count(out[counted], imu[counted, i0:i1], ibuf)
         if counted != slice(0, 6):
             keep = slice(3, 6) if g.pulse else slice(0, 3) if a.pulse else slice(0, 6)
             imu[keep, i0:i1] = out[keep]

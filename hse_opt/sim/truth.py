@@ -633,6 +633,23 @@ def save_truth(truth, path):
 
 
 # -- derived quantities -------------------------------------------------------------------------
+def per_configuration(maxsize):
+    """``functools.lru_cache`` for functions of a frozen configuration (and other hashable
+    arguments); with an unhashable argument the function runs uncached."""
+    def decorate(fn):
+        cached = functools.lru_cache(maxsize=maxsize)(fn)
+
+        @functools.wraps(fn)
+        def wrapper(*args):
+            try:
+                return cached(*args)
+            except TypeError:                # an unhashable argument: not cached
+                return fn(*args)
+        wrapper.cache_clear = cached.cache_clear
+        return wrapper
+    return decorate
+
+
 def gyro_matrices(truth):
     """The true and calibrated matrices of the gyro chain.
 
@@ -646,13 +663,10 @@ def gyro_matrices(truth):
         non-orthogonality), ``Lambda``. The arrays are read-only: they are computed once
         per configuration (a frozen :class:`TruthConfig`) and shared.
     """
-    try:
-        return dict(_gyro_matrices(truth))
-    except TypeError:                    # an unhashable configuration: not cached
-        return dict(_gyro_matrices.__wrapped__(truth))
+    return dict(_gyro_matrices(truth))
 
 
-@functools.lru_cache(maxsize=16)
+@per_configuration(maxsize=16)
 def _gyro_matrices(truth):
     g, m, a = truth.gyro, truth.mount, truth.accel
     d_yx, d_zx, d_zy = g.axes_nonorth
