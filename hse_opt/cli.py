@@ -9,6 +9,7 @@ import contextlib
 import importlib
 import os
 import sys
+import warnings
 
 #: command modules, in the order ``--help`` lists them
 COMMANDS = ("demo", "design", "simulate", "align", "fit", "compensate", "diagnose", "export")
@@ -104,6 +105,20 @@ def _message(err):
     return " ".join(text.split())
 
 
+@contextlib.contextmanager
+def _warnings_in_one_line(command):
+    """While a command runs, each warning is one line on stderr, ``hse-opt CMD: warning: ...``
+    (the library warns, the command line prints); a data warning every time it is issued."""
+    from .data import DataWarning
+
+    def show(message, category, filename, lineno, file=None, line=None):
+        print(f"{command}: warning: {' '.join(str(message).split())}", file=sys.stderr)
+    with warnings.catch_warnings():
+        warnings.simplefilter("always", DataWarning)
+        warnings.showwarning = show
+        yield
+
+
 def _main(argv):
     command, tx = "hse-opt", None
     try:
@@ -117,7 +132,7 @@ def _main(argv):
             try:
                 # every output checked before the command runs; all written together or none
                 tx = Transaction.from_args(args, sys.modules[args.run.__module__], args.subparser)
-                with tx.check() as args.tx, \
+                with tx.check() as args.tx, _warnings_in_one_line(command), \
                         json_stdout() if getattr(args, "json", False) else contextlib.nullcontext():
                     return args.run(args)
             except (ValueError, FileNotFoundError, IsADirectoryError, NotADirectoryError,

@@ -7,7 +7,11 @@ the file's own unit and under its own name (``temp_c``). An extra column with a 
 not a finite number (a date, an operator, a serial number, an empty cell) is text: kept as
 metadata (:attr:`Runs.metadata`, strings), passed through to every table written from it
 (``hse-opt compensate``, ``hse-opt simulate``) and never an error; :attr:`Runs.notes` names
-the first cell that made it text.
+the first cell that made it text. A text column with numbers in other rows (a NaN, an empty
+cell or a typo among numbers) is most likely a covariate with a hole: the loaders warn
+(:class:`DataWarning`, :attr:`Runs.warnings`, one line on stderr in every command), and a
+command that uses it as a covariate (``--effects covariate:NAME``, ``diagnose --covariates``)
+refuses it naming the row (:meth:`Runs.covariate`).
 
 ``RUNS.csv`` (:class:`Runs`): ``run, rate_dps, azimuth_deg, heading_err_arcsec,
 latitude_deg, duration_s`` and optionally ``t_start_s``, ``pitch_arcsec`` with
@@ -113,11 +117,11 @@ from __future__ import annotations
 
 from .atomic import TEMP_TAG, atomic_path, fsync_folder, remove_leftovers, temp_path, write_text_atomic
 from .csvfile import load_plan, load_runs, read_text, save_plan, save_runs
-from .errors import DataError
+from .errors import DataError, DataWarning
 from .plan import Plan
 from .runs import MAX_POSITION_SPREAD_DEG, Runs
 from .table import DEFAULT_MIN_RATE_DPS
 
-__all__ = ["DataError", "Runs", "Plan", "load_runs", "load_plan", "save_runs", "save_plan",
+__all__ = ["DataError", "DataWarning", "Runs", "Plan", "load_runs", "load_plan", "save_runs", "save_plan",
            "DEFAULT_MIN_RATE_DPS", "MAX_POSITION_SPREAD_DEG", "read_text", "write_text_atomic", "atomic_path",
            "temp_path", "remove_leftovers", "fsync_folder", "TEMP_TAG"]

@@ -5,10 +5,11 @@ import csv
 import dataclasses
 import io
 import os
+import warnings
 
 from ..ranges import MAX_COLUMNS, MAX_FILE_BYTES, MAX_ROWS
 from .atomic import _atomic
-from .errors import DataError
+from .errors import DataError, DataWarning
 from .plan import Plan
 from .runs import Runs
 from .table import DEFAULT_MIN_RATE_DPS
@@ -21,10 +22,12 @@ def _read(cls, path, min_rate_dps, allow_small_azimuths):
     try:
         reader = csv.reader(io.StringIO(read_text(src, "a UTF-8 CSV file"), newline=""))
         rows, lines = [], []
+        start = 1
         for fields in reader:
             if any(f.strip() for f in fields):
                 rows.append(fields)
-                lines.append(reader.line_num)
+                lines.append(start)
+            start = reader.line_num + 1
             if len(rows) > MAX_ROWS + 1:
                 raise DataError(src, f"has more than {MAX_ROWS} data rows; allowed: at most {MAX_ROWS}",
                                 line=reader.line_num)
@@ -36,6 +39,7 @@ def _read(cls, path, min_rate_dps, allow_small_azimuths):
     if not rows:
         need = ", ".join(c.name for c in cls._COLUMNS if c.required)
         raise DataError(src, f"the file is empty; allowed: a header row with {need}, then data rows")
+    _one_line(src, rows, lines, rows[0])
     header = [h.strip() for h in rows[0]]
     if len(header) > MAX_COLUMNS:
         raise DataError(src, f"the header has {len(header)} columns; allowed: at most {MAX_COLUMNS}",
@@ -52,7 +56,27 @@ def _read(cls, path, min_rate_dps, allow_small_azimuths):
             raise DataError(src, f"has {len(fields)} fields but the header has {len(header)}; allowed: one "
                                  "value per column", row=k + 1, line=lines[k + 1])
     columns = {name: [fields[j] for fields in rows[1:]] for j, name in enumerate(header)}
-    return cls._build(columns, src, lines[1:], min_rate_dps, allow_small_azimuths, header_line=lines[0])
+    table = cls._build(columns, src, lines[1:], min_rate_dps, allow_small_azimuths, header_line=lines[0])
+    for text in table.warnings:
+        warnings.warn(text, DataWarning, stacklevel=3)
+    return table
+
+
+def _one_line(src, rows, lines, header):
+    """DataError for a cell that spans lines: an unbalanced quote (``"27.5``) makes the CSV
+    reader take every line up to the next quote, or to the end of the file, into one cell,
+    and the rows in between would silently vanish (the row count no longer matches the line
+    count). ``lines[k]`` is the line row ``k`` starts on (row 0: the header)."""
+    for k, fields in enumerate(rows):
+        for j, cell in enumerate(fields):
+            if "\n" in cell or "\r" in cell:
+                column = (header[j].strip() or None) if 0 < k and j < len(header) and "\n" not in header[j] \
+                    else None
+                raise DataError(src, f"a quoted {'header field' if k == 0 else 'cell'} does not end on its "
+                                     "line (a quote '\"' not closed on its own line takes the lines after it "
+                                     "into one cell, and their rows would be lost); allowed: one line per "
+                                     "row, quotes in pairs within a line", row=k or None, line=lines[k],
+                                column=column)
 
 
 def read_text(path, allowed, limit=MAX_FILE_BYTES):

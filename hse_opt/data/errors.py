@@ -1,7 +1,8 @@
-"""The one error of bad PLAN/RUNS input: :class:`DataError`, naming file, row, line and column."""
+"""The one error of bad PLAN/RUNS input: :class:`DataError`, naming file, row, line and column;
+and :class:`DataWarning`, for input that is read but not as the user probably meant."""
 from __future__ import annotations
 
-__all__ = ["DataError"]
+__all__ = ["DataError", "DataWarning"]
 
 
 class DataError(ValueError):
@@ -24,3 +25,8 @@ class DataError(ValueError):
 
     def __reduce__(self):
         return type(self), (self.source, self.problem, self.row, self.line, self.column)
+
+
+class DataWarning(UserWarning):
+    """Input read, but not as its shape suggests (a column of numbers with one text cell, kept
+    as text); the message names file, row and column (``Runs.warnings``)."""

@@ -317,6 +317,40 @@ class _Table:
                     "metadata and passed through to output tables, not a covariate",)
         return out
 
+    @property
+    def warnings(self):
+        """tuple of str: the text columns that hold numbers in other rows (a NaN, an empty cell
+        or a typo among numbers turns the whole column into text: it is passed through, never a
+        covariate). Each names the file, the first row that is not a number and the column;
+        the loaders issue them as :class:`~hse_opt.data.errors.DataWarning` and the command
+        line prints them on stderr."""
+        out = ()
+        for name, text in self.metadata.items():
+            cells = text.tolist()
+            i = _first_not_number(cells)
+            numbers = len(cells) - sum(_first_not_number([c]) is not None for c in cells)
+            if numbers:
+                out += (f"{self.source}, row {i + 1}, column '{name}': {cells[i]!r} is not a number, so "
+                        f"the column is kept as text ({numbers} of {len(cells)} rows are numbers): passed "
+                        "through, not a covariate; allowed for a covariate: a finite number in every row",)
+        return out
+
+    def covariate(self, name, use):
+        """The covariate column ``name`` (file unit, shape (n,)) that ``use`` needs (e.g. "the
+        effect covariate:temp_c"); DataError naming the first row that is not a number when the
+        column was read as text, or the columns there are when it is absent."""
+        if name in self.covariates:
+            return self.covariates[name]
+        if name in self.metadata:
+            cells = self.metadata[name].tolist()
+            i = _first_not_number(cells)
+            raise DataError(self.source, f"{cells[i]!r} is not a number, so the column is text; allowed: a "
+                                         f"finite number in every row of a column used by {use}",
+                            row=i + 1, column=name)
+        raise DataError(self.source, f"is not in the file, but {use} needs it; allowed: "
+                                     f"{', '.join(self.covariates) or 'none (the file has no covariate columns)'}",
+                        column=name)
+
     def subset(self, index):
         """The rows selected by a boolean mask of shape (n,) or by integer indices, as a new table."""
         idx = np.asarray(index)

@@ -105,6 +105,9 @@ def covariate_columns(runs, covariates):
         return [c for c in runs.covariates if not is_derived(c)]
     covariates = [c.strip() for c in covariates.split(",")] if isinstance(covariates, str) else list(covariates)
     missing = [c for c in covariates if c not in runs.covariates]
+    for c in missing:
+        if c in runs.metadata:  # a column of numbers with a text cell: name the row
+            runs.covariate(c, "the diagnosis's covariates (--covariates)")
     if missing:
         raise ValueError(f"{runs.source}: covariate column(s) {missing} not in the runs; allowed: "
                          f"{', '.join(runs.covariates) or 'none (the file has no covariate columns)'}")

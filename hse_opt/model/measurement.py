@@ -279,6 +279,9 @@ class MeasurementModel:
         if pitch is None and hasattr(runs, "tilt_x"):
             pitch, roll = runs.tilt_y, runs.tilt_x
         missing = [c for c in self.covariates if c not in runs.covariates]
+        for c in missing:
+            if hasattr(runs, "covariate"):  # names the row that made the column text, or the columns there are
+                runs.covariate(c, f"the effect covariate:{c}")
         if missing:
             raise ValueError(f"{runs.source}: covariate columns {missing} are required by the model's "
                              f"effects; the file has {sorted(runs.covariates) or 'none'}")

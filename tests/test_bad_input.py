@@ -1,0 +1,122 @@
+"""Bad input never becomes a wrong answer (issue 27): an unbalanced quote that would swallow
+rows, a covariate column turned into text by one NaN or empty cell. Each case runs the
+command line on the paper's Table 1 with one cell changed and holds it against the clean
+file's answer or a refusal that names file, row and column."""
+import csv
+import io
+from contextlib import redirect_stderr, redirect_stdout
+from pathlib import Path
+
+import pytest
+
+from hse_opt.cli import main
+from hse_opt.data import DataError, DataWarning, load_runs
+from hse_opt.datasets import paper_table1_path
+
+FIX = ["--fix", "lambda2*tilt_const=0"]
+
+
+def cli(argv):
+    err, out = io.StringIO(), io.StringIO()
+    with redirect_stderr(err), redirect_stdout(out):
+        code = main([str(a) for a in argv])
+    return code, out.getvalue(), err.getvalue()
+
+
+def table1_rows():
+    with open(paper_table1_path(), newline="") as fh:
+        rows = list(csv.reader(fh))
+    rows[0].append("temp_c")
+    for k, row in enumerate(rows[1:]):
+        row.append(f"{20 + k}.5")
+    return rows
+
+
+def write(path, rows):
+    """Rows joined by hand (csv.writer would quote a bad cell and make it legal)."""
+    path.write_text("".join(",".join(r) + "\n" for r in rows))
+    return path
+
+
+@pytest.mark.parametrize("row", [4, 12])
+def test_unbalanced_quote_is_refused_not_swallowing_rows(tmp_path, row):
+    """``"27.5`` in temp_c: the CSV reader would take every line after it into the cell (before:
+    fit went on with the rows above it and exit 0). Refused naming the file, row, line and
+    column; the file is unchanged."""
+    rows = table1_rows()
+    rows[row][-1] = '"27.5'
+    path = write(tmp_path / "QUOTE.csv", rows)
+    before = path.read_bytes()
+    assert cli(["fit", paper_table1_path(), *FIX, "-o", tmp_path / "F.json"])[0] == 0
+    for argv in (["fit", path, *FIX], ["diagnose", path, *FIX], ["compensate", path, "--fit", tmp_path / "F.json",
+                                                                 "-o", tmp_path / "C.csv"]):
+        code, out, err = cli(argv)
+        assert code == 2 and out == "", (argv, err)
+        assert err.count("\n") == 1 and f"{path}, row {row} (line {row + 1}), column 'temp_c'" in err
+        assert "allowed: one line per row, quotes in pairs" in err
+    assert path.read_bytes() == before and not (tmp_path / "C.csv").exists()
+    # a quote closed later in the file swallows the lines between: the same refusal
+    rows[row + 2 if row < 10 else 1][0] += '"'
+    code, _, err = cli(["fit", write(tmp_path / "Q2.csv", rows), *FIX])
+    assert code == 2 and "quoted cell does not end on its line" in err
+
+
+def test_quotes_in_pairs_within_a_line_are_read(tmp_path):
+    """A legal quoted cell (a comma inside it) is still read: the check is about line ends."""
+    text = Path(paper_table1_path()).read_text().splitlines()
+    text[0] += ",remark"
+    text[1:] = [line + ',"cold, start"' for line in text[1:]]
+    (tmp_path / "R.csv").write_text("\n".join(text) + "\n")
+    runs = load_runs(tmp_path / "R.csv")
+    assert len(runs) == 12 and runs.metadata["remark"].tolist() == ["cold, start"] * 12
+
+
+@pytest.mark.parametrize("cell", ["nan", "", "NaN", "27,5x"])
+def test_a_covariate_with_a_hole_is_named_everywhere(tmp_path, cell):
+    """One NaN or empty cell in temp_c turns the column into text. Every command says so on
+    stderr (file, row, column) and still succeeds where the column is only passed through;
+    where it is used (--effects covariate:temp_c, diagnose --covariates) it is refused with the
+    row (before: fit said only 'covariate columns [...] are required', compensate wrote 'nan'
+    through without a word)."""
+    rows = table1_rows()
+    rows[7][-1] = cell.replace(",", ";")
+    path = write(tmp_path / "HOLE.csv", rows)
+    with pytest.warns(DataWarning, match=r"HOLE.csv, row 7, column 'temp_c': .* kept as text \(11 of 12"):
+        runs = load_runs(path)
+    assert "temp_c" in runs.metadata and "temp_c" not in runs.covariates
+    where = f"{path}, row 7, column 'temp_c'"
+    code, _, err = cli(["fit", path, *FIX, "-o", tmp_path / "F.json"])
+    assert code == 0 and f"hse-opt fit: warning: {where}" in err
+    code, _, err = cli(["compensate", path, "--fit", tmp_path / "F.json", "-o", tmp_path / "C.csv"])
+    assert code == 0 and f"hse-opt compensate: warning: {where}" in err
+    for argv in (["fit", path, *FIX, "--effects", "hse,covariate:temp_c"],
+                 ["diagnose", path, *FIX, "--covariates", "temp_c"]):
+        code, out, err = cli(argv)
+        lines = err.strip("\n").split("\n")
+        assert code == 2 and out == "", err
+        assert lines[-1].startswith(f"hse-opt {argv[0]}: error: {where}: ") and "allowed: a finite number" \
+            in lines[-1], err
+        assert all("warning" in line for line in lines[:-1])
+
+
+def test_a_text_column_without_numbers_is_no_warning(tmp_path):
+    """Dates and operators are metadata, as before: no warning (the rule is about numbers)."""
+    rows = table1_rows()
+    rows[0][-1] = "operator"
+    for k, row in enumerate(rows[1:]):
+        row[-1] = ("Yu", "Wu")[k % 2]
+    import warnings
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", DataWarning)
+        runs = load_runs(write(tmp_path / "OP.csv", rows))
+    assert runs.metadata["operator"].tolist()[:2] == ["Yu", "Wu"] and runs.warnings == ()
+
+
+def test_covariate_lookup_names_the_columns_there_are():
+    runs = load_runs(paper_table1_path())
+    with pytest.raises(DataError, match=r"column 'temp_c': is not in the file.*allowed: "
+                                        r"heading_err_compensated_arcsec"):
+        runs.covariate("temp_c", "the effect covariate:temp_c")
+    with open(paper_table1_path(), newline="") as fh:
+        column = [float(r["heading_err_compensated_arcsec"]) for r in csv.DictReader(fh)]
+    assert runs.covariate("heading_err_compensated_arcsec", "x").tolist() == column
