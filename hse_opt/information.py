@@ -230,6 +230,142 @@ def check_identifiable(F, names, max_condition=MAX_CONDITION, advice=None, Z=Non
     return cond
 
 
+#: parameters whose estimates correlate beyond this cannot be separated by the runs in
+#: practice: a 0.99 correlation inflates both sigmas at least 7-fold (1 / sqrt(1 - r^2))
+CONFOUNDED_CORRELATION = 0.99
+#: a variance inflation above this (sigma 10 times what the parameter would have alone, the
+#: others known) names a parameter as confounded (the usual collinearity rule of thumb is 10;
+#: 100 flags only what the campaign really cannot separate)
+CONFOUNDED_INFLATION = 100.0
+
+
+@dataclass(frozen=True)
+class ConfoundedGroup:
+    """Parameters a campaign cannot separate (:func:`confounded`).
+
+    Attributes
+    ----------
+    names : tuple of str
+        The parameters of the group.
+    inflation : tuple of float
+        Each one's sigma inflation, ``sqrt(VIF)``: its sigma over the sigma it would have if
+        the other parameters were known (1 = orthogonal), same order as ``names``.
+    correlation : float
+        The largest |correlation| between two parameters of the group.
+    direction : numpy.ndarray, shape (n_p,)
+        The least-observed combination of the parameters (display units, unit norm; zero
+        outside the group).
+    advice : str
+        What the runs share and which runs would separate the group ("" when not asked).
+    """
+
+    names: tuple
+    inflation: tuple
+    correlation: float
+    direction: np.ndarray
+    advice: str = ""
+
+    def text(self):
+        """One sentence: the group, its inflation and correlation, and the advice."""
+        infl = ", ".join(f"{n} x{i:.3g}" for n, i in zip(self.names, self.inflation))
+        out = (f"{', '.join(self.names)} are confounded by these runs (|r| up to {self.correlation:.4f}; "
+               f"sigma inflated {infl})")
+        return out + (f": {self.advice}" if self.advice else "")
+
+    def to_dict(self):
+        return {"parameters": list(self.names), "inflation": [float(i) for i in self.inflation],
+                "max_abs_correlation": float(self.correlation), "advice": self.advice, "text": self.text()}
+
+
+def confounded(F, covariance, names, advice=None, max_correlation=CONFOUNDED_CORRELATION,
+               max_inflation=CONFOUNDED_INFLATION):
+    """Groups of parameters the runs cannot separate: near-collinear columns of the weighted
+    Jacobian.
+
+    A parameter's variance inflation is ``VIF_j = C_jj F_jj``: its variance over the variance
+    it would have with every other parameter known (``1/F_jj``). In the scaled covariance
+    ``S = D C D`` (``D = sqrt(diag F)``; ``S = R^-1`` for the correlation form ``R`` of the
+    information without constraints), ``diag S`` are the VIFs and every eigenvector of ``S``
+    with eigenvalue above ``max_inflation`` is a combination of parameters the runs barely
+    observe; its parameters (those with at least a tenth of the largest component) form a
+    group, as does every pair with ``|r| > max_correlation``; overlapping groups merge.
+
+    Parameters
+    ----------
+    F : array_like, shape (k, k)
+        Information of the free parameters, display units.
+    covariance : array_like, shape (k, k)
+        Their covariance (the inverse of ``F``, or the constrained covariance).
+    names : sequence of str
+    advice : callable, optional
+        ``advice(direction)`` -> sentence on the runs that would separate a group
+        (:func:`separation_advice`).
+    max_correlation, max_inflation : float
+        The thresholds (:data:`CONFOUNDED_CORRELATION`, :data:`CONFOUNDED_INFLATION`).
+
+    Returns
+    -------
+    tuple of ConfoundedGroup
+        Largest inflation first; empty when the runs separate every parameter.
+    """
+    names = tuple(names)
+    F = np.asarray(F, dtype=float)
+    C = np.asarray(covariance, dtype=float)
+    k = len(names)
+    if k < 2:
+        return ()
+    d = np.sqrt(np.clip(np.diag(F), 0.0, None))
+    S = C * np.outer(d, d)
+    S = 0.5 * (S + S.T)
+    vif = np.diag(S).copy()
+    sd = np.sqrt(np.clip(np.diag(C), 0.0, None))
+    with np.errstate(invalid="ignore", divide="ignore"):
+        R = np.where(np.outer(sd, sd) > 0, C / np.outer(sd, sd), 0.0)
+    np.fill_diagonal(R, 0.0)
+    parent = list(range(k))
+
+    def find(i):
+        while parent[i] != i:
+            parent[i] = parent[parent[i]]
+            i = parent[i]
+        return i
+
+    def join(members):
+        root = find(members[0])
+        for j in members[1:]:
+            parent[find(j)] = root
+
+    flagged = np.zeros(k, bool)
+    lam, V = np.linalg.eigh(S)
+    for e in np.flatnonzero(lam > max_inflation):
+        u = np.abs(V[:, e])
+        members = list(np.flatnonzero(u > 0.1 * u.max()))
+        if len(members) > 1:
+            join(members)
+            flagged[members] = True
+    pairs = np.argwhere(np.triu(np.abs(R) > max_correlation, 1))
+    for i, j in pairs:
+        join([int(i), int(j)])
+        flagged[[i, j]] = True
+    groups = {}
+    for i in np.flatnonzero(flagged):
+        groups.setdefault(find(i), []).append(int(i))
+    out = []
+    for members in groups.values():
+        # the least-observed direction within the group (display units)
+        sub = np.ix_(members, members)
+        _, V_g = np.linalg.eigh(S[sub])
+        u = np.zeros(k)
+        u[members] = V_g[:, -1]
+        z = np.where(d > 0, u / np.where(d > 0, d, 1.0), 0.0)
+        z = z / max(np.linalg.norm(z), 1e-300)
+        r_max = float(np.abs(R[sub]).max())
+        text = advice(z) if advice is not None else ""
+        out.append(ConfoundedGroup(tuple(names[i] for i in members),
+                                   tuple(float(np.sqrt(max(vif[i], 1.0))) for i in members), r_max, z, text))
+    return tuple(sorted(out, key=lambda g: -max(g.inflation)))
+
+
 def _advice(advice, direction):
     if advice is None:
         return ""

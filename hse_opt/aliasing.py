@@ -1,0 +1,501 @@
+"""What a campaign cannot rule out: the alias budget of the effects missing from a model.
+
+A fitted model is only as good as what the runs could have told apart from it. For every
+catalogue effect *not* in the model, at the edge of its plausible range
+(:data:`hse_opt.model.plausible.RANGES`), on *these* runs:
+
+Detectability
+    the power of the diagnosis's own test of that effect (:mod:`hse_opt.diagnose`: the score /
+    nested-model F test of the effect's weighted Jacobian columns against the fit's residual,
+    at the diagnosis's level ``alpha / m``, Bonferroni over its ``m`` tests). For Gaussian
+    noise the statistic is noncentral F with noncentrality ``lambda = ||(I - P_M) A_E delta||^2``
+    (``A_E`` the effect's columns weighted by the runs' sigmas, ``P_M`` the projection on the
+    model's columns and, in a field campaign, the positions' unknown constants): the power is
+    ``P(F'(q, dof, lambda) > F_crit)``, closed form (:func:`scipy.stats.ncf`). The effect is
+    *detectable* at a size when the power is at least :data:`POWER_LIMIT` (0.8, the usual
+    design target); ``lambda`` grows with the size squared, so the size below which it goes
+    undetected (the *threshold*) follows from the noncentrality that gives power 0.8.
+Alias shift
+    the shift the effect causes in every fitted parameter when present but not modelled: the
+    alias matrix ``B = (J_M' W J_M)^-1 J_M' W J_E`` (with a prior, its information inside the
+    inverse: ``B = C J_M' W J_E`` with ``C`` the fit's covariance), linearised at the fit;
+    shift ``= B delta``.
+Worst direction of a multi-parameter effect
+    over the vertices of its plausible box (each parameter at +- its edge; the maximum of
+    ``|B_i delta|`` over a box is at a vertex). Each vertex is scaled down to the largest size
+    the test would miss (power 0.8) when the full vertex would be detected; the parameter's
+    shift is the largest over the vertices so scaled. The effect's power is that of its least
+    detectable vertex, and its threshold is stated along that vertex (as a fraction of the
+    plausible edge, or in the parameter's unit for a one-parameter effect).
+Systematic risk
+    an effect whose largest *undetectable* shift of a parameter exceeds that parameter's
+    statistical 1-sigma: the data would not show it, yet it would move the estimate by more
+    than the estimate's own error. ``systematic`` (per parameter, its unit) is the largest such
+    shift over the effects; ``systematic_by`` names each effect's. A parameter without risk
+    has ``systematic`` 0.
+
+Nonlinear parameters of a missing effect (``warmup_tau``) stay at their nominal value; a
+missing effect that acts only in a product with another missing one (``mount_xi`` without
+``encoder_harmonic``) and covariate effects (no plausible range) are not assessed, with the
+reason. :func:`effect_power` is the detectability alone, for a candidate plan (the design).
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from .information import weighted_jacobian
+from .model import CATALOGUE, as_model
+from .model.composition import Model
+from .model.effects import effect as make_effect
+from .model.plausible import RANGES
+
+#: default family-wise level of the diagnosis's verdict (:data:`hse_opt.diagnose.ALPHA`)
+ALPHA = 0.05
+#: an effect is detectable when the diagnosis's test rejects with at least this probability
+#: (the usual 80 % power of experiment design)
+POWER_LIMIT = 0.8
+#: without the diagnosis at hand, the size of its test family (goodness of fit, lack of fit,
+#: about ten factors, run order, every candidate): 20 is typical for a campaign with tilts,
+#: covariates add more; the level is then ``alpha / 20``
+DEFAULT_TESTS = 20
+#: a projected direction (unit columns) shorter than this is in the model's span (the
+#: diagnosis's tolerance, :mod:`hse_opt.diagnose.statistics`)
+_TOL = 1e-6
+
+
+@dataclass(frozen=True, eq=False)
+class EffectRisk:
+    """One missing effect's detectability and alias shifts on one campaign.
+
+    Attributes
+    ----------
+    effect : str
+    parameters : tuple of str
+        The effect's parameters assessed; ``edge`` their plausible edge (display units,
+        ``units``).
+    edge : tuple of float
+    units : tuple of str
+    assessed : bool
+        False when the effect could not be assessed (``reason`` says why).
+    reason : str
+    power : float
+        Power of the diagnosis's test against the effect at the edge of its plausible range
+        (its least detectable vertex); 0 when the runs cannot test it at all.
+    threshold : float
+        The fraction of the plausible edge (along that vertex) below which the test misses the
+        effect (power < :data:`POWER_LIMIT`); ``inf`` when no size is detectable here.
+    shift : numpy.ndarray, shape (n_p,)
+        Largest undetectable shift of every parameter of the fit (display units; 0 for fixed
+        parameters), as the module docstring defines it.
+    full_shift : numpy.ndarray, shape (n_p,)
+        Largest shift at the plausible edge, detectable or not.
+    dof : tuple of int
+        The test's degrees of freedom (q, dof).
+    level : float
+        The test's level.
+    """
+
+    effect: str
+    parameters: tuple
+    edge: tuple
+    units: tuple
+    assessed: bool
+    reason: str = ""
+    power: float = 0.0
+    threshold: float = math.inf
+    shift: np.ndarray = None
+    full_shift: np.ndarray = None
+    dof: tuple = ()
+    level: float = 0.0
+
+    @property
+    def detectable(self):
+        """Whether the test has power >= :data:`POWER_LIMIT` at the plausible edge."""
+        return self.assessed and self.power >= POWER_LIMIT
+
+    def threshold_text(self):
+        """``'undetectable here below 340 us'`` (or the fraction of the plausible edge)."""
+        if not self.assessed:
+            return f"not assessed ({self.reason})"
+        if not math.isfinite(self.threshold):
+            return "undetectable here at any size"
+        if self.threshold >= 1.0:
+            what = ", ".join(f"{p} {e:g} {u}" for p, e, u in zip(self.parameters, self.edge, self.units))
+            return f"undetectable here within its plausible range ({what})"
+        if len(self.parameters) == 1:
+            return (f"undetectable here below {self.threshold * self.edge[0]:.3g} {self.units[0]} "
+                    f"({self.parameters[0]})")
+        what = ", ".join(f"{p} {e:g}" for p, e in zip(self.parameters, self.edge))
+        return (f"undetectable here below {self.threshold:.2g} of its plausible size ({what} "
+                f"{self.units[0] if len(set(self.units)) == 1 else ''})").replace(" )", ")")
+
+    def to_dict(self, names=None):
+        d = {"effect": self.effect, "parameters": list(self.parameters), "edge": list(self.edge),
+             "units": list(self.units), "assessed": self.assessed, "reason": self.reason,
+             "power": float(self.power), "detectable": self.detectable,
+             "threshold_fraction": float(self.threshold) if math.isfinite(self.threshold) else None,
+             "threshold": self.threshold_text(), "level": float(self.level), "dof": list(self.dof)}
+        if names is not None and self.shift is not None:
+            d["shift"] = {n: float(s) for n, s in zip(names, self.shift)}
+            d["full_shift"] = {n: float(s) for n, s in zip(names, self.full_shift)}
+        return d
+
+
+@dataclass(frozen=True, eq=False)
+class AliasBudget:
+    """The alias budget of a fit (module docstring).
+
+    Attributes
+    ----------
+    names, units : tuple of str
+        The fit's parameters (every one, fixed included).
+    std : numpy.ndarray, shape (n_p,)
+        Their statistical 1-sigma (display units).
+    effects : tuple of EffectRisk
+    systematic : numpy.ndarray, shape (n_p,)
+        Per parameter the largest undetectable shift that exceeds its sigma (0 when none).
+    systematic_by : tuple of dict
+        Per parameter ``{effect: shift}`` of the effects that are risks to it.
+    alpha, level, power_limit : float
+        Family-wise alpha, the test's level (``alpha / m``) and the power limit.
+    """
+
+    names: tuple
+    units: tuple
+    std: np.ndarray
+    effects: tuple
+    systematic: np.ndarray
+    systematic_by: tuple
+    alpha: float
+    level: float
+    power_limit: float = POWER_LIMIT
+
+    @property
+    def risks(self):
+        """The effects that are a systematic risk to at least one parameter, worst first."""
+        worst = {}
+        for by in self.systematic_by:
+            for e, s in by.items():
+                worst[e] = max(worst.get(e, 0.0), s)
+        order = sorted(worst, key=lambda e: -max(self._ratio(e)))
+        return tuple(r for name in order for r in self.effects if r.effect == name)
+
+    def _ratio(self, effect):
+        return [s / sd for by, sd in zip(self.systematic_by, self.std) for e, s in by.items()
+                if e == effect and sd > 0] or [0.0]
+
+    def effect(self, name):
+        for r in self.effects:
+            if r.effect == name:
+                return r
+        raise ValueError(f"{name!r} was not assessed; assessed: {', '.join(r.effect for r in self.effects)}")
+
+    def sentences(self, values=None):
+        """Lines a user reads: per parameter at risk, its value (``values``: display units, in
+        ``names`` order) with the statistical sigma and each effect that could move it."""
+        out = []
+        for i, (name, unit, sd, by) in enumerate(zip(self.names, self.units, self.std, self.systematic_by)):
+            if not by:
+                continue
+            head = f"{name} = {values[i]:.4g} +- {sd:.2g} {unit} statistical" if values is not None \
+                else f"{name} (+- {sd:.2g} {unit} statistical)"
+            parts = [f"{e}, {self.effect(e).threshold_text()}, could move it by up to {s:.2g} {unit}"
+                     for e, s in sorted(by.items(), key=lambda kv: -kv[1])]
+            out.append(f"{head}; " + "; ".join(parts))
+        return out
+
+    def to_dict(self):
+        return {"alpha": self.alpha, "level": self.level, "power_limit": self.power_limit,
+                "effects": [r.to_dict(self.names) for r in self.effects],
+                "risks": [r.effect for r in self.risks]}
+
+
+def _vertices(edge):
+    """The plausible box's vertices up to sign (q, 2^(q-1)): each parameter at +- its edge."""
+    q = len(edge)
+    signs = np.array(np.meshgrid(*([[1.0, -1.0]] * q), indexing="ij")).reshape(q, -1)
+    signs = signs[:, signs[0] > 0] if q else signs
+    return np.asarray(edge, float)[:, None] * signs
+
+
+def _test_power(lam, q, dof, level):
+    """Power of the F(q, dof) test at ``level`` for noncentralities ``lam`` (array), and the
+    noncentrality at which it is :data:`POWER_LIMIT` (``inf`` when no test is possible)."""
+    from scipy import optimize, stats
+
+    lam = np.asarray(lam, float)
+    if q < 1 or dof < 1:
+        return np.zeros_like(lam), math.inf
+    crit = stats.f.isf(level, q, dof)
+    power = stats.ncf.sf(crit, q, dof, lam)
+    power = np.where(lam > 0, power, level)
+
+    def gap(x):
+        return float(stats.ncf.sf(crit, q, dof, x)) - POWER_LIMIT
+
+    hi = 10.0
+    while gap(hi) < 0:
+        hi *= 4.0
+    return power, float(optimize.brentq(gap, 0.0, hi, xtol=1e-10, rtol=1e-10))
+
+
+class _Campaign:
+    """The weighted matrices of one campaign: the model's columns (free parameters and the
+    unsurveyed positions' constants), orthonormal basis of their span."""
+
+    def __init__(self, A_model, G):
+        self.A = np.asarray(A_model, float)
+        self.G = np.zeros((self.A.shape[0], 0)) if G is None else np.asarray(G, float)
+        M = np.column_stack([self.A, self.G])
+        d = np.linalg.norm(M, axis=0)
+        self.Q, _ = np.linalg.qr(M / np.where(d > 0, d, 1.0)) if M.shape[1] else (np.zeros((M.shape[0], 0)), None)
+        if self.G.shape[1]:
+            Gq, _ = np.linalg.qr(self.G)
+            self.within = lambda Z: Z - Gq @ (Gq.T @ Z)
+        else:
+            self.within = lambda Z: Z
+
+    def residual(self, Z):
+        """The part of Z (n, q) orthogonal to the model's span (twice: Kahan-Parlett) and its rank."""
+        R = Z
+        for _ in range(2):
+            R = R - self.Q @ (self.Q.T @ R)
+        d = np.linalg.norm(Z, axis=0)
+        if not R.shape[1] or not np.any(d > 0):
+            return R, 0
+        s = np.linalg.svd(R[:, d > 0] / d[d > 0], compute_uv=False)
+        return R, int(np.sum(s > _TOL))
+
+
+def _assess(camp, A_E, V, dof_fit, level, alias=None):
+    """(power at the edge, threshold fraction, undetectable shifts (k,), edge shifts (k,), q).
+
+    ``A_E`` (n, q) weighted effect columns, ``V`` (q, m) the sizes to assess (the plausible
+    box's vertices, :func:`_vertices`), ``dof_fit`` the fit's residual degrees of freedom,
+    ``alias(A_E) -> B`` (k, q) or None for no shifts."""
+    R, q = camp.residual(A_E)
+    lam = np.sum((R @ V) ** 2, axis=0)
+    power, lam80 = _test_power(lam, q, dof_fit - q, level)
+    with np.errstate(divide="ignore"):
+        reach = np.where(lam > 0, np.sqrt(lam80 / np.where(lam > 0, lam, 1.0)), math.inf)
+    scale = np.minimum(1.0, reach)  # each vertex scaled to the largest size the test misses
+    least = int(np.argmin(power))
+    shift = full = None
+    if alias is not None:
+        BV = np.abs(alias(A_E) @ V)
+        shift, full = (BV * scale[None, :]).max(axis=1), BV.max(axis=1)
+    return float(power[least]), float(reach[least]), shift, full, q
+
+
+def alias_budget(fit_result, runs, effects=None, *, alpha=ALPHA, level=None, tests=None, jit=None):
+    """The alias budget of ``fit_result`` on ``runs`` (module docstring).
+
+    Parameters
+    ----------
+    fit_result : hse_opt.fit.FitResult
+        A fit of ``runs``.
+    runs : hse_opt.data.Runs
+        The runs it was fitted to.
+    effects : sequence of str, optional
+        Catalogue effects to assess (default: every catalogue effect not in the model).
+    alpha : float
+        Family-wise level of the diagnosis's verdict.
+    level : float, optional
+        The level of each test (default ``alpha / tests``).
+    tests : int, optional
+        The size of the diagnosis's test family (default :data:`DEFAULT_TESTS`); the
+        diagnosis passes its own.
+    jit : bool, optional
+        Passed to the model's Jacobian.
+
+    Returns
+    -------
+    AliasBudget
+        Systematic per parameter in the parameter's display unit.
+    """
+    f = fit_result
+    level = alpha / (tests or DEFAULT_TESTS) if level is None else float(level)
+    if not 0.0 < level < 1.0:
+        raise ValueError(f"level {level!r}; allowed: a significance level in (0, 1)")
+    names = list(f.names)
+    have = set(f.model.effect_names)
+    wanted = [e for e in CATALOGUE if e not in have] if effects is None else list(effects)
+    out, extra = [], []
+    for name in wanted:
+        eff = make_effect(name)
+        params = [q for q in eff.params if q.name not in eff.nonlinear]
+        missing = [n for n in eff.needs if n not in have]
+        no_range = [q.name for q in params if q.name not in RANGES]
+        if name in have:
+            raise ValueError(f"effect {name!r} is already in the model ({', '.join(sorted(have))})")
+        if missing or no_range:
+            why = (f"it acts only in a product with {', '.join(missing)}, which the model lacks" if missing
+                   else f"no plausible range for {', '.join(no_range)}")
+            out.append(EffectRisk(name, tuple(q.name for q in params), (), tuple(q.unit for q in params),
+                                  False, why))
+            continue
+        extra.append(eff)
+    n_p = len(names)
+    zeros = np.zeros(n_p)
+    std = np.asarray(f.std, float)
+    if extra:
+        model = Model(f.model.effects + tuple(extra), f.model.geometry)
+        mm = model.measurement(f.tilt_known)
+        X = mm.inputs_from_runs(runs)
+        p = mm.nominal.copy()
+        for n, v in zip(f.names, f.p):
+            if n in mm.names:
+                p[mm.parameter_index(n)] = v
+        A_all = weighted_jacobian(mm.jacobian(p, X, jit), f.sigma, mm.scale)
+        free = np.asarray(f.free, bool)
+        cols = [mm.parameter_index(n) for n in np.array(names)[free]]
+        group, positions = runs.reference_groups()
+        G = ((group[:, None] == np.arange(len(positions))[None, :]) / np.asarray(f.sigma)[:, None]
+             if positions else None)
+        camp = _Campaign(A_all[:, cols], G)
+        A_M = camp.within(camp.A)
+        cov = np.asarray(f.covariance, float)[np.ix_(free, free)]
+
+        def alias(A_E):
+            B = np.zeros((n_p, A_E.shape[1]))
+            B[free] = cov @ (A_M.T @ camp.within(A_E))
+            return B
+
+        for eff in extra:
+            params = [q for q in eff.params if q.name not in eff.nonlinear]
+            tilted = [n for n in mm.names if any(n.startswith(q.name + "*") for q in params)]
+            if tilted:
+                out.append(EffectRisk(eff.name, tuple(q.name for q in params), (), tuple(q.unit for q in params),
+                                      False, "it acts through the tilt, which these runs do not carry "
+                                      f"({', '.join(tilted)}): its size here depends on the unknown tilt"))
+                continue
+            idx = [mm.parameter_index(q.name) for q in params]
+            edge = tuple(max(abs(RANGES[q.name][0]), abs(RANGES[q.name][1])) for q in params)
+            power, thr, shift, full, q = _assess(camp, A_all[:, idx], _vertices(edge), int(f.dof), level,
+                                                  alias)
+            out.append(EffectRisk(eff.name, tuple(q_.name for q_ in params), edge,
+                                  tuple(q_.unit for q_ in params), True, "", power, thr, shift, full,
+                                  (q, int(f.dof) - q), level))
+    out = [r if r.assessed else _blank(r, n_p, level) for r in out]
+    out.sort(key=lambda r: (not r.assessed, wanted.index(r.effect)))
+    systematic = zeros.copy()
+    by = [dict() for _ in names]
+    for r in out:
+        if not r.assessed:
+            continue
+        risky = (r.shift > std) & (std > 0)
+        for i in np.flatnonzero(risky):
+            by[i][r.effect] = float(r.shift[i])
+            systematic[i] = max(systematic[i], float(r.shift[i]))
+    return AliasBudget(tuple(names), tuple(f.units), std, tuple(out), systematic, tuple(by), alpha, level)
+
+
+def _blank(r, n_p, level):
+    from dataclasses import replace
+    return replace(r, shift=np.zeros(n_p), full_shift=np.zeros(n_p), level=level)
+
+
+def effect_power(model, X, effect, size=1.0, *, sigma, p=None, tilt_known=True, positions=None,
+                 alpha=ALPHA, level=None, tests=None, dof=None, jit=None):
+    """Power of the diagnosis's test against a catalogue ``effect`` missing from ``model`` on
+    the runs ``X`` (a candidate plan), as :func:`alias_budget` defines it.
+
+    Parameters
+    ----------
+    model : Model, str or sequence of str
+        The model that would be fitted (``effect`` must not be in it).
+    X : numpy.ndarray, shape (n_x, n), or hse_opt.data.Runs
+        The runs' measurement-model inputs (``model.measurement(tilt_known).inputs(...)``,
+        SI; a run repeated k times appears k times), or runs.
+    effect : str
+        A catalogue effect name.
+    size : float or mapping name -> value
+        The effect's size: a fraction of its plausible edge (1: the edge,
+        :data:`hse_opt.model.plausible.RANGES`; the least detectable vertex of the box), or
+        its parameters' values in their display units (one direction).
+    sigma : float or array_like, shape (n,)
+        Heading 1-sigma of each run, rad (e.g. :func:`hse_opt.information.heading_sigma`).
+    p : mapping name -> value (display unit), optional
+        The model's parameter values where the test is linearised (default nominal).
+    tilt_known : bool
+        Whether the runs carry pitch/roll.
+    positions : array_like of int, shape (n,), optional
+        For a field plan: each run's position without a heading reference (0 .. P-1), -1 for a
+        surveyed run; each position's unknown constant is part of the model.
+    alpha, level, tests
+        As :func:`alias_budget`.
+    dof : int, optional
+        Residual degrees of freedom of the fit (default n - free parameters - positions).
+    jit : bool, optional
+
+    Returns
+    -------
+    float
+        The probability that the diagnosis's test rejects (0 .. 1); the test's level itself
+        when the effect has no signature beyond the model here.
+
+    Raises
+    ------
+    ValueError
+        Unknown effect, an effect already in the model or without a plausible range.
+    """
+    base = as_model(model)
+    eff = make_effect(effect)
+    if eff.name in base.effect_names:
+        raise ValueError(f"effect {eff.name!r} is already in the model ({', '.join(base.effect_names)})")
+    params = [q for q in eff.params if q.name not in eff.nonlinear]
+    no_range = [q.name for q in params if q.name not in RANGES]
+    if no_range:
+        raise ValueError(f"effect {eff.name!r}: no plausible range for {', '.join(no_range)}; allowed: "
+                         f"{', '.join(e for e in CATALOGUE if all(q.name in RANGES for q in CATALOGUE[e].params if q.name not in CATALOGUE[e].nonlinear))}")
+    level = alpha / (tests or DEFAULT_TESTS) if level is None else float(level)
+    mm = Model(base.effects + (eff,), base.geometry).measurement(tilt_known)
+    if not isinstance(X, np.ndarray):
+        X = mm.inputs_from_runs(X)
+    n = X.shape[1]
+    sig = np.broadcast_to(np.asarray(sigma, float), (n,))
+    p_si = mm.vector({k: v for k, v in (p or {}).items()})
+    A_all = weighted_jacobian(mm.jacobian(p_si, X, jit), sig, mm.scale)
+    mine = {q.name for q in eff.params}
+    cols = [i for i, nm in enumerate(mm.names) if nm.split("*")[0] not in mine and nm not in mm.nonlinear]
+    G = None
+    n_pos = 0
+    if positions is not None:
+        pos = np.asarray(positions, int)
+        n_pos = int(pos.max()) + 1 if pos.size and pos.max() >= 0 else 0
+        if n_pos:
+            G = (pos[:, None] == np.arange(n_pos)[None, :]) / sig[:, None]
+    camp = _Campaign(A_all[:, cols], G)
+    idx = [mm.parameter_index(q.name) for q in params]
+    edge = np.array([max(abs(RANGES[q.name][0]), abs(RANGES[q.name][1])) for q in params])
+    if isinstance(size, dict):
+        unknown = sorted(set(size) - {q.name for q in params})
+        if unknown:
+            raise ValueError(f"size names {unknown}; allowed: {', '.join(q.name for q in params)}")
+        V = np.array([[float(size.get(q.name, 0.0))] for q in params])
+    else:
+        V = _vertices(float(size) * edge)
+    k = camp.Q.shape[1]
+    dof_fit = n - k if dof is None else int(dof)
+    power, _, _, _, _ = _assess(camp, A_all[:, idx], V, dof_fit, level)
+    return power
+
+
+def describe(budget, values=None):
+    """The budget in words for a fit's text output: the sentences of
+    :meth:`AliasBudget.sentences`, or one line saying that no effect is a risk."""
+    lines = budget.sentences(values)
+    if lines:
+        return lines
+    undetectable = [r.effect for r in budget.effects if r.assessed and not r.detectable]
+    if undetectable:
+        return [f"no systematic risk: {', '.join(undetectable)} would go undetected here, but move no "
+                "parameter by more than its 1-sigma"]
+    return ["no systematic risk: every assessed effect would be detected at its plausible size"]
+
+
+__all__ = ["ALPHA", "AliasBudget", "DEFAULT_TESTS", "EffectRisk", "POWER_LIMIT", "alias_budget", "describe",
+           "effect_power"]
