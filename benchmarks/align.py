@@ -21,7 +21,8 @@ import time
 
 import numpy as np
 
-from hse_opt.sim import AlignConfig, RunSpec, TruthConfig, align, generate, load_rawlog, save_rawlog
+from hse_opt.sim import (AlignConfig, RunSpec, TruthConfig, align, align_config_from_truth, generate, load_rawlog,
+                         save_rawlog)
 from hse_opt.units import DEG_PER_S
 
 
@@ -29,7 +30,7 @@ def one_log(repeats, path):
     truth = TruthConfig.default()
     log = generate(truth, RunSpec(rate=40 * DEG_PER_S, azimuth=0.3, duration=600.0, t_start=7200.0),
                    np.random.default_rng(0))
-    cfg = AlignConfig.from_truth(truth)
+    cfg = align_config_from_truth(truth)
     align(log, cfg)                                   # warm-up
     ta = []
     for _ in range(repeats):

@@ -23,7 +23,8 @@ import tracemalloc
 
 import numpy as np
 
-from hse_opt.sim import AlignConfig, RunSpec, TruthConfig, align, generate, run_campaign
+from hse_opt.sim import (AlignConfig, RunSpec, TruthConfig, align, align_config_from_truth, generate,
+                         run_campaign)
 from hse_opt.units import DEG_PER_S
 
 
@@ -34,7 +35,7 @@ def _rss_mb():
 def one_run(repeats):
     truth = TruthConfig.default()
     run = RunSpec(rate=40 * DEG_PER_S, azimuth=0.3, duration=600.0, t_start=7200.0)
-    cfg = AlignConfig.from_truth(truth)
+    cfg = align_config_from_truth(truth)
     rng = np.random.default_rng(0)
     rss_before = _rss_mb()
     log = generate(truth, run, rng)                       # warm-up (imports, caches)
@@ -76,7 +77,7 @@ def short_runs(repeats):
     thing in the process: their working arrays are allocated and freed on every run, so this
     is where fresh memory pages would cost (see ``hse_opt.sim.imu._Workspace``)."""
     truth = TruthConfig.default()
-    cfg = AlignConfig.from_truth(truth)
+    cfg = align_config_from_truth(truth)
     rng = np.random.default_rng(0)
     run = RunSpec(rate=40 * DEG_PER_S, azimuth=0.3, duration=60.0, t_start=7200.0)
     align(generate(truth, run, rng), cfg)
@@ -104,7 +105,7 @@ def floor_ratio(repeats):
     (float64, numpy's ziggurat) in CPU time of this process, and the ratio is taken pair by
     pair (a drifting or shared machine moves both)."""
     truth = TruthConfig.default()
-    cfg = AlignConfig.from_truth(truth)
+    cfg = align_config_from_truth(truth)
     rng = np.random.default_rng(0)
     print("generate + align / float64 noise-draw floor (median of per-repeat ratios [min]):")
     for duration, target, reps in ((600.0, 1.5, repeats), (60.0, 2.0, 10 * repeats)):

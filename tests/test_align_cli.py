@@ -14,7 +14,7 @@ from hse_opt import units
 from hse_opt.cli import main
 from hse_opt.data import load_runs
 from hse_opt.sim import RunSpec, TruthConfig, generate, load_rawlog, save_rawlog, true_attitude
-from hse_opt.sim.rawlog import check_rawlog
+from hse_opt.align.rawlog import check_rawlog
 
 TRUTH = TruthConfig.default()
 RUNS_SPEC = [  # (rate deg/s, stand azimuth deg, position, surveyed)

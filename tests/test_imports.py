@@ -32,6 +32,18 @@ def test_simulator_loads_neither_casadi_nor_cvxpy_nor_the_model():
     assert _roots(mods) == set(), sorted(mods)
 
 
+def test_data_path_loads_neither_the_simulator_nor_the_model():
+    """hse_opt.align (raw logs, the processor) stands below the simulator: importing and using it
+    loads no heavy module and no part of hse_opt.sim."""
+    code = "import hse_opt.align; from hse_opt.align import align, align_logs, load_rawlog"
+    mods = _loaded(code)
+    assert _roots(mods) == set(), sorted(mods)
+    probe = f"{code}\nimport sys; print(sorted(m for m in sys.modules if m.startswith('hse_opt.sim')))"
+    out = subprocess.run([sys.executable, "-c", probe], env={**os.environ, "PYTHONPATH": str(ROOT)},
+                         capture_output=True, text=True, check=True, cwd=ROOT).stdout
+    assert out.strip() == "[]", out
+
+
 @pytest.mark.parametrize("code", ["import hse_opt", "import hse_opt.cli; hse_opt.cli.build_parser()",
                                   "import hse_opt.data, hse_opt.units"])
 def test_package_and_command_line_load_nothing_heavy(code):

@@ -11,10 +11,10 @@ import numpy as np
 import pytest
 
 from hse_opt.frames import c_b_s, dcm_zyx, earth_rate_n, rot_z, skew
-from hse_opt.sim.align import AlignConfig, align
-from hse_opt.sim.campaign import default_align_config, simulate_alignment, simulate_heading_error
+from hse_opt.align import AlignConfig, align
+from hse_opt.sim.campaign import align_config_from_truth, default_align_config, simulate_alignment, simulate_heading_error
 from hse_opt.sim.imu import generate
-from hse_opt.sim.rawlog import RawLog, load_rawlog, save_rawlog
+from hse_opt.align.rawlog import RawLog, load_rawlog, save_rawlog
 from hse_opt.sim.truth import RunSpec, TruthConfig
 
 ARCSEC = math.pi / 180 / 3600
@@ -172,7 +172,7 @@ def test_raw_log_file_round_trip_aligns_the_same(tmp_path):
     run = RunSpec(rate=40 * DPS, azimuth=0.2, duration=60.0, t_start=4000.0)
     log = generate(t, run, np.random.default_rng(4))
     save_rawlog(log, tmp_path / "run.npz")
-    cfg = AlignConfig.from_truth(t)
+    cfg = align_config_from_truth(t)
     a, b = align(log, cfg), align(load_rawlog(tmp_path / "run.npz"), cfg)
     assert a.heading == b.heading and a.heading_std == b.heading_std
     assert len(a.history.t) == len(a.history.heading) > 50
@@ -227,11 +227,11 @@ def test_filter_matches_a_long_double_textbook_filter(monkeypatch):
     update) gives the attitude and 1-sigma of the same filter run in long double (the short
     form P - P H^T S^-1 H P was 1.4e-3 arcsec off in heading here)."""
     truth = TruthConfig.default().noise_free()
-    cfg = AlignConfig.from_truth(truth)
+    cfg = align_config_from_truth(truth)
     log = generate(truth, RunSpec(rate=40 * DPS, azimuth=0.3, duration=120.0, t_start=600.0),
                    np.random.default_rng(5))
     res = align(log, cfg)
-    monkeypatch.setattr(importlib.import_module("hse_opt.sim.align"), "_kalman",
+    monkeypatch.setattr(importlib.import_module("hse_opt.align.processor"), "_kalman",
                         _textbook_kalman_longdouble)
     ref = align(log, cfg)
     assert res.n_revolutions == ref.n_revolutions >= 10

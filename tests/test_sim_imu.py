@@ -259,7 +259,7 @@ def test_table_jitter_is_seen_by_gyros_and_encoder_alike():
     """A system whose only imperfection is the table's servo jitter (here 5 arcsec) aligns
     exactly: the gyros and the encoder see the same jittered angle."""
     from hse_opt.sim.campaign import default_align_config
-    from hse_opt.sim.align import align
+    from hse_opt.align import align
     t = TruthConfig.ideal().updated({"table": {"jitter_arcsec": 5.0}})
     run = RunSpec(rate=-0.7, azimuth=1.0, duration=120.0, tilt=(300 * ARCSEC, -200 * ARCSEC))
     log = generate(t, run, np.random.default_rng(1))
@@ -276,7 +276,7 @@ def test_pulse_quantization_locks_without_jitter_and_is_white_with_it(rate_dps):
     (gyro 3 counts 332.2497 pulses per sample, next to a quarter) the heading error is a bias
     of tens of arcsec. With the
     default 0.5 arcsec jitter the remainders are dithered and the error is white: its scatter
-    over seeds is the random walk q |Omega| sqrt(dt/12) of hse_opt.sim.align.quantization_arw
+    over seeds is the random walk q |Omega| sqrt(dt/12) of hse_opt.align.quantization_arw
     through the gyrocompass, N / (w_ie cos L sqrt(T)) (formula written out here)."""
     from hse_opt.sim.campaign import default_align_config, simulate_alignment
     base = TruthConfig.default().updated({"mount": {"warmup_xi_z_arcsec": 0.0},

@@ -2,7 +2,7 @@
 import numpy as np
 import pytest
 
-from hse_opt.sim.rawlog import RawLog, load_rawlog, save_rawlog
+from hse_opt.align.rawlog import RawLog, load_rawlog, save_rawlog
 
 
 def _arrays(n=2000, dt=0.002, rate=0.7):

@@ -1,9 +1,9 @@
-"""The simulator's own rotations (hse_opt.sim.rotations) against scipy.spatial.transform and
+"""The simulator's own rotations (hse_opt.align.rotations) against scipy.spatial.transform and
 against the definitions (orthonormal frames, the axis they are built from)."""
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from hse_opt.sim import rotations as r
+from hse_opt.align import rotations as r
 
 
 def test_euler_and_axis_rotations_match_scipy(rng):

@@ -8,7 +8,7 @@ from .outputs import FILE
 NAME = "align"
 HELP = "align raw logs (gyro/accelerometer/encoder records) into RUNS.csv, one row per log"
 DESCRIPTION = (
-    "Run each raw log (the formats of hse_opt/sim/rawlog.py: .npz, .csv with increments in "
+    "Run each raw log (the formats of hse_opt/align/rawlog.py: .npz, .csv with increments in "
     "rad and m/s, or .csv with pulse counts and the pulse weights in its .json sidecar) "
     "through the alignment processor (coarse TRIAD, Kalman filter, whole-revolution "
     "smoothing) with the system's lab calibration, and write one RUNS.csv row per log: the "
@@ -66,7 +66,8 @@ def run(args):
     from .. import units
     from ..data import save_runs
     from ..sim import TruthConfig
-    from ..sim.campaign import align_logs, default_align_config, runs_from_rows
+    from ..align.batch import align_logs, runs_from_rows
+    from ..sim.campaign import default_align_config
 
     if args.jobs < 1:
         raise ValueError(f"--jobs {args.jobs}: allowed: an integer >= 1")

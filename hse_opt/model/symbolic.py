@@ -311,7 +311,7 @@ def encoder_projection(op, errors, alpha):
 def alignment_rates_b0(op, errors, geometry=Geometry(), form="exact"):
     """The revolution-averaged rate in b0 as the alignment processor splits it.
 
-    The alignment processor (``hse-opt align``, :mod:`hse_opt.sim.align`: simulated and real
+    The alignment processor (``hse-opt align``, :mod:`hse_opt.align.processor`: simulated and real
     logs) levels and gyrocompasses (TRIAD) on the mean rate with the parts fixed in the table
     top fitted out: a vector ``v`` fixed in b reaches b0 as ``g(alpha) v``, ``g`` the turn by
     the *encoder* angle (complex form, horizontal), and the horizontal mean is fitted as

@@ -19,10 +19,8 @@ import math
 
 import numpy as np
 
-#: largest deviation from the linear phase handled by the series, rad (error d^5/120 < 1e-17)
-MAX_DEVIATION = 1e-3
-#: below this deviation, rad, the series of cos d stops at d^2 (the next term d^4/24 < 7e-17)
-SMALL_DEVIATION = 2e-4
+from hse_opt.align._angles import MAX_DEVIATION, SMALL_DEVIATION, rotate
+
 
 
 #: entries of a table computed directly; the rest follow by doubling
@@ -98,20 +96,6 @@ def rotate_small(c, s, d, out, work, dmax):
     sd += 1.0
     sd *= d
     return rotate(c, s, cd, sd, out, tmp)
-
-
-def rotate(c, s, cd, sd, out, tmp):
-    """``(cos, sin)`` of ``phase + d`` written into ``out`` (2, ...) from those of ``phase``
-    (``c``, ``s``) and of ``d`` (``cd``, ``sd``), by the angle-addition formulas; ``tmp`` is
-    scratch of their shape."""
-    cn, sn = out[0], out[1]
-    np.multiply(s, sd, out=tmp)
-    np.multiply(c, cd, out=cn)
-    cn -= tmp
-    np.multiply(c, sd, out=tmp)
-    np.multiply(s, cd, out=sn)
-    sn += tmp
-    return cn, sn
 
 
 def cos_sin_linear(phi0, dphi, n):

@@ -40,10 +40,10 @@ import types
 import numpy as np
 
 from hse_opt import units
-from hse_opt.sim.rotations import dcm_to_zyx, earth_rate_n, rot_x, rot_y, rot_z, rotvec_to_dcm
+from hse_opt.align.rotations import dcm_to_zyx, earth_rate_n, rot_x, rot_y, rot_z, rotvec_to_dcm
 from hse_opt.sim._fastmath import (MAX_DEVIATION, PhaseTable, box_muller_f32, exp_linear,
                                    rotate_small, splits_words, uniform_bits)
-from hse_opt.sim.rawlog import RawLog
+from hse_opt.align.rawlog import RawLog
 from hse_opt.sim.truth import RunSpec, gyro_matrices, per_configuration, temperature, validate_run
 
 __all__ = ["generate", "true_attitude", "table_angle", "stand_azimuth_true"]

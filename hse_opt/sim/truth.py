@@ -83,7 +83,7 @@ Chosen to resemble the paper's prototype and Table 1 (``paper_table1.csv``):
   (it limits how well the filter sees the tilt drift: 10 ug/sqrt(Hz) would add 50 %), so
   the default accelerometer is quiet, 1 ug/sqrt(Hz), with 1e-4 m/s velocity pulses.
   RLG pulses add a random walk of their own, ``q |Omega| sqrt(dt / 12)``
-  (:func:`hse_opt.sim.align.quantization_arw`), once the table jitter dithers the counters;
+  (:func:`hse_opt.align.quantization_arw`), once the table jitter dithers the counters;
   without it, at rates where a gyro's pulses per sample sit close to a simple fraction, the
   counter's remainder locks to the table angle and biases the heading (tens of arcsec at
   -40 deg/s for 0.5 arcsec pulses, ``tests/test_sim_imu.py``). The default readout
@@ -115,7 +115,7 @@ from hse_opt import units
 # implementation each, in hse_opt.data)
 from hse_opt.data import atomic_path
 from hse_opt.data.decimals import _to_si, _to_text
-from hse_opt.sim.rotations import R_ZB_S_IDEAL, c_b_s, skew
+from hse_opt.align.rotations import R_ZB_S_IDEAL, c_b_s, skew
 
 if sys.version_info >= (3, 11):
     import tomllib
@@ -758,7 +758,7 @@ def validate_run(truth, run, mats=None):
             raise RunError(name, f"{name} = {v!r} is not allowed: a finite number is required")
     mats = gyro_matrices(truth) if mats is None else mats
     proj = np.abs(mats["K_g_inv"] @ mats["C_b_s"][:, 2])      # |cos| between gyro axis and z_b
-    from hse_opt.sim.rotations import EARTH_RATE
+    from hse_opt.align.rotations import EARTH_RATE
     min_rate = (truth.gyro.lockin + EARTH_RATE) / proj.min()
     if not abs(run.rate) > min_rate:
         raise RunError(

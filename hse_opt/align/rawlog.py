@@ -1,6 +1,6 @@
 """Raw logs: the documented format of 500 Hz RLG / accelerometer / encoder records.
 
-A raw log is what the alignment processor (:mod:`hse_opt.sim.align`) reads; simulated runs
+A raw log is what the alignment processor (:mod:`hse_opt.align.processor`) reads; simulated runs
 (:func:`hse_opt.sim.imu.generate`) and real recordings use the same format.
 
 Format

@@ -55,9 +55,9 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from hse_opt import units
-from hse_opt.sim.rotations import dcm_to_zyx, earth_rate_n
-from hse_opt.sim._fastmath import MAX_DEVIATION, SMALL_DEVIATION, rotate
-from hse_opt.sim.rawlog import RawLog
+from hse_opt.align.rotations import dcm_to_zyx, earth_rate_n
+from hse_opt.align._angles import MAX_DEVIATION, SMALL_DEVIATION, rotate
+from hse_opt.align.rawlog import RawLog
 
 __all__ = ["AlignConfig", "AlignResult", "AlignHistory", "align", "triad", "quantization_arw"]
 
@@ -147,18 +147,6 @@ class AlignConfig:
                              "an integer >= 1 is required")
         if self.latitude is not None and not abs(self.latitude) < math.radians(89.0):
             raise ValueError(f"AlignConfig.latitude = {self.latitude!r} rad is not allowed: |latitude| < 89 deg")
-
-    @classmethod
-    def from_truth(cls, truth, **overrides):
-        """The processor of a simulated system: the *calibrated* parameters (K~_g, C~_s^b;
-        accelerometers taken as ideal) and the sensors' specified noise as tuning."""
-        from hse_opt.sim.truth import gyro_matrices
-        mats = gyro_matrices(truth)
-        kw = dict(K_g_cal=mats["K_g_cal"], C_s_b_cal=mats["C_s_b_cal"], A_acc_cal=np.eye(3),
-                  latitude=truth.site.latitude, arw=truth.gyro.arw, vrw=truth.accel.vrw,
-                  gyro_pulse=truth.gyro.pulse, accel_pulse=truth.accel.pulse)
-        kw.update(overrides)
-        return cls(**kw)
 
 
 @dataclass(frozen=True, eq=False)
@@ -608,7 +596,7 @@ def align(log, config=None):
         The table turned less than one revolution, or no latitude is known.
     """
     if not isinstance(log, RawLog):
-        raise ValueError("align: a RawLog is required (see hse_opt.sim.rawlog)")
+        raise ValueError("align: a RawLog is required (see hse_opt.align.rawlog)")
     config = AlignConfig() if config is None else config
     lat = config.latitude
     if lat is None:

@@ -1,0 +1,29 @@
+"""The user's data path: raw logs of a rotating RLG system -> headings (``hse-opt align``).
+
+Real recordings and the simulator's logs go through the same code; the simulator
+(:mod:`hse_opt.sim`) calls this package to process what it generates, and this package
+imports neither the simulator nor the symbolic model (it loads neither CasADi nor cvxpy).
+
+Modules
+-------
+rawlog
+    :class:`RawLog` -- the documented raw-log format (``.npz`` / ``.csv``), load/validate/save.
+processor
+    :func:`align` -- the alignment processor (coarse TRIAD + Kalman filter + whole-revolution
+    smoothing); :class:`AlignConfig` (the lab calibration it applies and its tuning),
+    :class:`AlignResult`.
+batch
+    :func:`align_logs`, :func:`runs_from_rows` -- many logs in parallel into a RUNS table; a
+    bad log is reported and does not stop the others.
+rotations
+    rotation matrices, Euler angles, rotation vectors, Earth rate (numpy only; the simulator
+    uses them too).
+"""
+from hse_opt.align.batch import align_logs, runs_from_rows
+from hse_opt.align.processor import AlignConfig, AlignHistory, AlignResult, align, quantization_arw, triad
+from hse_opt.align.rawlog import RawLog, check_rawlog, load_rawlog, save_rawlog, validate_rawlog
+
+__all__ = [
+    "AlignConfig", "AlignHistory", "AlignResult", "align", "quantization_arw", "triad", "align_logs",
+    "runs_from_rows", "RawLog", "check_rawlog", "load_rawlog", "save_rawlog", "validate_rawlog",
+]

@@ -1,0 +1,174 @@
+"""Raw logs -> RUNS rows (``hse-opt align``): each log through the alignment processor, in
+parallel; a bad log is reported and does not stop the others.
+
+* :func:`align_logs` -- load, check and align logs (local worker processes), one RUNS row
+  per good log and one line per bad one;
+* :func:`runs_from_rows` -- those rows as a :class:`hse_opt.data.Runs`.
+"""
+from __future__ import annotations
+
+import contextlib
+from concurrent.futures import ProcessPoolExecutor, as_completed
+
+import numpy as np
+
+from hse_opt import units
+from hse_opt.align.processor import align
+from hse_opt.align.rawlog import load_rawlog
+from hse_opt.data import DataError, Runs
+
+__all__ = ["align_logs", "runs_from_rows", "single_blas_thread", "LOG_META_COLUMNS"]
+
+#: metadata keys of a raw log that become RUNS.csv columns (file units)
+LOG_META_COLUMNS = ("azimuth_deg", "t_start_s", "temp_c")
+
+
+def single_blas_thread():
+    """A context limiting BLAS to one thread (threadpoolctl, if installed): the workers (of a
+    campaign or a batch of logs) are already parallel, and idle BLAS threads spinning on a
+    shared machine only steal CPU."""
+    try:
+        from threadpoolctl import threadpool_limits
+    except ImportError:  # pragma: no cover - optional
+        return contextlib.nullcontext()
+    return threadpool_limits(limits=1, user_api="blas")
+
+
+def _align_one(path, config):
+    """Worker: load, check and align one raw log; returns ``(path, row, error)``: the RUNS row
+    (column -> value in file units, plus ``run`` and ``position`` from the metadata when given)
+    or the one-line error (the file named)."""
+    from hse_opt.data import DEFAULT_MIN_RATE_DPS
+
+    try:
+        log = load_rawlog(path)
+        res = align(log, config)
+        if abs(res.rate) < DEFAULT_MIN_RATE_DPS * units.DEG_PER_S:
+            raise ValueError(f"the encoder's mean rate is {res.rate / units.DEG_PER_S:.4g} deg/s; allowed: "
+                             f"|rate| >= {DEFAULT_MIN_RATE_DPS:g} deg/s (outside the gyros' lock-in zone)")
+    except ValueError as exc:
+        text = str(exc)
+        return path, None, text if text.startswith(path) else f"{path}: {text}"
+    except OSError as exc:
+        return path, None, f"{path}: cannot read: {exc.strerror or exc}"
+    lat = config.latitude if config.latitude is not None else float(log.meta["latitude_deg"]) * units.DEG
+    row = {"rate_dps": res.rate / units.DEG_PER_S,
+           "heading_deg": float(np.mod(res.heading, 2 * np.pi)) / units.DEG,
+           "latitude_deg": lat / units.DEG, "duration_s": round(len(log) * log.sample_period, 6),
+           "pitch_arcsec": res.pitch / units.ARCSEC, "roll_arcsec": res.roll / units.ARCSEC,
+           "heading_std_arcsec": res.heading_std / units.ARCSEC}
+    for key in ("run", "position", *LOG_META_COLUMNS):
+        if log.meta.get(key) is not None:
+            row[key] = log.meta[key]
+    return path, row, None
+
+
+def _align_chunk(paths, config):
+    """Worker: :func:`_align_one` on each path, BLAS on one thread (the workers are parallel)."""
+    with single_blas_thread():
+        return [_align_one(path, config) for path in paths]
+
+
+def align_logs(paths, config, jobs=1, progress=None):
+    """Align raw logs (:mod:`hse_opt.align.rawlog`), in parallel; a bad log does not stop the others.
+
+    Parameters
+    ----------
+    paths : sequence of str
+        Raw-log files (``.npz``, ``.csv`` in either form).
+    config : AlignConfig
+        The processor: the system's lab calibration and noise; ``latitude`` None takes each
+        log's ``latitude_deg``.
+    jobs : int
+        Local worker processes (1: in this process).
+    progress : callable, optional
+        ``progress(done, total)``, called as logs complete.
+
+    Returns
+    -------
+    rows : list of dict
+        One RUNS row per good log, in the order of ``paths``: ``rate_dps`` (the encoder's mean
+        rate), ``heading_deg``, ``latitude_deg``, ``duration_s`` (samples times the sample
+        period, to the microsecond: the record's length),
+        ``pitch_arcsec``, ``roll_arcsec``, ``heading_std_arcsec`` (the filter's 1-sigma), and
+        from the log's metadata, when present: ``run``, ``position``, ``azimuth_deg``,
+        ``t_start_s``, ``temp_c``. Each row also has ``log`` (its path).
+    errors : list of str
+        One line per bad log (the file and, where it applies, the sample), in path order.
+    """
+    if isinstance(jobs, bool) or not isinstance(jobs, (int, np.integer)) or jobs < 1:
+        raise ValueError(f"jobs = {jobs!r} is not allowed: an integer >= 1 is required")
+    paths = [str(p) for p in paths]
+    done = {}
+
+    def _collect(item):
+        done[item[0]] = item
+        if progress is not None:
+            progress(len(done), len(paths))
+
+    if jobs == 1 or len(paths) <= 1:
+        for path in paths:
+            _collect(_align_one(path, config))
+    else:
+        size = max(1, min(8, len(paths) // (4 * jobs)))
+        with ProcessPoolExecutor(max_workers=jobs) as pool:
+            futures = [pool.submit(_align_chunk, paths[i:i + size], config)
+                       for i in range(0, len(paths), size)]
+            for fut in as_completed(futures):
+                for item in fut.result():
+                    _collect(item)
+    rows, errors = [], []
+    for path in paths:
+        _, row, err = done[path]
+        if err is None:
+            rows.append({**row, "log": path})
+        else:
+            errors.append(err)
+    return rows, errors
+
+
+def runs_from_rows(rows, source="<aligned logs>"):
+    """A :class:`hse_opt.data.Runs` from :func:`align_logs` rows.
+
+    Rows are ordered by ``t_start_s`` when every log gives it (else as given); ``run`` is
+    the logs' own id when every log gives one, else 1, 2, ... in that order. Metadata that
+    only some logs give is an error naming the first log without it (``position``), or is
+    left out (``t_start_s``, ``temp_c``: the returned notes say so). A log without
+    ``azimuth_deg`` has no heading reference (an unsurveyed position: RUNS.csv keeps its
+    ``heading_deg`` and leaves ``azimuth_deg`` empty).
+
+    Returns
+    -------
+    runs : hse_opt.data.Runs
+    notes : list of str
+    """
+    notes = []
+    rows = list(rows)
+    if all("t_start_s" in r for r in rows):
+        rows.sort(key=lambda r: float(r["t_start_s"]))
+    ids = [r.get("run") for r in rows]
+    if not (all(isinstance(i, (int, np.integer)) and not isinstance(i, bool) for i in ids)
+            and len(set(ids)) == len(ids)):
+        if any(i is not None for i in ids):
+            notes.append("not every log has a unique integer 'run' in its metadata: runs numbered 1, 2, ...")
+        ids = list(range(1, len(rows) + 1))
+    columns = {"run": ids}
+    for name in ("rate_dps", "heading_deg", "latitude_deg", "duration_s", "pitch_arcsec", "roll_arcsec",
+                 "heading_std_arcsec"):
+        columns[name] = [r[name] for r in rows]
+    if any("azimuth_deg" in r for r in rows):
+        columns["azimuth_deg"] = [r.get("azimuth_deg") for r in rows]
+    if any("position" in r for r in rows):
+        for r in rows:
+            if "position" not in r:
+                raise DataError(r["log"], "has no 'position' in its metadata while other logs have one; "
+                                          "allowed: a position in every log's metadata or in none")
+        columns["position"] = [str(r["position"]) for r in rows]
+    for name in ("t_start_s", "temp_c"):
+        have = sum(name in r for r in rows)
+        if have == len(rows):
+            columns[name] = [r[name] for r in rows]
+        elif have:
+            notes.append(f"'{name}' left out: only {have} of {len(rows)} logs give it")
+    runs = Runs.from_columns(columns, source=source, min_rate_dps=0.0)
+    return runs, notes
