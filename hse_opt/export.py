@@ -230,15 +230,17 @@ def _c_float(x):
 
 
 def _comment(text):
-    """``text`` safe inside a C comment."""
-    return str(text).replace("*/", "* /")
+    """``text`` safe inside a C block comment: every character but letters, digits, space and
+    ``_.,:;()=+-'"/|<>[]`` becomes ``_`` (no ``*``: no ``*/`` or ``/*``; no backslash-newline
+    splice, no ``??`` trigraph, no control character)."""
+    return re.sub(r"[^A-Za-z0-9 _.,:;()=+\-'\"/|<>\[\]]", "_", str(text))
 
 
 def _header(rows, validity, fit_result, source):
     n = len(rows)
     lines = [
         f"/* {ENTRY_POINT}.h - heading compensation of a rotating RLG system, calibrated by hse_opt",
-        f" * {__version__} from {_comment(source)} (effects: {', '.join(fit_result.model.effect_names)}; "
+        f" * {__version__} from {_comment(source)} (effects: {_comment(', '.join(fit_result.model.effect_names))}; "
         f"tilt {'known' if fit_result.tilt_known else 'unknown'}).",
         " *",
         f" * int {ENTRY_POINT}(const double in[HSE_COMP_N_INPUTS], double *correction_rad, double *sigma_rad);",
@@ -251,7 +253,7 @@ def _header(rows, validity, fit_result, source):
         " * Inputs, SI, in this order (in[HSE_COMP_IN_<NAME>]):",
     ]
     for r in rows:
-        lines.append(f" *   {r['index']}  {r['name']:<10} {r['unit']:<6} {r['description']}")
+        lines.append(f" *   {r['index']}  {_comment(r['name']):<10} {r['unit']:<6} {_comment(r['description'])}")
     lines += [
         " *",
         " * Returns 0 inside the calibration's validity range; otherwise bit k (1 << k) is set for",
@@ -299,12 +301,39 @@ def _header(rows, validity, fit_result, source):
     return "\n".join(lines)
 
 
+_DEFINITION = re.compile(r"^[A-Za-z_][\w \*]*\b\w+\(([^()]*)\)\s*\{\s*$")
+
+
+def _unused_marked(code):
+    """``code`` with ``(void)name;`` as the first statement of every function whose parameter
+    ``name`` its body never uses (CasADi's generated functions take ``iw``, ``w`` and ``mem``
+    whether they need them or not): clean under ``-Wall -Wextra``. A definition is a line at
+    column 0 ending in ``{``; its body runs to the matching ``}``."""
+    lines = code.split("\n")
+    out = []
+    for i, line in enumerate(lines):
+        out.append(line)
+        m = _DEFINITION.match(line)
+        if not m or m.group(1).strip() in ("", "void"):
+            continue
+        depth, j = line.count("{") - line.count("}"), i + 1
+        while depth > 0 and j < len(lines):
+            depth += lines[j].count("{") - lines[j].count("}")
+            j += 1
+        body = "\n".join(lines[i + 1:j])
+        names = [re.findall(r"\w+", part.split("[")[0])[-1] for part in m.group(1).split(",")]
+        unused = [nm for nm in names if not re.search(rf"\b{nm}\b", body)]
+        if unused:
+            out.append("  " + " ".join(f"(void){nm};" for nm in unused))
+    return "\n".join(out)
+
+
 def _source(function, rows, validity, source):
     cg = ca.CodeGenerator(f"{ENTRY_POINT}_model.c",
                           {"with_header": False, "with_export": False, "verbose": False,
                            "casadi_int": "int", "casadi_real": "double"})
     cg.add(function)
-    generated = cg.dump()
+    generated = _unused_marked(cg.dump())
     name = function.name()
     checks = []
     for k, r in enumerate(rows):

@@ -249,3 +249,56 @@ def test_export_needs_the_fit_runs(tmp_path):
     (tmp_path / "OLD.json").write_text(json.dumps(d))
     assert cli(["export", str(tmp_path / "OLD.json"), "-o", str(tmp_path / "nav")]) == 2
     assert not (tmp_path / "nav").exists()
+
+
+#: the strictest flags the issue names, and a caller that includes the header (C99 and C++)
+STRICT = ["-std=c99", "-pedantic", "-Wall", "-Wextra", "-Werror"]
+CALLER = """#include "hse_compensation.h"
+int main(void) {
+  double in[HSE_COMP_N_INPUTS] = {0}, c = 0.0, s = 0.0;
+  return hse_compensation(in, &c, &s) == HSE_COMP_OK ? 0 : 1;
+}
+"""
+
+
+def _compile_strict(nav):
+    """nav/hse_compensation.c and a caller compiled and linked with :data:`STRICT`; the
+    compiler's output on failure."""
+    (nav / "caller.c").write_text(CALLER)
+    done = subprocess.run([COMPILER, *STRICT, "-o", str(nav / "caller"), str(nav / "caller.c"),
+                           str(nav / "hse_compensation.c"), "-lm"], capture_output=True, text=True)
+    assert done.returncode == 0, done.stderr
+    assert not done.stderr  # not even a note
+
+
+@needs_cc
+@pytest.mark.parametrize("effects", [["hse"], ["hse", "warmup", "covariate:temp_c"]])
+def test_generated_code_compiles_clean_under_wextra(tmp_path, rng, effects):
+    """-std=c99 -pedantic -Wall -Wextra -Werror: no warning (CasADi's functions take iw, w
+    and mem whether they use them or not: the generator marks the unused ones)."""
+    _, calibration = _campaign(effects, 40, rng)
+    _export(tmp_path, calibration)
+    src = (tmp_path / "nav" / "hse_compensation.c").read_text()
+    assert "(void)mem;" in src          # the case that warned: the model's release(int mem)
+    _compile_strict(tmp_path / "nav")
+
+
+@needs_cc
+def test_hostile_source_name_stays_in_its_comment(tmp_path, rng):
+    """The source's name (FIT.json's file name from the command line, any string from
+    Python) is the one free text that reaches the C files' comments: one that closes the
+    comment by a backslash-newline splice (``*\\`` newline ``/``) and then holds an ``#error``
+    line compiles clean, and no line of the header or source starts with ``#error``; from the
+    command line too, with a file name holding newlines and ``#error``."""
+    from hse_opt.export import export_calibration
+
+    _, calibration = _campaign(["hse"], 30, rng)
+    export_calibration(calibration, tmp_path / "api", source="x*\\\n/\n#error injected\n/*")
+    name = "x*\\\n#error injected\n.json"
+    save_fit(calibration, tmp_path / name)
+    assert cli(["export", str(tmp_path / name), "-o", str(tmp_path / "nav")]) == 0
+    for nav in ("api", "nav"):
+        for f in ("hse_compensation.h", "hse_compensation.c"):
+            text = (tmp_path / nav / f).read_text()
+            assert not re.search(r"^\s*#\s*error", text, re.M) and "\\\n" not in text
+        _compile_strict(tmp_path / nav)

@@ -34,6 +34,16 @@ def input_checks(args):
     return dict(min_rate_dps=args.min_rate_dps, allow_small_azimuths=args.allow_small_azimuths)
 
 
+def model_option(value, option="--effects"):
+    """The model of an ``--effects`` option (:func:`hse_opt.model.as_model`; ``None`` or empty:
+    the paper's); a bad effect or covariate name raises ValueError naming the option."""
+    from ..model import as_model
+    try:
+        return as_model(value or None)
+    except ValueError as err:
+        raise ValueError(f"{option}: {err}") from None
+
+
 def add_report_argument(parser):
     """The ``--report DIR`` option: an HTML report (``DIR/report.html``) of what the command did."""
     parser.add_argument("--report", metavar="DIR",

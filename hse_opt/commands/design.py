@@ -1,7 +1,8 @@
 """``hse-opt design``: the calibration test plan that calibrates best in the stand time."""
 import numpy as np
 
-from . import add_input_checks, add_report_argument, input_checks, message, print_json, write_report
+from . import (add_input_checks, add_report_argument, input_checks, message, model_option, print_json,
+               write_report)
 from .outputs import FILE, REPORT
 
 NAME = "design"
@@ -170,10 +171,9 @@ def run(args):
     from ..design.evaluation import sacrificed
     from ..design.space import SAMPLE_PERIOD
     from ..fit_file import load_fit
-    from ..model import as_model
     from ..information import UnidentifiableError
 
-    model = as_model(args.effects or None)
+    model = model_option(args.effects)
     stand = _stand(args)
     prior = load_fit(args.prior) if args.prior else None
     tilt_known = not args.tilt_unknown
@@ -260,7 +260,7 @@ def run(args):
                         azimuth_step=args.azimuth_step_deg * units.DEG,
                         max_tilt=args.max_tilt_arcsec * units.ARCSEC, durations=durations,
                         time_slots=args.time_slots, min_rate=args.min_rate_dps * units.DEG_PER_S)
-    identify = None if args.identify is None else as_model(args.identify)
+    identify = None if args.identify is None else model_option(args.identify, "--identify")
     if args.max_tilt_arcsec > 0 and args.max_tilt_arcsec + max(abs(v) for v in stand.tilt) / units.ARCSEC > 3600:
         raise ValueError(f"--max-tilt-arcsec {args.max_tilt_arcsec:g} with --stand-tilt-arcsec "
                          f"{args.stand_tilt_arcsec}: allowed |fixture + stand tilt| <= 3600 arcsec in each axis")

@@ -1,7 +1,7 @@
 """``hse-opt diagnose``: compare a model with measured runs and find the missing effect."""
 import os
 
-from . import add_derived_argument, add_input_checks, input_checks, message, print_json
+from . import add_derived_argument, add_input_checks, input_checks, message, model_option, print_json
 from .outputs import REPORT
 
 NAME = "diagnose"
@@ -60,7 +60,6 @@ def parse_fix(items):
 def run(args):
     from ..data import load_runs
     from ..diagnose import ALPHA, compare, diagnose, refine
-    from ..model import as_model
 
     try:
         runs = load_runs(args.runs, **input_checks(args))
@@ -75,7 +74,7 @@ def run(args):
             [c.strip() for c in args.covariates.split(",") if c.strip()]
     kw = dict(fix=parse_fix(args.fix), covariates=covariates,
               alpha=ALPHA if args.alpha is None else args.alpha)
-    model = as_model(args.effects)
+    model = model_option(args.effects)
     steps = refine(runs, model, **kw) if args.refine else (diagnose(runs, model, **kw),)
     stopped = _stopped(steps[-1]) if args.refine else None
     if stopped:

@@ -3,7 +3,7 @@
 import numpy as np
 
 from . import (add_derived_argument, add_input_checks, add_report_argument, input_checks, message,
-               print_json, write_report)
+               model_option, print_json, write_report)
 from .outputs import FILE, REPORT
 
 NAME = "fit"
@@ -89,11 +89,10 @@ def run(args):
     from ..fit import fit
     from ..fit.checks import check_lines, outliers
     from ..fit_file import load_fit, save_fit
-    from ..model import as_model
     from ..information import UnidentifiableError
 
     runs = load_runs(args.runs, **input_checks(args))
-    model = as_model(args.effects or None)
+    model = model_option(args.effects)
     prior = load_fit(args.prior) if args.prior else None
     try:
         result = fit(runs, model, fix=parse_fix(args.fix), bounds=parse_bounds(args.bound),

@@ -7,6 +7,7 @@ import io
 import os
 import warnings
 
+from ..names import ALLOWED_NAMES, is_name, shown
 from ..ranges import MAX_COLUMNS, MAX_FILE_BYTES, MAX_ROWS
 from .atomic import _atomic
 from .errors import DataError, DataWarning
@@ -49,6 +50,9 @@ def _read(cls, path, min_rate_dps, allow_small_azimuths):
     for j, name in enumerate(header):
         if not name:
             raise DataError(src, f"header field {j + 1} is empty; allowed: a column name", line=lines[0])
+        if not is_name(name):
+            raise DataError(src, f"header field {j + 1} {shown(name)} is not a column name; allowed: {ALLOWED_NAMES}",
+                            line=lines[0])
         if name in header[:j]:
             raise DataError(src, "column name repeats; allowed: each name once", line=lines[0], column=name)
     for k, fields in enumerate(rows[1:]):

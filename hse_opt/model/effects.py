@@ -30,6 +30,7 @@ import casadi as ca
 import numpy as np
 
 from .. import frames, units
+from ..names import check_name
 
 
 @dataclass(frozen=True)
@@ -258,8 +259,7 @@ class Covariate(Effect):
     level = "reference"
 
     def __init__(self, column):
-        if not column or not isinstance(column, str):
-            raise ValueError(f"covariate column must be a non-empty name, got {column!r}")
+        check_name(column, "covariate column")
         self.column = column
         self.name = f"covariate:{column}"
         self.params = (Param(f"k_{column}", f"arcsec per {column} unit", units.ARCSEC, 0.0,
@@ -288,6 +288,7 @@ def register_effect(cls):
     :mod:`hse_opt.validation.twins`. Raises when the name is taken."""
     if not (isinstance(cls, type) and issubclass(cls, Effect)) or not cls.name:
         raise ValueError(f"register_effect needs an Effect class with a name, got {cls!r}")
+    check_name(cls.name, "effect name")
     if cls.name in CATALOGUE or cls.name.startswith("covariate:"):
         raise ValueError(f"effect name {cls.name!r} is taken; the catalogue has {', '.join(CATALOGUE)}")
     CATALOGUE[cls.name] = cls
