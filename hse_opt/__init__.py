@@ -35,7 +35,11 @@ flow ``docs/architecture.md`` (in the repository).
 import sys
 import types
 
+from . import _moved
+
 __version__ = "0.1.0"
+
+_moved.install()
 
 #: the public API, imported on first use (``import hse_opt.sim`` loads neither the model's
 #: CasADi stack nor the design's cvxpy): name -> (module, attribute); attribute None gives the
@@ -44,10 +48,10 @@ __version__ = "0.1.0"
 _API = {
     # calibration (issue 4)
     **{name: ("fit", name) for name in ("Constraint", "FitResult", "SolverError", "fit")},
-    **{name: ("compensation", name) for name in ("compensate", "compensation")},
-    **{name: ("fit_file", name) for name in ("load_fit", "save_fit")},
+    **{name: ("fit.correction", name) for name in ("compensate", "compensation")},
+    **{name: ("fit.file", name) for name in ("load_fit", "save_fit")},
     **{name: ("information", name) for name in ("Prior", "UnidentifiableError", "heading_sigma")},
-    **{name: ("paper_procedure", name) for name in ("PaperCalibration", "compensate_eq14",
+    **{name: ("fit.paper_procedure", name) for name in ("PaperCalibration", "compensate_eq14",
                                                    "paper_procedure")},
     "diagnose": ("diagnose", None),
     "Diagnosis": ("diagnose", "Diagnosis"),

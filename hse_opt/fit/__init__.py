@@ -54,7 +54,7 @@ The package: :mod:`~hse_opt.fit.least_squares` (:func:`fit`), :mod:`~hse_opt.fit
 (the least-squares problem), :mod:`~hse_opt.fit.profile` (nonlinear parameters profiled), :mod:`~hse_opt.fit.solvers`, :mod:`~hse_opt.fit.weights`,
 :mod:`~hse_opt.fit.result` (:class:`FitResult`, :class:`Constraint`, :class:`SolverError`) and
 :mod:`~hse_opt.fit.summary` (the fit as a report shows it). Applying a calibration is
-:mod:`hse_opt.compensation`, FIT.json is :mod:`hse_opt.fit_file`; both are re-exported here.
+:mod:`hse_opt.fit.correction`, FIT.json is :mod:`hse_opt.fit.file`; both are re-exported here.
 """
 from ..information import Prior, UnidentifiableError
 from ..model.composition import as_model
@@ -65,10 +65,10 @@ from .summary import report_data
 from .weights import HUBER_C, pure_error, replicate_groups, run_sigma
 
 #: re-exported on first use (they import this package): name -> module
-_LAZY = {name: "hse_opt.compensation" for name in
+_LAZY = {name: "hse_opt.fit.correction" for name in
          ("compensate", "compensation", "compensated_parameters", "COMPENSATED_COLUMN",
           "COMPENSATION_STD_COLUMN")}
-_LAZY.update({name: "hse_opt.fit_file" for name in ("save_fit", "load_fit", "FIT_FORMAT", "FIT_VERSION")})
+_LAZY.update({name: "hse_opt.fit.file" for name in ("save_fit", "load_fit", "FIT_FORMAT", "FIT_VERSION")})
 
 __all__ = ["FitResult", "Constraint", "Prior", "SolverError", "UnidentifiableError", "fit", "fit_profiled",
            "compensate", "compensation", "compensated_parameters", "save_fit", "load_fit", "as_model",

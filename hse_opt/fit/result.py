@@ -173,7 +173,7 @@ class FitResult:
         The prior's part of chi2 (0 without a prior).
     inputs : numpy.ndarray, shape (n_x, n), or None
         The runs' measurement-model inputs (SI, :meth:`MeasurementModel.inputs` order): where
-        the calibration holds (:mod:`hse_opt.export`). None for a FIT.json without them.
+        the calibration holds (:mod:`hse_opt.fit.export`). None for a FIT.json without them.
     """
 
     model: Model

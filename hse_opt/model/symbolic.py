@@ -237,7 +237,7 @@ def rate_b0(op, errors, geometry=Geometry(), form="exact", omega_ie_b0=None):
     omega_ie_b0 : casadi.SX, shape (3, 1), optional
         Stand-in for the true Earth rate in b0 (default ``C_n^b0 omega_ie_n``); a symbol here
         lets the constant chain from it to the averaged rate be folded (the compiled
-        compensation, :mod:`hse_opt.export`).
+        compensation, :mod:`hse_opt.fit.export`).
 
     Returns
     -------

@@ -30,7 +30,7 @@ def _grid_runs(runs, mask, n, **columns):
 def _curve(fit, runs, mask, **columns):
     """The fitted model's heading error (rad) and the part compensation removes (rad) on
     made-up runs (:func:`_grid_runs`)."""
-    from ..compensation import compensation
+    from ..fit.correction import compensation
     n = len(next(iter(columns.values())))
     grid = _grid_runs(runs, mask, n, **columns)
     h = fit.measurement.predict(fit.p, fit.measurement.inputs_from_runs(grid))

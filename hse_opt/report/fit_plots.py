@@ -99,7 +99,7 @@ def plot_azimuth(fit, runs):
     -------
     matplotlib.figure.Figure
     """
-    from ..compensation import compensation
+    from ..fit.correction import compensation
 
     az = np.mod(runs.azimuth / units.DEG, 360.0)
     y, s = _arcsec(runs.heading_err), _arcsec(fit.sigma)
@@ -235,7 +235,7 @@ def plot_field_line(fit, runs):
     matplotlib.figure.Figure or None
         None when no position has two bias rates (no line to draw).
     """
-    from ..field import position_lines
+    from ..fit.field import position_lines
 
     lines = [ln for ln in position_lines(fit, runs) if np.unique(np.round(ln.rate, 9)).size >= 2]
     if not lines:

@@ -16,7 +16,7 @@ imu
 campaign
     :func:`run_campaign` (Plan -> Runs of :mod:`hse_opt.data`, parallel, Dask),
     :func:`simulate_run`, :func:`simulate_heading_error` (noise-free, one error source at a
-    time), :func:`align_config_from_truth` (the processor of a simulated system). The command ``hse-opt simulate`` is :mod:`hse_opt.commands.simulate`.
+    time), :func:`align_config_from_truth` (the processor of a simulated system). The command ``hse-opt simulate`` is :mod:`hse_opt.app.commands.simulate`.
 """
 from hse_opt.align import (AlignConfig, AlignHistory, AlignResult, RawLog, align, check_rawlog, load_rawlog,
                            save_rawlog, triad, validate_rawlog)

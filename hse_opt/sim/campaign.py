@@ -11,7 +11,7 @@
 * :func:`align_config_from_truth`, :func:`default_align_config` -- the processor's settings
   for a simulated system.
 
-The command line (``hse-opt simulate``) is :mod:`hse_opt.commands.simulate`; PLAN.csv and
+The command line (``hse-opt simulate``) is :mod:`hse_opt.app.commands.simulate`; PLAN.csv and
 RUNS.csv are read and written by :mod:`hse_opt.data` only.
 
 Seeds. Run ``r`` (its PLAN ``run`` id) draws everything from

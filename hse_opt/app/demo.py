@@ -51,14 +51,14 @@ from pathlib import Path
 
 import numpy as np
 
-from . import units
-from .data import Plan, Runs, write_text_atomic
-from .fit import fit as fit_runs
-from .information import heading_sigma
-from .model.effects import effect as make_effect
-from .model.composition import Model
-from .model.inputs import Tilt
-from .validation.twins import effect_names, hideable, twin
+from .. import units
+from ..data import Plan, Runs, write_text_atomic
+from ..fit import fit as fit_runs
+from ..information import heading_sigma
+from ..model.effects import effect as make_effect
+from ..model.composition import Model
+from ..model.inputs import Tilt
+from ..validation.twins import effect_names, hideable, twin
 
 __all__ = ["DemoResult", "HiddenEffect", "NextPlan", "run_demo", "demo_truth", "demo_plan",
            "hidden_effect", "hideable", "showable", "design_next", "report_sections", "write_outputs",
@@ -99,7 +99,7 @@ def demo_truth():
     -------
     hse_opt.sim.TruthConfig
     """
-    from .sim import TruthConfig
+    from ..sim import TruthConfig
     return TruthConfig.default().updated({
         "mount": {"warmup_xi_z_arcsec": 0.0},
         "gyro": {"bias_warmup_dph": [0.0, 0.0, 0.0]},
@@ -136,7 +136,7 @@ class HiddenEffect:
 
 def _plan_inputs(mm, plan, truth):
     """The measurement model's run inputs for the plan on ``truth``'s stand (SI)."""
-    from .sim.truth import temperature
+    from ..sim.truth import temperature
     mount = Tilt(*truth.stand.mount_tilt)  # the simulator's [x, y] = (roll, pitch)
     pitch, roll = mount.pitch + plan.tilt_y, mount.roll + plan.tilt_x
     temp = temperature(truth.thermal, plan.t_start + plan.duration / 2)
@@ -286,7 +286,7 @@ class NextPlan:
 def _design(model, kw, notes, label):
     """``design(model, 'c:lambda2', **kw)``; an IPOPT refinement failure falls back to the
     rounded design, any other failure returns None; both are noted."""
-    from .design import DesignError, design
+    from ..design import DesignError, design
     failures = (DesignError, np.linalg.LinAlgError)   # the latter: a solver's factorisation
     try:
         return design(model, "c:lambda2", **kw)
@@ -318,8 +318,8 @@ def design_next(model, values=None):
     calibrated while it lasts). When the IPOPT refinement fails the rounded design on the candidate grid is
     kept, and said; when a design fails it is None and the notes give the solver's status.
     """
-    from .design import Costs, DesignSpace, evaluate, paper_plan
-    from .information import UnidentifiableError
+    from ..design import Costs, DesignSpace, evaluate, paper_plan
+    from ..information import UnidentifiableError
 
     effects = [e for e in model.effect_names if not e.startswith("covariate:")]
     notes = []
@@ -448,8 +448,8 @@ def run_demo(seed=0, progress=None):
     """
     if isinstance(seed, bool) or not isinstance(seed, (int, np.integer)) or seed < 0:
         raise ValueError(f"seed = {seed!r} is not allowed: an integer >= 0 is required")
-    from .diagnose import diagnose
-    from .sim import run_campaign
+    from ..diagnose import diagnose
+    from ..sim import run_campaign
     seconds = {}
     t0 = time.perf_counter()
     plan = demo_plan()
@@ -485,7 +485,7 @@ def run_demo(seed=0, progress=None):
     next_plan = design_next(final.model, dict(zip(final.names, final.values)))
     seconds["design"] = time.perf_counter() - t0
 
-    from .model.paper import reproduce
+    from ..model.paper import reproduce
     noise = float(np.median(runs.heading_std) / units.ARCSEC)
     return DemoResult(seed=int(seed), hidden=hidden, truth=truth, plan=plan, runs=runs,
                       noise_arcsec=noise, fit_before=before, fit_after=after, named=named,
@@ -500,7 +500,7 @@ OUTPUT_FILES = ("report.html", "summary.json", "RUNS.csv", "PLAN.csv", "TRUTH.to
 
 def report_sections(result):
     """The report of a demo run, as :class:`hse_opt.report.Section` objects."""
-    from . import report
+    from .. import report
     r = result
     sections = [
         report.plan_section(r.plan, "The simulated campaign",
@@ -510,7 +510,7 @@ def report_sections(result):
                             f"cannot absorb has an RMS of {HIDDEN_SIGMAS:g} noise sigmas."),
         report.fit_section(r.fit_before, r.runs, "The paper's model"),
     ]
-    from .diagnose import compare
+    from ..diagnose import compare
     sections.append(report.diagnosis_section(r.diagnosis, "Diagnosis of the paper's model",
                                              residuals=False))  # the fit's section shows them
     if r.fit_after is not None:
@@ -576,8 +576,8 @@ def write_outputs(result, directory, shown=None):
         The JSON summary (also ``summary.json``), with ``report`` the report's path.
     """
     import json
-    from . import report
-    from .data import save_plan, save_runs
+    from .. import report
+    from ..data import save_plan, save_runs
 
     directory = Path(directory)
     report.write_report(directory, report_sections(result), f"hse-opt demo, seed {result.seed}",

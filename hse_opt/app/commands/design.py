@@ -109,11 +109,11 @@ def _pair(text, option, n=2, sep=","):
 
 
 def _stand(args):
-    from .. import units
-    from ..design import Stand
-    from ..information import DEFAULT_ARW
+    from ... import units
+    from ...design import Stand
+    from ...information import DEFAULT_ARW
 
-    from ..ranges import check_option
+    from ...ranges import check_option
     tilt = _pair(args.stand_tilt_arcsec, "--stand-tilt-arcsec")
     check_option("--latitude-deg", args.latitude_deg, "latitude_deg")
     arw = DEFAULT_ARW if args.arw_dph_rthz is None else args.arw_dph_rthz * units.DEG_PER_H
@@ -124,8 +124,8 @@ def _stand(args):
 def _references(args, model, result, kw):
     """Plans whose sigmas say what the criterion gave up: the paper's plan and, for another
     criterion than D, the D-optimal plan for the same budget (None where one cannot be had)."""
-    from ..design import DesignError, design, evaluate, paper_plan
-    from ..information import UnidentifiableError
+    from ...design import DesignError, design, evaluate, paper_plan
+    from ...information import UnidentifiableError
 
     out = []
     try:
@@ -165,13 +165,13 @@ def _nominal(items):
 
 
 def run(args):
-    from .. import units
-    from ..data import load_plan, save_plan
-    from ..design import Costs, DesignSpace, Resolution, design, evaluate, plan_lines
-    from ..design.evaluation import sacrificed
-    from ..design.space import SAMPLE_PERIOD
-    from ..fit_file import load_fit
-    from ..information import UnidentifiableError
+    from ... import units
+    from ...data import load_plan, save_plan
+    from ...design import Costs, DesignSpace, Resolution, design, evaluate, plan_lines
+    from ...design.evaluation import sacrificed
+    from ...design.space import SAMPLE_PERIOD
+    from ...fit.file import load_fit
+    from ...information import UnidentifiableError
 
     model = model_option(args.effects)
     stand = _stand(args)
@@ -184,8 +184,8 @@ def run(args):
         """--report DIR: the section with the paper's plan evaluated the same way as baseline."""
         if not args.report:
             return
-        from .. import report as rep
-        from ..design import paper_plan
+        from ... import report as rep
+        from ...design import paper_plan
         try:
             base, note = evaluate(paper_plan(costs=costs), model, stand=stand, tilt_known=tilt_known,
                                   nominal=_nominal(args.nominal), prior=prior), None
@@ -216,7 +216,7 @@ def run(args):
 
     if not args.output:
         raise ValueError("-o PLAN.csv is required to design a plan (or use --evaluate PLAN.csv)")
-    from ..ranges import RANGES
+    from ...ranges import RANGES
     budget = RANGES["--budget-h"]
     for opt, value, allowed, ok in (("--budget-h", args.budget_h, budget.allowed("H"), budget.contains),
                                     ("--max-tilt-arcsec", args.max_tilt_arcsec, ">= 0 arcsec", lambda v: v >= 0),
@@ -224,7 +224,7 @@ def run(args):
         if not (np.isfinite(value) and ok(value)):
             raise ValueError(f"{opt} {value:g} is not allowed; allowed: {allowed}")
     if args.field:
-        from ..field import design_field
+        from ...fit.field import design_field
         fd = design_field(args.budget_h * units.HOUR, model, costs=costs, stand=stand,
                           duration=float(args.durations_s.split(",")[0]))
         save_plan(fd.plan, args.output)

@@ -24,8 +24,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from . import units
-from .data import Plan
+from .. import units
+from ..data import Plan
 
 __all__ = ["PositionLine", "position_lines", "position_summary", "FieldDesign", "field_plan",
            "design_field", "RATE_PATTERNS_DPS"]
@@ -243,8 +243,8 @@ def design_field(budget, model="hse", *, costs=None, stand=None, duration=600.0,
     ValueError
         No plan fits the budget, or none identifies lambda2.
     """
-    from .design import Costs, evaluate
-    from .information import UnidentifiableError
+    from ..design import Costs, evaluate
+    from ..information import UnidentifiableError
 
     costs = costs or Costs()
     best, tried = None, []

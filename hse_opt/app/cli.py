@@ -1,6 +1,6 @@
 """The ``hse-opt`` command line.
 
-Each command lives in :mod:`hse_opt.commands` (one module each). Exit status: 0 success,
+Each command lives in :mod:`hse_opt.app.commands` (one module each). Exit status: 0 success,
 2 bad input or data that cannot answer the question (one line on stderr naming what is wrong
 and what is allowed), 1 anything else.
 """
@@ -27,11 +27,11 @@ def build_parser():
         prog="hse-opt",
         description="Calibration and compensation of the heading-sensitive error of a "
                     "constant-rate biased RLG system.")
-    from . import __version__
+    from hse_opt import __version__
     parser.add_argument("--version", action="version", version=f"hse-opt {__version__}")
     sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
     for name in COMMANDS:
-        mod = importlib.import_module(f"hse_opt.commands.{name}")
+        mod = importlib.import_module(f"hse_opt.app.commands.{name}")
         p = sub.add_parser(mod.NAME, help=mod.HELP, description=getattr(mod, "DESCRIPTION", mod.HELP),
                            epilog=mod.EXAMPLE, formatter_class=argparse.RawDescriptionHelpFormatter)
         mod.add_arguments(p)
@@ -128,7 +128,7 @@ def _main(argv):
             command = f"hse-opt {args.command}"
             if extra:  # reported by the command's own parser, so the message names the command
                 args.subparser.error(f"unrecognized arguments: {' '.join(extra)}")
-            from .commands.outputs import Transaction
+            from hse_opt.app.commands.outputs import Transaction
             try:
                 # every output checked before the command runs; all written together or none
                 tx = Transaction.from_args(args, sys.modules[args.run.__module__], args.subparser)
@@ -143,7 +143,7 @@ def _main(argv):
             except (KeyboardInterrupt, Terminated, BrokenPipeError):
                 raise
             except Exception as err:  # noqa: BLE001 - the command line reports, never tracebacks
-                from .fit.result import SolverError
+                from hse_opt.fit.result import SolverError
                 if isinstance(err, SolverError):  # a numerical failure: the status and what to try
                     print(f"{command}: error: {_message(err)}", file=sys.stderr)
                 else:

@@ -34,10 +34,10 @@ def _stats(x):
 
 
 def run(args):
-    from .. import units
-    from ..data import load_runs, save_runs
-    from ..compensation import COMPENSATED_COLUMN, COMPENSATION_STD_COLUMN, compensate, compensated_parameters
-    from ..fit_file import load_fit
+    from ... import units
+    from ...data import load_runs, save_runs
+    from ...fit.correction import COMPENSATED_COLUMN, COMPENSATION_STD_COLUMN, compensate, compensated_parameters
+    from ...fit.file import load_fit
 
     calibration = load_fit(args.fit)
     runs = load_runs(args.runs, **input_checks(args))

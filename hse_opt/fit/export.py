@@ -52,13 +52,13 @@ from dataclasses import dataclass
 import casadi as ca
 import numpy as np
 
-from . import __version__, units
-from . import frames
-from .frames import EARTH_RATE
-from .information import covariance_factor, propagated_std
-from .model import closed_form as cf
-from .model.inputs import RUN_FIELDS, RunInputs
-from .model.symbolic import c_b0_n
+from .. import __version__, units
+from .. import frames
+from ..frames import EARTH_RATE
+from ..information import covariance_factor, propagated_std
+from ..model import closed_form as cf
+from ..model.inputs import RUN_FIELDS, RunInputs
+from ..model.symbolic import c_b0_n
 
 __all__ = ["ENTRY_POINT", "MARGIN_FRACTION", "MARGIN_FLOOR", "Validity", "compensation_function",
            "export_calibration", "CALIBRATION_FORMAT"]
@@ -152,8 +152,8 @@ def compensation_function(fit_result, parameters=None):
     sin and cos of pitch and roll as Taylor series (exact to double rounding for tilts up to
     ``SMALL_ANGLE`` = 0.2 rad; the validity range holds them within a few degrees).
     """
-    from .compensation import compensation_point
-    from .model.folding import cost, fold_linear
+    from .correction import compensation_point
+    from ..model.folding import cost, fold_linear
 
     mm = fit_result.measurement
     use, p = compensation_point(fit_result, parameters)
@@ -189,8 +189,8 @@ def _direct(mm, p_expr, x, q, zero, L):
 def _folded(model, mm, p_expr, x, q, zero, L):
     """Correction and sigma with the chain from the Earth rate in b0 folded (tilt known); None
     for a model with encoder harmonics."""
-    from .model.folding import fold_linear
-    from .model.measurement import symbolic_rate
+    from ..model.folding import fold_linear
+    from ..model.measurement import symbolic_rate
 
     w = ca.SX.sym("w", 3)
     p = {nm: p_expr[i] for i, nm in enumerate(mm.names)}
@@ -438,8 +438,8 @@ def export_calibration(fit_result, directory, inputs=None, source="a FitResult",
     dict
         The ``calibration.json`` object.
     """
-    from .data import write_text_atomic
-    from .compensation import compensated_parameters
+    from ..data import write_text_atomic
+    from .correction import compensated_parameters
 
     X = getattr(fit_result, "inputs", None) if inputs is None else inputs
     if X is None:

@@ -85,11 +85,11 @@ def parse_fix(items):
 
 
 def run(args):
-    from ..data import load_runs
-    from ..fit import fit
-    from ..fit.checks import check_lines, outliers
-    from ..fit_file import load_fit, save_fit
-    from ..information import UnidentifiableError
+    from ...data import load_runs
+    from ...fit import fit
+    from ...fit.checks import check_lines, outliers
+    from ...fit.file import load_fit, save_fit
+    from ...information import UnidentifiableError
 
     runs = load_runs(args.runs, **input_checks(args))
     model = model_option(args.effects)
@@ -104,13 +104,13 @@ def run(args):
         save_fit(result, args.tx.path("output"))
         message(f"hse-opt fit: wrote {args.output}")
     if args.report:
-        from ..report import fit_section
+        from ...report import fit_section
         write_report(args, [fit_section(result, runs, derived=args.derived)], f"hse-opt fit {args.runs}")
     field = runs.surveyed is not None   # positions without a reference: K_HSE per position
     if args.json:
         extra = {}
         if field:
-            from ..field import position_lines
+            from ...fit.field import position_lines
             extra["positions"] = [ln.to_dict() for ln in position_lines(result, runs)]
         print_json({**result.to_dict(), **extra, "source": args.runs,
                     "outliers": [{"run": r, "studentized": t} for r, t in outliers(result, runs)],
@@ -122,7 +122,7 @@ def run(args):
         if checks:
             lines += ["  look at:"] + [f"    - {c}" for c in checks]
         if field:
-            from ..field import position_summary
+            from ...fit.field import position_summary
             lines += position_summary(result, runs)
         print("\n".join(lines))
     return 0

@@ -58,8 +58,8 @@ def parse_fix(items):
 
 
 def run(args):
-    from ..data import load_runs
-    from ..diagnose import ALPHA, compare, diagnose, refine
+    from ...data import load_runs
+    from ...diagnose import ALPHA, compare, diagnose, refine
 
     try:
         runs = load_runs(args.runs, **input_checks(args))
@@ -67,7 +67,7 @@ def run(args):
         raise ValueError(f"{args.runs}: cannot read the file ({err.strerror or err})") from None
     covariates = None
     if args.derived:  # the user's own derived columns are never factors or candidates
-        from ..factors import is_derived
+        from ...factors import is_derived
         covariates = [c for c in runs.covariates if not is_derived(c, args.derived)]
     if args.covariates is not None:
         covariates = [] if args.covariates.strip().lower() == "none" else \
@@ -116,8 +116,8 @@ def _stopped(last):
 def write_report(steps, directory, source="", derived=(), shown=None):
     """The HTML report of the diagnosis steps (:mod:`hse_opt.report`): the first diagnosis,
     each added effect's before/after, and the last diagnosis; returns the exit status."""
-    from .. import report
-    from ..diagnose import compare
+    from ... import report
+    from ...diagnose import compare
     sections = [report.diagnosis_section(steps[0], derived=derived)]
     if len(steps) > 1:
         sections += [report.comparison_section(compare(a, b), derived=derived) for a, b in zip(steps, steps[1:])]

@@ -6,12 +6,12 @@ import os
 
 import numpy as np
 
-from . import units
-from .fit.result import Constraint, FitResult
-from .model.composition import Model
-from .model.effects import effect as make_effect
-from .model.measurement import RUN_FIELDS
-from .model.symbolic import Geometry
+from .. import units
+from .result import Constraint, FitResult
+from ..model.composition import Model
+from ..model.effects import effect as make_effect
+from ..model.measurement import RUN_FIELDS
+from ..model.symbolic import Geometry
 
 #: FIT.json format tag
 FIT_FORMAT = "hse_opt.fit"
@@ -42,7 +42,7 @@ def save_fit(fit_result, path):
     """Write ``fit_result`` as FIT.json: the JSON contract plus what :func:`load_fit` needs to
     rebuild the model by effect names (geometry, full covariance, SI values, per-run residuals).
     Written whole (temporary file, then rename) or not at all."""
-    from .data import write_text_atomic
+    from ..data import write_text_atomic
     write_text_atomic(path, json.dumps(_fit_json(fit_result), indent=1, allow_nan=False) + "\n")
 
 
@@ -52,7 +52,7 @@ def load_fit(path, model=None):
     The model is rebuilt from the file's effect names (catalogue effects and
     ``covariate:<column>``); pass ``model`` for effects of your own with the same names.
     """
-    from .data import read_text
+    from ..data import read_text
     src = os.fspath(path)
     try:
         d = json.loads(read_text(src, "a FIT.json written by hse-opt fit -o"))

@@ -1,4 +1,4 @@
-"""``hse-opt demo``: the whole method on an embedded default (see :mod:`hse_opt.demo`)."""
+"""``hse-opt demo``: the whole method on an embedded default (see :mod:`hse_opt.app.demo`)."""
 import sys
 from pathlib import Path
 

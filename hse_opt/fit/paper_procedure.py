@@ -18,10 +18,10 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from . import units
-from .compensation import COMPENSATED_COLUMN, COMPENSATION_STD_COLUMN
-from .fit.weights import run_sigma
-from .model import closed_form as cf
+from .. import units
+from .correction import COMPENSATED_COLUMN, COMPENSATION_STD_COLUMN
+from .weights import run_sigma
+from ..model import closed_form as cf
 
 __all__ = ["PaperCalibration", "paper_procedure", "compensate_eq14", "POSITION_TOLERANCE"]
 

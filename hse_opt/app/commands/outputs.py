@@ -92,7 +92,7 @@ class Transaction:
     def check(self):
         """Raise ``ValueError`` naming the first output that cannot be written, and remove the
         leftovers of killed runs in the output folders."""
-        from ..data import remove_leftovers
+        from ...data import remove_leftovers
         claimed = []  # (option, path): every output path and every file a folder output gets
 
         def claim(opt, path, w):
@@ -145,7 +145,7 @@ class Transaction:
     def path(self, dest):
         """Where the command writes output ``dest`` (a temporary file, or a temporary folder
         that exists): it is renamed into place at :meth:`commit`."""
-        from ..data import temp_path
+        from ...data import temp_path
         if dest not in self._staged:
             opt, target, files = self.outputs[dest]
             tmp = temp_path(target)
@@ -161,7 +161,7 @@ class Transaction:
     # -- after -------------------------------------------------------------------------------
     def commit(self):
         """Rename every staged output into place, the termination signals held meanwhile."""
-        from ..data import fsync_folder
+        from ...data import fsync_folder
         old = signal.pthread_sigmask(signal.SIG_BLOCK, _SIGNALS) if _SIGNALS else None
         try:
             for dest, tmp in self._staged.items():

@@ -1,5 +1,5 @@
 """One module per ``hse-opt`` command. Each defines ``NAME``, ``HELP``, ``EXAMPLE``,
-``add_arguments(parser)`` and ``run(args) -> int``; :mod:`hse_opt.cli` registers them.
+``add_arguments(parser)`` and ``run(args) -> int``; :mod:`hse_opt.app.cli` registers them.
 
 Commands print (the library never does); with ``--json`` stdout carries one JSON object and
 nothing else, messages go to stderr.
@@ -22,7 +22,7 @@ def message(text):
 
 def add_input_checks(parser):
     """The options of the RUNS/PLAN input checks (:mod:`hse_opt.data`)."""
-    from ..data import DEFAULT_MIN_RATE_DPS
+    from ...data import DEFAULT_MIN_RATE_DPS
     parser.add_argument("--min-rate-dps", type=float, default=DEFAULT_MIN_RATE_DPS, metavar="R",
                         help=f"lock-in limit: smaller |rate_dps| is an error (default {DEFAULT_MIN_RATE_DPS:g})")
     parser.add_argument("--allow-small-azimuths", action="store_true",
@@ -37,7 +37,7 @@ def input_checks(args):
 def model_option(value, option="--effects"):
     """The model of an ``--effects`` option (:func:`hse_opt.model.as_model`; ``None`` or empty:
     the paper's); a bad effect or covariate name raises ValueError naming the option."""
-    from ..model import as_model
+    from ...model import as_model
     try:
         return as_model(value or None)
     except ValueError as err:
@@ -60,9 +60,9 @@ def add_derived_argument(parser):
 
 def write_report(args, sections, title):
     """Write the report when ``--report DIR`` was given (with the command's other outputs:
-    :mod:`hse_opt.commands.outputs`); says where on stderr."""
+    :mod:`hse_opt.app.commands.outputs`); says where on stderr."""
     if getattr(args, "report", None):
-        from ..report import REPORT_NAME
-        from ..report import write_report as write
+        from ...report import REPORT_NAME
+        from ...report import write_report as write
         write(args.tx.path("report"), sections, title)
         message(f"report: {os.path.join(args.report, REPORT_NAME)}")

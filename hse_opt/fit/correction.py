@@ -2,8 +2,8 @@
 alignments, with its 1-sigma from the fit's covariance."""
 import numpy as np
 
-from . import units
-from .information import propagated_std
+from .. import units
+from ..information import propagated_std
 
 #: columns :func:`compensate` adds (arcsec): compensated heading error and its 1-sigma
 COMPENSATED_COLUMN = "heading_err_comp_arcsec"

@@ -15,12 +15,12 @@ in: bias rate (rad/s, signed), the system's own heading, pitch, roll, latitude (
 since power-on at the start of the alignment, duration (s), then the model's covariates.
 *correction_rad is ADDED to the alignment's heading; *sigma_rad is its 1-sigma from the
 calibration. The return value is 0 inside the range the calibration runs covered (with the
-margin documented in hse_opt/export.py), else bit k is set for each input k outside it."""
+margin documented in hse_opt/fit/export.py), else bit k is set for each input k outside it."""
 INPUTS = ("fit",)
 
 
 def _files():
-    from ..export import ENTRY_POINT
+    from ...fit.export import ENTRY_POINT
     return f"{ENTRY_POINT}.c", f"{ENTRY_POINT}.h", "calibration.json"
 
 
@@ -40,8 +40,8 @@ def add_arguments(parser):
 def run(args):
     import os
 
-    from ..export import ENTRY_POINT, export_calibration
-    from ..fit import load_fit
+    from ...fit.export import ENTRY_POINT, export_calibration
+    from ...fit import load_fit
 
     calibration = load_fit(args.fit)
     out = export_calibration(calibration, args.tx.path("output"), source=os.path.basename(args.fit))

@@ -63,11 +63,11 @@ def run(args):
 
     from tqdm import tqdm
 
-    from .. import units
-    from ..data import save_runs
-    from ..sim import TruthConfig
-    from ..align.batch import align_logs, runs_from_rows
-    from ..sim.campaign import default_align_config
+    from ... import units
+    from ...data import save_runs
+    from ...sim import TruthConfig
+    from ...align.batch import align_logs, runs_from_rows
+    from ...sim.campaign import default_align_config
 
     if args.jobs < 1:
         raise ValueError(f"--jobs {args.jobs}: allowed: an integer >= 1")

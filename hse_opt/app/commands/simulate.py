@@ -57,8 +57,8 @@ def _io(action, what, fun, path, *args):
 def run(args):
     from tqdm import tqdm
 
-    from ..data import load_plan, save_runs
-    from ..sim import TruthConfig, run_campaign
+    from ...data import load_plan, save_runs
+    from ...sim import TruthConfig, run_campaign
 
     surveyed = [p.strip() for p in args.surveyed.split(",") if p.strip()]
     if surveyed and not args.field:
