@@ -109,7 +109,7 @@ def _message(err):
 def _warnings_in_one_line(command):
     """While a command runs, each warning is one line on stderr, ``hse-opt CMD: warning: ...``
     (the library warns, the command line prints); a data warning every time it is issued."""
-    from .data import DataWarning
+    from hse_opt.data import DataWarning
 
     def show(message, category, filename, lineno, file=None, line=None):
         print(f"{command}: warning: {' '.join(str(message).split())}", file=sys.stderr)
