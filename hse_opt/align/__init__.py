@@ -15,15 +15,20 @@ processor
 batch
     :func:`align_logs`, :func:`runs_from_rows` -- many logs in parallel into a RUNS table; a
     bad log is reported and does not stop the others.
+noise
+    :func:`noise_from_log` -- the sensors' noise from a log itself: overlapping Allan deviation
+    of the six channels (the table's turn, Earth rate and gravity fitted out) and the IEEE
+    Std 952 terms (:class:`NoiseFigures`); :func:`combine_noise` for a campaign.
 rotations
     rotation matrices, Euler angles, rotation vectors, Earth rate (numpy only; the simulator
     uses them too).
 """
 from hse_opt.align.batch import align_logs, runs_from_rows
+from hse_opt.align.noise import NoiseFigures, combine_noise, noise_from_log
 from hse_opt.align.processor import AlignConfig, AlignHistory, AlignResult, align, quantization_arw, triad
 from hse_opt.align.rawlog import RawLog, check_rawlog, load_rawlog, save_rawlog, validate_rawlog
 
 __all__ = [
     "AlignConfig", "AlignHistory", "AlignResult", "align", "quantization_arw", "triad", "align_logs",
-    "runs_from_rows", "RawLog", "check_rawlog", "load_rawlog", "save_rawlog", "validate_rawlog",
+    "runs_from_rows", "NoiseFigures", "combine_noise", "noise_from_log", "RawLog", "check_rawlog", "load_rawlog", "save_rawlog", "validate_rawlog",
 ]

@@ -1,0 +1,502 @@
+"""The sensors' noise from the raw logs themselves: Allan deviation and the IEEE Std 952 terms.
+
+Steps
+-----
+1. Blocks. The increments of each gyro and accelerometer channel (rows 1..n-1 of the log:
+   the first row's interval has no encoder angle at its start) are summed over blocks of
+   ``B`` samples, ``B`` the whole number of samples nearest to :data:`BLOCK_PERIOD` (32 ms:
+   16 samples at 500 Hz, 3 at 100 Hz).
+2. The deterministic part, fitted out per channel. The table turns at a constant rate about
+   z_b, so in the sensor frame a gyro channel holds the table turn projected on its axis and
+   the Earth rate modulated at the table rate; an accelerometer channel holds gravity and the
+   tilt's horizontal gravity modulated the same way. Per block ``(t_s, t_e]`` with encoder
+   angles ``alpha_s, alpha_e``, ``d alpha = alpha_e - alpha_s``, ``alpha_m`` their mean and
+   ``dt = t_e - t_s``, each channel's block sum is fitted (least squares, all six channels in
+   one solve) by four regressors: ``dt`` (bias, the constant part of the turn and of
+   gravity), ``cos(alpha_m) sinc(d alpha / 2) dt`` and ``sin(alpha_m) sinc(d alpha / 2) dt``
+   (the exact integrals of a vector fixed in b0 seen from the turning table, for an angle
+   linear within the block: Earth rate, horizontal gravity, their leak through any
+   misalignment) and ``d alpha - Omega dt`` (the encoder's turn beyond the mean rate: the
+   table's jitter and rate ripple, which the gyros sense as real motion). No calibration and
+   no attitude are needed: each coefficient is what the channel shows.
+
+   What remains and is analysed: the sensors' own noise (white rate or specific-force noise,
+   pulse quantization, flicker, random walk, drift) *plus* the encoder's own angle noise
+   (its resolution, ``resolution / sqrt(12)`` rad white in angle) times the channel's share of
+   the turn (0.577 for a gyro on the body diagonal) - the table turn is removed through the
+   encoder, so the quantization term of a gyro is that of its pulses and of the encoder
+   together (an upper bound on the pulse quantization alone; the alignment processor removes
+   the turn through the same encoder). Effects with another time course stay in and show at
+   long cluster times: the bias's warm-up transient and temperature drift,
+   table wobble at harmonics of the turn.
+3. Overlapping Allan deviation, vectorised numpy (:func:`allan_deviation`). Clusters of ``m``
+   blocks on a half-octave grid (``m = round(2^(j/2))``) up to half the record: for each the
+   second difference of the cumulative sum ``theta`` of the residual,
+   ``sigma^2(tau) = <(theta_{k+2m} - 2 theta_{k+m} + theta_k)^2> / (2 tau^2)``, ``tau = m
+   tau0``, averaged over start points ``k`` taken every ``s = max(1, (n + 1 - 2m) //
+   MAX_TERMS)`` blocks: fully overlapping (``s = 1``) once fewer than :data:`MAX_TERMS` start
+   points exist (the long cluster times, where the overlap matters), at most 2 x
+   :data:`MAX_TERMS` otherwise (the short cluster times, where that many nearly independent
+   clusters pin each value to 1.6 %). The number of independent clusters is taken as ``min(n
+   / m, start points)``. Clusters shorter than a block (1, 2, 4, 8 samples at 500 Hz) come
+   from the raw samples the same way, at up to :data:`MAX_TERMS` start points, with the
+   fitted deterministic part taken over each cluster's own span.
+4. IEEE Std 952-1997 Annex C terms: the least-squares fit of the Allan variance model
+   ``sigma^2(tau) = sum_k A_k tau^k``, k = -2..1, with every ``A_k >= 0``, weighted by the
+   estimate's own variance (relative standard deviation ``sqrt(2 / (K - 1))`` of a
+   chi-square with ``K - 1`` degrees of freedom, ``K`` the independent clusters; iterated
+   three times with the fitted model in the weights, so that a low draw does not weigh
+   more). The terms (rate units; angle for a gyro, velocity for an accelerometer):
+
+   ==================  =====  ===================================================
+   term                slope  from the coefficient
+   ==================  =====  ===================================================
+   quantization Q      -1     ``sigma^2 = 3 Q^2 / tau^2``: Q = sqrt(A_-2 / 3)
+   random walk N       -1/2   ``sigma^2 = N^2 / tau``: N = sqrt(A_-1) (ARW, VRW)
+   bias instability B  0      ``sigma^2 = (2 ln 2 / pi) B^2``: the flicker floor,
+                              approximated as flat (its exact curve bends at
+                              ``tau`` near the flicker's cut-off)
+   rate random walk K  +1/2   ``sigma^2 = K^2 tau / 3``: K = sqrt(3 A_1)
+   ==================  =====  ===================================================
+
+   The rate ramp (slope +1) is not fitted: on one record a random walk and a ramp look
+   alike, and with both free the fit splits the long cluster times between them at random; a
+   drift (the warm-up transient, temperature) therefore reads as rate random walk.
+
+   The non-negative least squares is solved exactly by trying every set of active terms
+   (15 small systems per channel, one batched solve) and keeping the best feasible one.
+5. A campaign (:func:`combine_noise`): the Allan variances of its logs at equal cluster
+   times pooled with their independent clusters as weights, then fitted as one curve.
+
+Why numpy and not allantools: allantools computes one channel at a time and every cluster
+time fully overlapping (O(n) per cluster time per channel), which costs tens of ms on a
+10-minute 500 Hz log's six channels where this step has a budget of a few ms next to the
+alignment (``benchmarks/align.py``); it would also be a run-time dependency of the data
+path for one formula. The tests use allantools as the independent reference for the curve.
+
+Units: SI inside (rad, rad/s, m/s, m/s^2, s); the RUNS.csv columns
+(:data:`NOISE_COLUMNS`, :meth:`NoiseFigures.columns`) carry theirs in their names.
+"""
+from __future__ import annotations
+
+import itertools
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from hse_opt import units
+
+__all__ = ["NoiseFigures", "noise_from_log", "combine_noise", "allan_deviation", "fit_allan",
+           "deterministic_residual", "Residual", "CHANNELS", "TERMS", "NOISE_COLUMNS", "BLOCK_PERIOD", "MAX_TERMS"]
+
+#: the six channels, in this order in every (6, ...) array
+CHANNELS = ("gyro_x", "gyro_y", "gyro_z", "accel_x", "accel_y", "accel_z")
+#: the fitted terms, in the order of the powers -2..1 of tau in the Allan variance model
+TERMS = ("quantization", "random_walk", "bias_instability", "rate_random_walk")
+#: the block the deterministic part is fitted on, s (shorter clusters come from the raw samples)
+BLOCK_PERIOD = 0.032
+#: at most about this many (at most twice) start points per cluster time
+MAX_TERMS = 2048
+#: fewest blocks a log must have (a curve of at least 10 cluster times)
+MIN_BLOCKS = 32
+_POWERS = np.arange(-2, 2)
+_FLICKER = 2.0 * math.log(2.0) / math.pi
+#: every non-empty set of active terms, (15, 4) bool
+_SUBSETS = np.array([s for s in itertools.product((False, True), repeat=4) if any(s)])
+
+#: RUNS.csv columns written by ``hse-opt align``: name -> description (the unit in the name)
+NOISE_COLUMNS = {
+    "gyro_arw_dph_rthz": "the three gyros' mean angle random walk, deg/h/sqrt(Hz) (= deg/h sqrt(s); "
+                         "60 deg/h/sqrt(Hz) = 1 deg/sqrt(h)); TRUTH.toml's gyro.arw_dph_rthz",
+    "gyro_bias_instability_dph": "the gyros' mean bias instability, deg/h",
+    "gyro_quantization_arcsec": "the gyros' mean angle quantization (white angle noise), arcsec",
+    "gyro_rrw_dph_rth": "the gyros' mean rate random walk, deg/h/sqrt(h)",
+    "accel_vrw_ug_rthz": "the accelerometers' mean velocity random walk, ug/sqrt(Hz); TRUTH.toml's "
+                         "accel.vrw_ug_rthz",
+    "accel_bias_instability_ug": "the accelerometers' mean bias instability, ug",
+    "accel_quantization_mps": "the accelerometers' mean velocity quantization (white velocity noise), m/s",
+}
+
+
+@dataclass(frozen=True, eq=False)
+class NoiseFigures:
+    """The Allan curve and the IEEE 952 terms of one log or of a campaign (SI).
+
+    Attributes
+    ----------
+    tau : numpy.ndarray, shape (k,)
+        Cluster times, s.
+    adev : numpy.ndarray, shape (6, k)
+        Overlapping Allan deviation per channel (:data:`CHANNELS`): rad/s for the gyros,
+        m/s^2 for the accelerometers.
+    clusters : numpy.ndarray, shape (k,)
+        Independent clusters behind each point (its relative error is about
+        ``1 / sqrt(2 (clusters - 1))``).
+    coefficients : numpy.ndarray, shape (6, 4)
+        ``A_k`` of ``sigma^2(tau) = sum_k A_k tau^k``, k = -2..1 (SI: rad^2/s^2 s^k for the
+        gyros, (m/s^2)^2 s^k for the accelerometers), each >= 0.
+    coefficients_std : numpy.ndarray, shape (6, 4)
+        Their 1-sigma from the weighted fit; NaN for a term held at zero.
+    n_logs : int
+        Logs behind the figures.
+    """
+
+    tau: np.ndarray
+    adev: np.ndarray
+    clusters: np.ndarray
+    coefficients: np.ndarray
+    coefficients_std: np.ndarray
+    n_logs: int = 1
+
+    def term(self, name):
+        """One term per channel, shape (6,), SI (see the module docstring's table): ``name`` in
+        :data:`TERMS`. quantization rad | m/s; random_walk rad/sqrt(s) | m/s/sqrt(s);
+        bias_instability rad/s | m/s^2; rate_random_walk rad/s/sqrt(s) | m/s^2/sqrt(s)."""
+        factor = {"quantization": 1 / 3, "random_walk": 1.0, "bias_instability": 1 / _FLICKER,
+                  "rate_random_walk": 3.0}[name]
+        return np.sqrt(self.coefficients[:, TERMS.index(name)] * factor)
+
+    @property
+    def quantization(self):
+        """(6,): Q, rad (gyros) and m/s (accelerometers)."""
+        return self.term("quantization")
+
+    @property
+    def random_walk(self):
+        """(6,): N, rad/sqrt(s) (angle random walk) and m/s/sqrt(s) (velocity random walk)."""
+        return self.term("random_walk")
+
+    @property
+    def bias_instability(self):
+        """(6,): B, rad/s and m/s^2."""
+        return self.term("bias_instability")
+
+    @property
+    def rate_random_walk(self):
+        """(6,): K, rad/s/sqrt(s) and m/s^2/sqrt(s)."""
+        return self.term("rate_random_walk")
+
+    def model_adev(self, tau=None):
+        """The fitted curve ``sqrt(sum_k A_k tau^k)``, shape (6, k), at ``tau`` (s; default the
+        measured cluster times)."""
+        tau = self.tau if tau is None else np.asarray(tau, dtype=float)
+        return np.sqrt(self.coefficients @ (tau[None, :] ** _POWERS[:, None]))
+
+    def tuning(self):
+        """The alignment filter's noise from these figures, as keyword arguments of
+        ``AlignConfig`` (``dataclasses.replace(config, **figures.tuning())``): ``arw`` (the
+        gyros' mean N, rad/sqrt(s)), ``vrw`` (the accelerometers' mean N, m/s/sqrt(s)),
+        ``gyro_pulse`` and ``accel_pulse`` (the quanta whose white noise ``q / sqrt(12)`` is
+        the measured Q: ``sqrt(12) Q``, rad and m/s)."""
+        q, n = self.quantization, self.random_walk
+        return {"arw": float(n[:3].mean()), "vrw": float(n[3:].mean()),
+                "gyro_pulse": float(math.sqrt(12.0) * q[:3].mean()),
+                "accel_pulse": float(math.sqrt(12.0) * q[3:].mean())}
+
+    def columns(self):
+        """The RUNS.csv columns (:data:`NOISE_COLUMNS`), file units: each the mean over the
+        three gyros or the three accelerometers."""
+        g, a = slice(0, 3), slice(3, 6)
+        return {
+            "gyro_arw_dph_rthz": float(self.random_walk[g].mean() / units.DEG_PER_H),
+            "gyro_bias_instability_dph": float(self.bias_instability[g].mean() / units.DEG_PER_H),
+            "gyro_quantization_arcsec": float(self.quantization[g].mean() / units.ARCSEC),
+            "gyro_rrw_dph_rth": float(self.rate_random_walk[g].mean() * math.sqrt(units.HOUR)
+                                      / units.DEG_PER_H),
+            "accel_vrw_ug_rthz": float(self.random_walk[a].mean() / units.MICRO_G),
+            "accel_bias_instability_ug": float(self.bias_instability[a].mean() / units.MICRO_G),
+            "accel_quantization_mps": float(self.quantization[a].mean()),
+        }
+
+
+def _block_sums(x, stop, nb, block):
+    """Sums of rows 1..stop-1 of ``x`` (n, 3) over blocks of ``block`` rows, shape (3, nb)
+    (summed in the array's own memory order)."""
+    x = np.asarray(x)
+    if x.T.flags.c_contiguous:
+        return np.einsum("cij->ci", x.T[:, 1:stop].reshape(3, nb, block))
+    return np.einsum("ijc->ci", x[1:stop].reshape(nb, block, 3))
+
+
+def _regressors(a0, a1, t0, t1, rate):
+    """The four regressors (module docstring, step 2) of the spans ``(t0, t1]`` with encoder
+    angles ``a0``, ``a1`` (rad), shape (spans, 4)."""
+    da, dt = a1 - a0, t1 - t0
+    am = 0.5 * (a0 + a1)
+    w = dt * np.sinc(da / (2.0 * np.pi))
+    return np.column_stack([dt, np.cos(am) * w, np.sin(am) * w, da - rate * dt])
+
+
+@dataclass(frozen=True, eq=False)
+class Residual:
+    """The deterministic part fitted out (module docstring, step 2).
+
+    Attributes
+    ----------
+    blocks : numpy.ndarray, shape (6, nb)
+        Block sums less the fitted part: rad (gyros), m/s (accelerometers).
+    tau0 : float
+        Mean block length, s.
+    block : int
+        Samples per block.
+    coefficients : numpy.ndarray, shape (4, 6)
+        Each channel's coefficients of the regressors ``dt``, ``cos``, ``sin``, ``d alpha -
+        Omega dt`` (rad or m/s per s, per s, per s, per rad).
+    rate : float
+        Omega, the encoder's mean rate, rad/s.
+    """
+
+    blocks: np.ndarray
+    tau0: float
+    block: int
+    coefficients: np.ndarray
+    rate: float
+
+    def model(self, a0, a1, t0, t1):
+        """The fitted deterministic part over spans ``(t0, t1]`` (encoder angles ``a0``,
+        ``a1``), shape (6, spans)."""
+        return (_regressors(a0, a1, t0, t1, self.rate) @ self.coefficients).T
+
+
+def deterministic_residual(log, *, block_period=BLOCK_PERIOD):
+    """Block sums of the six channels with the table's deterministic part fitted out
+    (module docstring, steps 1-2).
+
+    Parameters
+    ----------
+    log : RawLog
+        Any object with ``t`` (n,) s, ``gyro`` (n, 3) rad, ``accel`` (n, 3) m/s and
+        ``encoder`` (n,) rad (unwrapped).
+    block_period : float
+        Target block length, s (rounded to whole samples).
+
+    Returns
+    -------
+    Residual
+
+    Raises
+    ------
+    ValueError
+        The log has fewer than :data:`MIN_BLOCKS` blocks.
+    """
+    t, enc = np.asarray(log.t, dtype=float), np.asarray(log.encoder, dtype=float)
+    n = t.shape[0]
+    block = max(1, int(round(block_period * (n - 1) / (t[-1] - t[0]))))
+    nb = (n - 1) // block
+    if nb < MIN_BLOCKS:
+        raise ValueError(f"the log has {n} samples, {nb} blocks of {block} for the Allan analysis; allowed: at "
+                         f"least {MIN_BLOCKS * block + 1} samples")
+    stop = nb * block + 1
+    y = np.concatenate([_block_sums(log.gyro, stop, nb, block), _block_sums(log.accel, stop, nb, block)])
+    a, te = enc[:stop:block], t[:stop:block]
+    rate = float((a[-1] - a[0]) / (te[-1] - te[0]))
+    X = _regressors(a[:-1], a[1:], te[:-1], te[1:], rate)
+    norm = np.sqrt(np.einsum("ij,ij->j", X, X))
+    norm[norm == 0] = 1.0
+    Xs = X / norm
+    G, H = Xs.T @ Xs, Xs.T @ y.T
+    ev, V = np.linalg.eigh(G)
+    keep = ev > 1e-12 * ev[-1]
+    coef = (V[:, keep] / ev[keep]) @ (V[:, keep].T @ H)
+    residual = y - (Xs @ coef).T
+    return Residual(blocks=residual, tau0=float((te[-1] - te[0]) / nb), block=block,
+                    coefficients=coef / norm[:, None], rate=rate)
+
+
+def _short_allan(log, residual, sizes, max_terms):
+    """Allan deviation at clusters shorter than a block (``sizes`` in samples), from the raw
+    increments at up to about ``max_terms`` start points each, the fitted deterministic part
+    taken over each cluster's own span (midpoint rule: over at most a block the table turns
+    a few degrees, and the rule's relative error ``d alpha^2 / 24`` is below 1e-4). Returns
+    ``(tau, adev (6, k), clusters)``."""
+    t, enc = np.asarray(log.t, dtype=float), np.asarray(log.encoder, dtype=float)
+    n = t.shape[0] - 1                                            # increments: rows 1..n
+    dt = (t[-1] - t[0]) / n
+    raw = (np.asarray(log.gyro).T, np.asarray(log.accel).T)       # (3, n + 1) each
+    coef = residual.coefficients.T                                # (6, 4)
+    adev, clusters = np.empty((6, len(sizes))), np.empty(len(sizes))
+    for i, m in enumerate(sizes):
+        span = n - 2 * m + 1
+        step = max(1, span // max_terms)
+        e = np.arange(0, span, step)
+        rows = e[:, None] + 1 + np.arange(2 * m)                # (cnt, 2m)
+        w = np.repeat([-1.0, 1.0], m)
+        d = np.concatenate([np.take(x, rows, axis=1).reshape(-1, 2 * m) @ w for x in raw]).reshape(6, -1)
+        a0, a1, a2 = enc[e], enc[e + m], enc[e + 2 * m]
+        t0, t1, t2 = t[e], t[e + m], t[e + 2 * m]
+        h1, h2 = t1 - t0, t2 - t1
+        m1, m2 = 0.5 * (a0 + a1), 0.5 * (a1 + a2)
+        dX = np.stack([h2 - h1, np.cos(m2) * h2 - np.cos(m1) * h1, np.sin(m2) * h2 - np.sin(m1) * h1,
+                       (a2 - a1) - (a1 - a0) - residual.rate * (h2 - h1)])
+        d -= coef @ dX
+        adev[:, i] = np.sqrt(np.einsum("ij,ij->i", d, d) / (2.0 * e.size)) / (m * dt)
+        clusters[i] = min(n / m, e.size)
+    return np.asarray(sizes) * dt, adev, clusters
+
+
+def cluster_sizes(n, steps_per_octave=2):
+    """Cluster sizes ``m = round(2^(j / steps))``, unique, 1 <= m <= n // 2 (int array)."""
+    top = max(1, n // 2)
+    j = np.arange(int(math.floor(steps_per_octave * math.log2(top))) + 1)
+    return np.unique(np.round(2.0 ** (j / steps_per_octave)).astype(np.int64))
+
+
+def allan_deviation(increments, tau0, *, max_terms=MAX_TERMS, sizes=None):
+    """Overlapping Allan deviation of the rate whose increments over ``tau0`` are given
+    (module docstring, step 3).
+
+    Parameters
+    ----------
+    increments : array_like, shape (c, n)
+        Per channel, the integral of the rate over each of ``n`` consecutive intervals of
+        ``tau0`` (rad, m/s, ...).
+    tau0 : float
+        Interval, s.
+    max_terms : int
+        Start points per cluster time (about; at most twice): every one below it.
+    sizes : array_like of int, optional
+        Cluster sizes (intervals per cluster); default :func:`cluster_sizes`.
+
+    Returns
+    -------
+    tau : numpy.ndarray, shape (k,)
+        s.
+    adev : numpy.ndarray, shape (c, k)
+        Rate units (increment unit per s).
+    clusters : numpy.ndarray, shape (k,)
+        Independent clusters behind each value, ``min(n / m, start points)``.
+    """
+    x = np.atleast_2d(np.asarray(increments, dtype=float))
+    c, n = x.shape
+    theta = np.zeros((c, n + 1))
+    np.cumsum(x, axis=1, out=theta[:, 1:])
+    ms = cluster_sizes(n) if sizes is None else np.asarray(sizes, dtype=np.int64)
+    if ms.size == 0 or ms.min() < 1 or ms.max() > n // 2:
+        raise ValueError(f"cluster sizes must lie in 1..{n // 2} for {n} intervals")
+    adev = np.empty((c, ms.size))
+    clusters = np.empty(ms.size)
+    for i, m in enumerate(ms.tolist()):
+        span = n + 1 - 2 * m
+        step = max(1, span // max_terms)
+        cnt = (span - 1) // step + 1
+        d = theta[:, 2 * m::step][:, :cnt] - 2.0 * theta[:, m::step][:, :cnt] + theta[:, :span:step]
+        adev[:, i] = np.sqrt(np.einsum("ij,ij->i", d, d) / (2.0 * cnt)) / (m * tau0)
+        clusters[i] = min(n / m, cnt)
+    return ms * tau0, adev, clusters
+
+
+def fit_allan(tau, adev, clusters, *, iterations=3):
+    """The IEEE 952 Annex C fit (module docstring, step 4).
+
+    Parameters
+    ----------
+    tau : array_like, shape (k,)
+        s.
+    adev : array_like, shape (c, k)
+        Allan deviation per channel.
+    clusters : array_like, shape (k,)
+        Independent clusters behind each point.
+
+    Returns
+    -------
+    coefficients, coefficients_std : numpy.ndarray, shape (c, 4)
+        ``A_k``, k = -2..1, >= 0, and their 1-sigma (NaN where held at zero).
+    """
+    tau = np.asarray(tau, dtype=float)
+    avar = np.atleast_2d(np.asarray(adev, dtype=float)) ** 2
+    rel = np.sqrt(2.0 / np.maximum(np.asarray(clusters, dtype=float) - 1.0, 1.0))
+    T = tau[:, None] ** _POWERS[None, :]                     # (k, 4)
+    mask = _SUBSETS                                           # (15, 4)
+    both = mask[:, :, None] & mask[:, None, :]                # (15, 4, 4)
+    eye = np.eye(4)
+    model = avar
+    for _ in range(iterations):
+        s = np.maximum(model, 1e-300) * rel                   # (c, k) 1-sigma of each variance
+        A = T[None, :, :] / s[:, :, None]                     # (c, k, 4)
+        b = avar / s
+        scale = np.sqrt(np.einsum("ckj,ckj->cj", A, A))
+        scale[scale == 0] = 1.0
+        A = A / scale[:, None, :]
+        G = np.einsum("ckj,ckl->cjl", A, A) + 1e-13 * eye     # (c, 4, 4)
+        h = np.einsum("ckj,ck->cj", A, b)
+        Gm = np.where(both[None], G[:, None], eye)            # (c, 15, 4, 4)
+        hm = np.where(mask[None], h[:, None], 0.0)            # (c, 15, 4)
+        x = np.linalg.solve(Gm, hm[..., None])[..., 0]
+        feasible = np.all(x >= 0.0, axis=2)
+        # the weighted residual sum of squares less b'b: -h_S' G_SS^-1 h_S at each set's solution
+        cost = np.where(feasible, -np.einsum("csj,csj->cs", x, hm), np.inf)
+        best = np.argmin(cost, axis=1)
+        none = ~np.isfinite(cost[np.arange(cost.shape[0]), best])
+        xs = x[np.arange(x.shape[0]), best]
+        xs[none] = 0.0
+        coef = np.where(mask[best], xs, 0.0) / scale
+        model = coef @ T.T
+    cov = np.linalg.inv(Gm[np.arange(Gm.shape[0]), best])
+    std = np.sqrt(np.maximum(np.diagonal(cov, axis1=1, axis2=2), 0.0)) / scale
+    std = np.where(mask[best] & ~none[:, None], std, np.nan)
+    return coef, std
+
+
+def noise_from_log(log, *, block_period=BLOCK_PERIOD, max_terms=MAX_TERMS):
+    """The Allan curves and IEEE 952 terms of one raw log's six channels.
+
+    Parameters
+    ----------
+    log : RawLog
+    block_period : float
+        The block the deterministic part is fitted on, s (module docstring, step 2); shorter
+        clusters come from the raw samples (step 3).
+    max_terms : int
+        Start points per cluster time (step 3).
+
+    Returns
+    -------
+    NoiseFigures
+
+    Raises
+    ------
+    ValueError
+        The log is too short (fewer than :data:`MIN_BLOCKS` blocks).
+    """
+    res = deterministic_residual(log, block_period=block_period)
+    short = [m for m in cluster_sizes(res.block, steps_per_octave=1).tolist() if m < res.block]
+    tau, adev, clusters = allan_deviation(res.blocks, res.tau0, max_terms=max_terms)
+    if short:
+        tau_s, adev_s, clusters_s = _short_allan(log, res, short, max_terms)
+        tau, adev = np.concatenate([tau_s, tau]), np.concatenate([adev_s, adev], axis=1)
+        clusters = np.concatenate([clusters_s, clusters])
+    coef, std = fit_allan(tau, adev, clusters)
+    return NoiseFigures(tau=tau, adev=adev, clusters=clusters, coefficients=coef, coefficients_std=std)
+
+
+def combine_noise(figures):
+    """One campaign's figures from its logs': the Allan variances at equal cluster times
+    (within 1e-6 relative) pooled with their independent clusters as weights, then fitted.
+
+    Parameters
+    ----------
+    figures : sequence of NoiseFigures
+
+    Returns
+    -------
+    NoiseFigures
+        ``n_logs`` the sum of the inputs'.
+    """
+    figures = list(figures)
+    if not figures:
+        raise ValueError("no noise figures to combine; allowed: one or more logs")
+    keys = {}
+    for f in figures:
+        for i, t in enumerate(f.tau.tolist()):
+            key = round(math.log2(t) * 1e6)
+            acc = keys.setdefault(key, [t, np.zeros(f.adev.shape[0]), 0.0])
+            acc[1] = acc[1] + f.clusters[i] * f.adev[:, i] ** 2
+            acc[2] += f.clusters[i]
+    order = sorted(keys)
+    tau = np.array([keys[k][0] for k in order])
+    clusters = np.array([keys[k][2] for k in order])
+    adev = np.sqrt(np.column_stack([keys[k][1] / keys[k][2] for k in order]))
+    coef, std = fit_allan(tau, adev, clusters)
+    return NoiseFigures(tau=tau, adev=adev, clusters=clusters, coefficients=coef, coefficients_std=std,
+                        n_logs=sum(f.n_logs for f in figures))

@@ -1,0 +1,242 @@
+"""The noise from the logs (issue 25, item 2): Allan deviation and the IEEE 952 terms against
+closed forms on seeded synthetic noise, against allantools (an independent implementation of
+the overlapping Allan deviation), and on simulated logs against the TruthConfig's noise.
+
+Tolerances come from the estimator's variance: a point of the Allan deviation made of ``K``
+independent clusters has a relative standard deviation ``1 / sqrt(2 (K - 1))`` (IEEE Std 952,
+Annex C), ``K = n / m`` for a cluster of ``m`` of ``n`` samples, at most about the number of
+start points the estimator averages (``MAX_TERMS``).
+"""
+import math
+
+import numpy as np
+import pytest
+
+from hse_opt import units
+from hse_opt.align.noise import (CHANNELS, MAX_TERMS, NOISE_COLUMNS, allan_deviation, combine_noise,
+                                 fit_allan, noise_from_log)
+
+TAU0 = 0.002
+N_SAMPLES = 2 ** 17
+
+
+def _clusters(n, m):
+    """Independent clusters behind a point, as the test counts them (module docstring)."""
+    return min(n / m, MAX_TERMS)
+
+
+def _white_rate(rng, N, c, n=N_SAMPLES):
+    """Increments of white rate noise of density N (rad/sqrt(s)): ADEV = N / sqrt(tau)."""
+    return N * math.sqrt(TAU0) * rng.standard_normal((c, n))
+
+
+def _rate_random_walk(rng, K, c, n=N_SAMPLES):
+    """Increments of a rate random walk of K (rad/s/sqrt(s)), a Wiener process in continuous
+    time integrated over each interval (the trapezoid of its ends plus the Brownian bridge's
+    integral, variance K^2 tau0^3 / 12): ADEV = K sqrt(tau / 3)."""
+    ends = np.cumsum(K * math.sqrt(TAU0) * rng.standard_normal((c, n + 1)), axis=1)
+    bridge = K * math.sqrt(TAU0 ** 3 / 12.0) * rng.standard_normal((c, n))
+    return 0.5 * TAU0 * (ends[:, :-1] + ends[:, 1:]) + bridge
+
+
+def _quantized(rng, q, c, n=N_SAMPLES):
+    """Pulse counts of a quantum q (rad) less the true increments, for an angle that turns
+    steadily with a jitter of a few pulses (which dithers the counter): the counter's error in
+    the cumulative angle is uniform over one pulse, white, std Q = q / sqrt(12): ADEV =
+    sqrt(3) Q / tau."""
+    angle = np.cumsum(np.full((c, n + 1), 7.3e-5), axis=1) + 3 * q * rng.standard_normal((c, n + 1))
+    return np.diff(np.floor(angle / q) * q - angle, axis=1)
+
+
+def _flicker(rng, B, c, n=N_SAMPLES):
+    """Flicker rate noise with one-sided PSD h / f, h = B^2 / pi, shaped from white noise
+    (white of unit variance has one-sided PSD 2 tau0): ADEV floor sqrt(2 ln 2 h) = 0.664 B."""
+    f = np.fft.rfftfreq(n, TAU0)
+    gain = np.zeros_like(f)
+    gain[1:] = np.sqrt(B ** 2 / math.pi / f[1:] / (2.0 * TAU0))
+    rate = np.fft.irfft(np.fft.rfft(rng.standard_normal((c, n)), axis=1) * gain, n=n, axis=1)
+    return rate * TAU0
+
+
+@pytest.mark.parametrize("seed", [1, 2])
+def test_white_rate_noise_gives_n_over_sqrt_tau_and_its_arw(seed):
+    N = 3e-6
+    x = _white_rate(np.random.default_rng(seed), N, 3)
+    tau, adev, _ = allan_deviation(x, TAU0)
+    m = np.round(tau / TAU0)
+    sigma = np.array([1 / math.sqrt(2 * (_clusters(N_SAMPLES, k) - 1)) for k in m])
+    ratio = adev / (N / np.sqrt(tau))                      # closed form
+    assert np.all(np.abs(ratio - 1) < 4.5 * sigma), np.max(np.abs(ratio - 1) / sigma)
+    coef, _ = fit_allan(tau, adev, np.array([_clusters(N_SAMPLES, k) for k in m]))
+    # the fit's N is no worse than three sigma of its best point
+    assert np.allclose(np.sqrt(coef[:, 1]), N, rtol=3 * sigma.min())
+    # no quantization or rate random walk beyond what the scatter of the extreme points allows
+    # (a variance's relative 1-sigma is twice the deviation's)
+    assert np.all(3 * coef[:, 0] / tau[0] ** 2 < 2 * 4.5 * sigma[0] * N ** 2 / tau[0])
+    assert np.all(coef[:, 3] * tau[-1] / 3 < 2 * 4.5 * sigma[-1] * N ** 2 / tau[-1])
+
+
+@pytest.mark.parametrize("seed", [3, 4])
+def test_rate_random_walk_gives_k_sqrt_tau_over_3(seed):
+    K = 2e-7
+    x = _rate_random_walk(np.random.default_rng(seed), K, 3)
+    tau, adev, clusters = allan_deviation(x, TAU0)
+    m = np.round(tau / TAU0)
+    # a random walk's Allan variance is less stable than white noise's: its points are checked
+    # where at least 30 independent clusters stand behind them, at 6 sigma of the white-noise rule
+    ok = N_SAMPLES / m >= 30
+    sigma = np.array([1 / math.sqrt(2 * (_clusters(N_SAMPLES, k) - 1)) for k in m[ok]])
+    ratio = adev[:, ok] / (K * np.sqrt(tau[ok] / 3))   # closed form
+    assert np.all(np.abs(ratio - 1) < 6 * sigma + 0.02), np.max(np.abs(ratio - 1) / sigma)
+    coef, _ = fit_allan(tau, adev, clusters)
+    assert np.allclose(np.sqrt(3 * coef[:, 3]), K, rtol=0.15)
+
+
+@pytest.mark.parametrize("seed", [5, 6])
+def test_quantization_gives_sqrt3_q_over_tau(seed):
+    q = 0.1 * units.ARCSEC
+    Q = q / math.sqrt(12)
+    x = _quantized(np.random.default_rng(seed), q, 3)
+    tau, adev, clusters = allan_deviation(x, TAU0)
+    m = np.round(tau / TAU0)
+    sigma = np.array([1 / math.sqrt(2 * (_clusters(N_SAMPLES, k) - 1)) for k in m])
+    ratio = adev / (math.sqrt(3) * Q / tau)                 # closed form
+    assert np.all(np.abs(ratio - 1) < 4.5 * sigma + 0.01), np.max(np.abs(ratio - 1) / sigma)
+    coef, _ = fit_allan(tau, adev, clusters)
+    assert np.allclose(np.sqrt(coef[:, 0] / 3), Q, rtol=3 * sigma.min() + 0.005)
+
+
+def test_flicker_floor_gives_the_bias_instability():
+    B = 1e-6
+    x = _flicker(np.random.default_rng(7), B, 3)
+    tau, adev, clusters = allan_deviation(x, TAU0)
+    # the flat floor sqrt(2 ln 2 / pi) B (flicker approximated by a constant: its curve
+    # bends near the shortest clusters and the record length, so the middle decades)
+    mid = (tau > 0.05) & (tau < 2.0)
+    assert np.allclose(adev[:, mid], math.sqrt(2 * math.log(2) / math.pi) * B, rtol=0.15)
+    coef, _ = fit_allan(tau, adev, clusters)
+    assert np.allclose(np.sqrt(coef[:, 2] * math.pi / (2 * math.log(2))), B, rtol=0.2)
+
+
+def test_a_sum_of_terms_is_split_into_each():
+    rng = np.random.default_rng(8)
+    N, K, q = 3e-6, 3e-6, 0.5 * units.ARCSEC   # random walk above white noise from 2 s
+    x = _white_rate(rng, N, 3, n=2 ** 18) + _rate_random_walk(rng, K, 3, n=2 ** 18) + _quantized(rng, q, 3, n=2 ** 18)
+    tau, adev, clusters = allan_deviation(x, TAU0)
+    coef, std = fit_allan(tau, adev, clusters)
+    assert np.allclose(np.sqrt(coef[:, 0] / 3), q / math.sqrt(12), rtol=0.05)
+    # N shares the middle decades with the random walk: over the 60 channel-records below it
+    # scattered by 4 % (1 sigma): 3 sigma
+    assert np.allclose(np.sqrt(coef[:, 1]), N, rtol=0.12)
+    # a random walk is seen through the few longest clusters: over 60 such channel-records
+    # (seeds 0-19) the fitted K scattered by 14 % (1 sigma) about the truth: 3 sigma
+    assert np.allclose(np.sqrt(3 * coef[:, 3]), K, rtol=0.4)
+    # the fit's own 1-sigma of N covers its error at 4 sigma
+    assert np.all(np.abs(coef[:, 1] - N ** 2) < 4 * std[:, 1])
+
+
+def test_the_overlapping_allan_deviation_is_allantools_oadev():
+    allantools = pytest.importorskip("allantools", reason="allantools is a test extra (pyproject [test])")
+    rng = np.random.default_rng(9)
+    x = _white_rate(rng, 3e-6, 2, n=20000) + _rate_random_walk(rng, 1e-7, 2, n=20000)
+    # every start point: exactly allantools' fully overlapping estimator
+    tau, adev, _ = allan_deviation(x, TAU0, max_terms=10 ** 9)
+    for c in range(2):
+        t_ref, a_ref, _, _ = allantools.oadev(x[c] / TAU0, rate=1 / TAU0, data_type="freq", taus=tau)
+        assert np.allclose(t_ref, tau) and np.allclose(adev[c], a_ref, rtol=1e-9, atol=0)
+    # the default's subsampled start points: the same where fewer than MAX_TERMS exist, within
+    # the estimator's own scatter elsewhere
+    tau, sub, clusters = allan_deviation(x, TAU0)
+    full = (20000 + 1 - 2 * np.round(tau / TAU0)) < 2 * MAX_TERMS
+    assert np.allclose(sub[:, full & (20001 - 2 * np.round(tau / TAU0) <= MAX_TERMS)],
+                       adev[:, full & (20001 - 2 * np.round(tau / TAU0) <= MAX_TERMS)], rtol=1e-12)
+    sigma = 1 / np.sqrt(2 * (clusters - 1))
+    assert np.all(np.abs(sub / adev - 1) < 4 * sigma)
+
+
+def test_campaign_pooling_is_the_cluster_weighted_mean_of_the_variances():
+    rng = np.random.default_rng(10)
+    logs = [_SyntheticLog(rng, n) for n in (40000, 40000, 60000)]
+    figs = [noise_from_log(log) for log in logs]
+    pooled = combine_noise(figs)
+    assert pooled.n_logs == 3
+    i = 5   # a cluster time all three share
+    t = figs[0].tau[i]
+    w = [f.clusters[list(f.tau).index(t)] for f in figs]
+    v = [f.adev[:, list(f.tau).index(t)] ** 2 for f in figs]
+    j = int(np.argmin(np.abs(pooled.tau - t)))
+    assert np.allclose(pooled.adev[:, j] ** 2, sum(wi * vi for wi, vi in zip(w, v)) / sum(w), rtol=1e-12)
+    assert np.allclose(pooled.random_walk[:3], _SyntheticLog.N, rtol=0.05)
+
+
+class _SyntheticLog:
+    """A raw log of white rate noise on a table turning at 40 deg/s with a 0.5 arcsec jitter,
+    the Earth rate and gravity modulated at the table rate (by hand, not by the simulator)."""
+    N = 5e-6
+
+    def __init__(self, rng, n):
+        t = np.arange(n) * TAU0
+        rate = 40 * units.DEG_PER_S
+        self.encoder = rate * t + 0.5 * units.ARCSEC * rng.standard_normal(n)
+        share = np.array([-0.577, -0.578, -0.577])
+        w_h = 13 * units.DEG_PER_H
+        a = self.encoder
+        turn = np.diff(a, prepend=a[0])[:, None] * share
+        earth = w_h * np.column_stack([np.cos(a), np.sin(a), -np.cos(a + 1)]) * TAU0
+        self.gyro = turn + earth + (_white_rate(rng, self.N, 3, n=n)).T
+        self.accel = (np.column_stack([0.1 * np.cos(a), -0.1 * np.sin(a), np.full(n, 5.66)]) * TAU0
+                      + _white_rate(rng, 1e-5, 3, n=n).T)
+        self.t = t
+
+
+def test_the_table_turn_earth_rate_and_gravity_are_fitted_out():
+    log = _SyntheticLog(np.random.default_rng(11), 60000)
+    fig = noise_from_log(log)
+    # what remains is the white noise: its ARW and VRW, no quantization, no bias instability
+    assert np.allclose(fig.random_walk[:3], _SyntheticLog.N, rtol=0.05)
+    assert np.allclose(fig.random_walk[3:], 1e-5, rtol=0.05)
+    white = _SyntheticLog.N / np.sqrt(fig.tau)
+    assert np.all(fig.adev[:3] < 2.0 * white)      # the 0.5 arcsec jitter alone would be 10 x
+    assert set(fig.columns()) == set(NOISE_COLUMNS) and len(CHANNELS) == 6
+
+
+# -- simulated logs against the TruthConfig's noise ------------------------------------------------
+
+def _sim_log(truth, seed, duration=120.0):
+    from hse_opt.sim import RunSpec, generate
+    return generate(truth, RunSpec(rate=40 * units.DEG_PER_S, azimuth=0.3, duration=duration, t_start=7200.0),
+                    np.random.default_rng(seed))
+
+
+def test_simulated_logs_give_the_truths_arw_vrw_and_quanta():
+    from hse_opt.sim import TruthConfig
+    # a noisier gyro than the default (0.05 deg/h/sqrt(Hz)): its white noise shows above the
+    # quantization from 0.5 s, so two-minute logs pin it
+    truth = TruthConfig.default().updated({"gyro": {"arw_dph_rthz": 0.05}, "accel": {"vrw_ug_rthz": 20.0}})
+    figs = [noise_from_log(_sim_log(truth, seed)) for seed in (1, 2, 3)]
+    fig = combine_noise(figs)
+    cols = fig.columns()
+    assert cols["gyro_arw_dph_rthz"] == pytest.approx(0.05, rel=0.1)
+    assert cols["accel_vrw_ug_rthz"] == pytest.approx(20.0, rel=0.1)
+    # gyro quantization: the pulses' q / sqrt(12) and the encoder's resolution / sqrt(12)
+    # seen through the axis's share of the turn (|r_zb^s| components about 0.577)
+    share = np.abs(np.asarray(truth.mount.r_zb_s_true))
+    q_gyro = np.sqrt((truth.gyro.pulse / math.sqrt(12)) ** 2 + (share * truth.encoder.resolution / math.sqrt(12)) ** 2)
+    assert np.allclose(fig.quantization[:3], q_gyro, rtol=0.1)
+    assert cols["accel_quantization_mps"] == pytest.approx(truth.accel.pulse / math.sqrt(12), rel=0.1)
+
+
+def test_a_noise_free_simulated_log_leaves_nothing():
+    from hse_opt.sim import TruthConfig
+    truth = TruthConfig.default()
+    fig = noise_from_log(_sim_log(truth.noise_free(), 1, duration=60.0))
+    # the table turn, its ripple and jitter, the Earth rate and gravity are gone: what is left
+    # is far below the default sensors' noise
+    assert fig.columns()["gyro_arw_dph_rthz"] < 1e-3 * truth.gyro.arw / units.DEG_PER_H
+    assert fig.columns()["accel_vrw_ug_rthz"] < 1e-3 * truth.accel.vrw / units.MICRO_G
+
+
+def test_a_short_log_is_refused_naming_what_is_needed():
+    log = _SyntheticLog(np.random.default_rng(12), 200)
+    with pytest.raises(ValueError, match="allowed: at least"):
+        noise_from_log(log)
