@@ -14,6 +14,7 @@ import numpy as np
 
 from hse_opt import units
 from hse_opt.align.processor import align
+from hse_opt.align.quality import assess
 from hse_opt.align.rawlog import load_rawlog
 from hse_opt.data import DataError, Runs
 
@@ -41,7 +42,9 @@ def _align_one(path, config):
     from hse_opt.data import DEFAULT_MIN_RATE_DPS
 
     try:
-        log = load_rawlog(path)
+        quality = assess(load_rawlog(path))
+        quality.raise_if_refused(path)
+        log = quality.log
         res = align(log, config)
         if abs(res.rate) < DEFAULT_MIN_RATE_DPS * units.DEG_PER_S:
             raise ValueError(f"the encoder's mean rate is {res.rate / units.DEG_PER_S:.4g} deg/s; allowed: "
@@ -56,7 +59,7 @@ def _align_one(path, config):
            "heading_deg": float(np.mod(res.heading, 2 * np.pi)) / units.DEG,
            "latitude_deg": lat / units.DEG, "duration_s": round(len(log) * log.sample_period, 6),
            "pitch_arcsec": res.pitch / units.ARCSEC, "roll_arcsec": res.roll / units.ARCSEC,
-           "heading_std_arcsec": res.heading_std / units.ARCSEC}
+           "heading_std_arcsec": res.heading_std / units.ARCSEC, "quality": quality.summary()}
     for key in ("run", "position", *LOG_META_COLUMNS):
         if log.meta.get(key) is not None:
             row[key] = log.meta[key]
@@ -90,7 +93,9 @@ def align_logs(paths, config, jobs=1, progress=None):
         One RUNS row per good log, in the order of ``paths``: ``rate_dps`` (the encoder's mean
         rate), ``heading_deg``, ``latitude_deg``, ``duration_s`` (samples times the sample
         period, to the microsecond: the record's length),
-        ``pitch_arcsec``, ``roll_arcsec``, ``heading_std_arcsec`` (the filter's 1-sigma), and
+        ``pitch_arcsec``, ``roll_arcsec``, ``heading_std_arcsec`` (the filter's 1-sigma),
+        ``quality`` (:meth:`hse_opt.align.quality.Quality.summary`: ``ok``, or what was
+        repaired or noted before alignment), and
         from the log's metadata, when present: ``run``, ``position``, ``azimuth_deg``,
         ``t_start_s``, ``temp_c``. Each row also has ``log`` (its path).
     errors : list of str
@@ -164,6 +169,8 @@ def runs_from_rows(rows, source="<aligned logs>"):
                 raise DataError(r["log"], "has no 'position' in its metadata while other logs have one; "
                                           "allowed: a position in every log's metadata or in none")
         columns["position"] = [str(r["position"]) for r in rows]
+    if any("quality" in r for r in rows):
+        columns["quality"] = [r.get("quality", "") for r in rows]
     for name in ("t_start_s", "temp_c"):
         have = sum(name in r for r in rows)
         if have == len(rows):

@@ -16,9 +16,14 @@ DESCRIPTION = (
     "(pitch_arcsec, roll_arcsec) and 1-sigma (heading_std_arcsec), the log's duration, and "
     "from the log's metadata run, position, azimuth_deg (the stand reading: then "
     "heading_err_arcsec too; without it the run has no heading reference), t_start_s and "
-    "temp_c. A directory stands for the raw logs in it. A bad log (truncated, gaps, NaN, a "
-    "dead channel, wrong units) is reported on one line naming the file and sample; the "
-    "others are still aligned and written, and the exit status is 2.")
+    "temp_c. A directory stands for the raw logs in it. Before alignment each log's quality "
+    "is checked (hse_opt/align/quality.py: encoder samples against the table's rate and the "
+    "gyros, the table's rate, stuck, saturated or spiking channels, metadata types): an "
+    "isolated glitch is repaired by a documented rule and the row's text column quality says "
+    "so ('ok' otherwise); anything else refuses the log. A bad log (truncated, gaps, NaN, a "
+    "dead channel, wrong units, a refused quality check) is reported on one line naming the "
+    "file, sample and time; the others are still aligned and written, and the exit status is "
+    "2 with the count of bad logs.")
 INPUTS = ("logs", "truth")
 OUTPUTS = {"output": FILE}
 EXAMPLE = """examples:

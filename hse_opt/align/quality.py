@@ -1,0 +1,640 @@
+"""Raw-log quality before alignment: what a recording can get wrong, each finding named with
+the sample and its time; a log is repaired by a documented rule or refused, never aligned
+into a silently wrong heading.
+
+:func:`assess` runs the checks below on a :class:`~hse_opt.align.rawlog.RawLog` (after
+:func:`~hse_opt.align.rawlog.validate_rawlog` and :func:`~hse_opt.align.rawlog.check_rawlog`,
+which already refuse non-finite values, timestamps that go back, gaps longer than 1.5 sample
+periods, dead channels and wrong units) and returns a :class:`Quality`: the log to align
+(repaired, or the input unchanged), the findings, and whether the log is refused.
+``hse-opt align`` writes :meth:`Quality.summary` into the RUNS.csv text column ``quality``
+(``ok``, or what was repaired or noted) and refuses a log with one line on stderr.
+
+Checks, rules and thresholds (:class:`Thresholds`; the reasons are physical)
+----------------------------------------------------------------------------
+1. **Encoder samples** (per sample). Each step ``alpha_k - alpha_{k-1}`` is compared with
+   the table's step (the median step): a step is off when it deviates by more than
+   ``max(encoder_sigmas x its robust 1-sigma, encoder_floor)``. The 1-sigma (1.4826 x the
+   median absolute deviation) is the servo jitter and the encoder's resolution seen in the
+   steps (0.8 arcsec for the paper-like stand: 0.5 arcsec jitter, 0.18 arcsec resolution);
+   10 sigma has no false alarm in 10^15 Gaussian steps. The floor, 2 arcsec, keeps a
+   noise-free log from flagging rounding; an isolated sample off by less moves the heading
+   by < 1e-5 arcsec (0.7 arcsec per rad measured mid-run).
+
+   *Repair*: a run of at most ``repair_samples`` (3) consecutive samples whose first and
+   last neighbours agree with the table's rate (the steps around them add up to the rate's
+   within the threshold: a glitch, a sample off by a wrap, a repeated stale reading) is
+   replaced by the linear interpolation of those neighbours; at the log's first or last
+   samples by extrapolation from the good neighbour with the gyros' turn in each step. The
+   row says so (``repaired: encoder at sample k (t = ... s): ...``).
+   *Refusal*: a step that does not come back (the encoder jumped: lost counts or a slipped
+   zero, or the table jerked; the message gives the gyros' turn over that interval), or
+   more than ``repair_samples`` bad samples in a row (the encoder stuck, or the table
+   stalled). An uncorrected jump of ``d`` turns b0 by ``d`` for the rest of the run: the
+   heading moves by about ``d`` times the fraction of the run after it.
+2. **Table rate** (windows of ``window_s``, 0.5 s). The rate over each window from the
+   (repaired) encoder against the median: a window below ``stall`` (0.5) times it is a
+   stall; a relative deviation above ``rate_ripple`` (5e-3) refuses the log. Reason: the
+   filter assumes the table-fixed errors turn at one rate; a once-per-revolution ripple of
+   1e-2 moves a noise-free 10-minute heading by 2.0 arcsec at 5 deg/s and 0.56 arcsec at
+   10 deg/s (4 cycles per revolution: 0.42 and 0.04 arcsec), the paper's stand holds 1e-4;
+   the window's own noise (the jitter over a 2.5 deg window) is 1e-4.
+3. **Sensor channels** (windows of ``window_s``). First the norms, which no fit can bend:
+   the gyros' turn over the encoder's (median over the windows) must lie within
+   ``1 +- gyro_scale`` (5e-3: an RLG's scale factor is known to ppm and a triad's axes to
+   arcseconds, 1e-4; a wrong pulse weight, a channel clipped or stuck throughout, or 3 % on
+   one gyro is beyond it), and the accelerometers' specific force within ``gravity``
+   (9.7-9.9 m/s^2: gravity at sea level is 9.78-9.83 m/s^2, 5 km up 0.015 less, plus the
+   sensors' scale); each window's value of both, relative to the median, is a fault beyond
+   ``max(channel_sigmas x robust 1-sigma, norm_floor)``. Then each gyro's and
+   accelerometer's window sum is fitted: on a static base with the IMU fixed to the table
+   top, every channel is a constant plus a sinusoid of the table angle (the horizontal
+   Earth rate and gravity turning with the table), plus, for a gyro, its share ``beta_j``
+   of the table's turn (``beta_j = sum gyro_j / sum d alpha``: the axis's cosine to z_b,
+   0.577 for the paper's triad), plus slow drifts (warm-up, temperature: a quadratic in
+   time); the fit leaves out the windows whose norms are off, and then those whose
+   residuals are. The residuals are pulse quantization (one pulse per window: the counters
+   carry their remainders) and noise; a window deviating by more than
+   ``max(channel_sigmas x the channel's robust 1-sigma, floor)`` (the floors: ``gyro_floor``
+   1e-3 arcsec, ``accel_floor`` 1e-7 m/s, one per mille of the paper's pulses, above a
+   noise-free log's model residual) is a fault:
+
+   * all three gyros in one window, in the ratio of their ``beta_j`` and the accelerometers
+     not: an encoder jump too small for check 1 (the encoder turned by ``d`` the gyros did
+     not: refused, naming the step that deviates most in the window); a pair of adjacent
+     windows with opposite jumps is one encoder sample off at their common edge (repaired
+     by the neighbours' interpolation);
+   * one sample of one channel that alone explains its window's residual (a spike: the
+     sample's deviation from its neighbours' mean, for a gyro less its share of the
+     table's step deviation, matches the residual within the threshold): replaced by the
+     neighbours' mean (plus, for a gyro, that share) (*repaired*);
+   * otherwise refused: *saturated* (the bad windows hold the channel's extreme value of
+     the log three or more times: a clipped range), *stuck* (the channel repeats one value
+     for ``stuck_samples`` (25) or more samples in the bad windows; the finding names the
+     run's first sample), or a fault that does not follow the table's turn.
+
+   What passes: a gyro error in one sample below the gyro threshold (0.66 arcsec, 10 x a
+   window's 0.066-arcsec quantization, for the paper-like system) is not seen, and the
+   filter takes an angle error ``d`` like a rate error ``d / T`` over the run: 5 arcsec in
+   gyro_y at mid-run moves a 10-minute heading by 103 arcsec (repaired: 0.2), 0.6 arcsec
+   (passing) by 12 arcsec, 1.5 of its sigmas. A single lost pulse is not detectable.
+4. **Temperature** (only for a log that carries a temperature channel: ``temperature``;
+   a mapping file's ``temp_c`` column). A drift of more than ``temp_drift_c`` (1 degC)
+   between the first and the last window is noted (not refused): a gyro bias
+   temperature coefficient of 2e-4 deg/h/degC (TRUTH.toml's ``bias_tempco_dph_per_c``)
+   makes 1 degC a bias change the table's rotation does not average within the run, up
+   to 3 arcsec of heading by Eq. 12.
+5. **Metadata types** (:func:`check_metadata`): the keys the processor and RUNS.csv read
+   have their types (numbers finite, ``run`` an integer, ``position`` a label); a wrong
+   type refuses the log naming the key and what is allowed.
+
+Cost: a few passes over the samples and one least-squares fit of a few hundred windows
+(about 2 ms on a 10-minute 500 Hz log; ``benchmarks/align.py``).
+"""
+from __future__ import annotations
+
+import math
+import numbers
+from dataclasses import dataclass
+
+import numpy as np
+
+from hse_opt import units
+
+__all__ = ["Thresholds", "Finding", "Quality", "LogRefused", "assess", "check_metadata"]
+
+#: channel names in RawLog column order (gyro x, y, z then accelerometer x, y, z)
+CHANNELS = ("gyro_x", "gyro_y", "gyro_z", "accel_x", "accel_y", "accel_z")
+_MAD = 1.4826          # robust 1-sigma of a Gaussian from its median absolute deviation
+
+
+@dataclass(frozen=True)
+class Thresholds:
+    """The checks' thresholds (SI); the module docstring gives each one's physical reason.
+
+    Attributes
+    ----------
+    encoder_sigmas : float
+        An encoder step is off beyond this many robust 1-sigma of the steps.
+    encoder_floor : float
+        ... and beyond this, rad (2 arcsec).
+    repair_samples : int
+        At most this many consecutive bad encoder samples are repaired.
+    window_s : float
+        Window of the rate and channel checks, s.
+    rate_ripple : float
+        Allowed relative deviation of a window's table rate from the median rate.
+    stall : float
+        A window rate below this fraction of the median rate is a stall.
+    channel_sigmas : float
+        A channel's window residual is a fault beyond this many robust 1-sigma.
+    gyro_floor, accel_floor : float
+        ... and beyond these, rad and m/s per window.
+    norm_floor : float
+        A window's gyro turn over the encoder's, or its specific force, relative to the
+        median: a fault beyond ``channel_sigmas`` robust 1-sigma and this.
+    gyro_scale : float
+        The gyros' turn over the encoder's must lie within ``1 +- gyro_scale``.
+    gravity : (float, float)
+        The accelerometers' specific force must lie in this band, m/s^2.
+    stuck_samples : int
+        A channel repeating one value this many samples in a bad window is stuck.
+    temp_drift_c : float
+        A temperature drift above this over the run is noted, degC.
+    """
+
+    encoder_sigmas: float = 10.0
+    encoder_floor: float = 2.0 * units.ARCSEC
+    repair_samples: int = 3
+    window_s: float = 0.5
+    rate_ripple: float = 5e-3
+    stall: float = 0.5
+    channel_sigmas: float = 10.0
+    gyro_floor: float = 1e-3 * units.ARCSEC
+    accel_floor: float = 1e-7
+    norm_floor: float = 1e-6
+    gyro_scale: float = 5e-3
+    gravity: tuple = (9.7, 9.9)
+    stuck_samples: int = 25
+    temp_drift_c: float = 1.0
+
+
+@dataclass(frozen=True)
+class Finding:
+    """One finding of :func:`assess`.
+
+    Attributes
+    ----------
+    check : str
+        ``encoder``, ``rate``, ``channel``, ``temperature`` or ``metadata``.
+    sample : int or None
+        Sample index (None for metadata).
+    time : float or None
+        The sample's timestamp, s (``t_s``).
+    action : str
+        ``repaired``, ``refused`` or ``noted``.
+    detail : str
+        What was found, in display units, and for a refusal what is allowed.
+    """
+
+    check: str
+    sample: int | None
+    time: float | None
+    action: str
+    detail: str
+
+    def text(self):
+        """One line: ``<check> at sample k (t = ... s): <detail>``."""
+        where = "" if self.sample is None else f" at sample {self.sample} (t = {self.time:.6g} s)"
+        return f"{self.check}{where}: {self.detail}"
+
+
+class LogRefused(ValueError):
+    """A log the quality checks refuse; the message is the first refusal (file, sample, time)."""
+
+
+@dataclass(frozen=True, eq=False)
+class Quality:
+    """Result of :func:`assess`.
+
+    Attributes
+    ----------
+    log : RawLog
+        The log to align: repaired where a rule applied, else the input itself.
+    findings : tuple of Finding
+    """
+
+    log: object
+    findings: tuple = ()
+
+    @property
+    def refused(self):
+        """True when a finding refuses the log."""
+        return any(f.action == "refused" for f in self.findings)
+
+    @property
+    def repaired(self):
+        """True when the returned log differs from the input."""
+        return any(f.action == "repaired" for f in self.findings)
+
+    def summary(self):
+        """The RUNS.csv ``quality`` text: ``ok``, or ``repaired: ...; noted: ...``."""
+        parts = [f"{f.action}: {f.text()}" for f in self.findings]
+        return "; ".join(parts) if parts else "ok"
+
+    def raise_if_refused(self, source):
+        """Raise :class:`LogRefused` naming ``source`` and the first refusal (with a count
+        of the others)."""
+        refusals = [f for f in self.findings if f.action == "refused"]
+        if refusals:
+            more = f" (and {len(refusals) - 1} more)" if len(refusals) > 1 else ""
+            raise LogRefused(f"{source}: {refusals[0].text()}{more}")
+
+
+# -- metadata ------------------------------------------------------------------------------------
+def _number(v):
+    return isinstance(v, numbers.Real) and not isinstance(v, bool) and math.isfinite(float(v))
+
+
+#: metadata key -> (test, what is allowed)
+_META_TYPES = {
+    "latitude_deg": (lambda v: _number(v) and abs(float(v)) < 89.0, "a number, |latitude| < 89 deg"),
+    "rate_dps": (_number, "a finite number, deg/s"),
+    "azimuth_deg": (_number, "a finite number, deg (leave the key out for an unsurveyed position)"),
+    "t_start_s": (lambda v: _number(v) and float(v) >= 0.0, "a finite number >= 0, s"),
+    "temp_c": (_number, "a finite number, degC"),
+    "run": (lambda v: isinstance(v, numbers.Integral) and not isinstance(v, bool), "an integer"),
+    "position": (lambda v: isinstance(v, str) and v.strip() != "" or
+                 isinstance(v, numbers.Integral) and not isinstance(v, bool), "a text label or an integer"),
+    "source": (lambda v: isinstance(v, str), "text"),
+}
+
+
+def check_metadata(meta):
+    """Findings (refusals) for metadata keys of the wrong type or value.
+
+    Parameters
+    ----------
+    meta : dict
+        A raw log's metadata; keys not listed in ``_META_TYPES`` are not checked (they are
+        kept, and the loader checks the pulse weights).
+
+    Returns
+    -------
+    list of Finding
+    """
+    out = []
+    for key, (ok, allowed) in _META_TYPES.items():
+        if key in meta and meta[key] is not None and not ok(meta[key]):
+            out.append(Finding("metadata", None, None, "refused",
+                               f"'{key}' = {meta[key]!r}; allowed: {allowed}"))
+    return out
+
+
+# -- 1. encoder samples --------------------------------------------------------------------------
+def _clusters(idx, gap):
+    """Split sorted indices into runs whose neighbours are at most ``gap`` apart: [(i1, i2)]."""
+    if idx.size == 0:
+        return []
+    cut = np.flatnonzero(np.diff(idx) > gap)
+    starts = np.concatenate(([0], cut + 1))
+    ends = np.concatenate((cut, [idx.size - 1]))
+    return [(int(idx[a]), int(idx[b])) for a, b in zip(starts, ends)]
+
+
+def _step_stats(d):
+    """(centre, robust 1-sigma) of the encoder steps ``d`` from every 29th step (the table's
+    step and its jitter; a handful of glitches does not move a median)."""
+    sub = d[::29] if d.size >= 2900 else d
+    c = float(np.median(sub))
+    return c, _MAD * float(np.median(np.abs(sub - c)))
+
+
+def _check_encoder(t, enc, gyro, th, findings):
+    """Check 1; returns the encoder (a repaired copy, or ``enc`` itself)."""
+    n = enc.size
+    d = np.diff(enc)
+    c, s = _step_stats(d)
+    thr = max(th.encoder_sigmas * s, th.encoder_floor)
+    dev = d - c
+    bad = np.flatnonzero(np.abs(dev) > thr)
+    if bad.size == 0:
+        return enc
+    out = enc.copy()
+    gnorm = None
+    for i1, i2 in _clusters(bad, th.repair_samples):
+        # steps i1..i2 are those into samples i1+1 .. i2+1; samples i1+1 .. i2 lie between the
+        # anchors enc[i1] and enc[i2 + 1]
+        total = float(enc[i2 + 1] - enc[i1]) - (i2 - i1 + 1) * c
+        first, last = i1 + 1, i2
+        edge = (i1 == 0 and i2 < th.repair_samples) or (i2 == n - 2 and n - 1 - i1 <= th.repair_samples)
+        if edge and abs(total) > thr:
+            # the log's first samples 0 .. i2 or last samples i1 + 1 .. n - 1: extrapolated from
+            # the good neighbour by the gyros' turn (|gyro_k| scaled to the encoder's step)
+            if gnorm is None:
+                gnorm = _gyro_turn(gyro)
+            if i1 == 0:
+                k = np.arange(0, i2 + 1)
+                steps = np.sqrt(np.einsum("ij,ij->i", gyro[1:i2 + 2], gyro[1:i2 + 2])) * (c / gnorm)
+                out[k] = enc[i2 + 1] - np.cumsum(steps[::-1])[::-1]
+            else:
+                k = np.arange(i1 + 1, n)
+                steps = np.sqrt(np.einsum("ij,ij->i", gyro[i1 + 1:], gyro[i1 + 1:])) * (c / gnorm)
+                out[k] = enc[i1] + np.cumsum(steps)
+            a, b = int(k[0]), int(k[-1])
+            j = int(np.argmax(np.abs(enc[k] - out[k])))
+            findings.append(Finding("encoder", a, float(t[a]), "repaired",
+                                    (f"samples {a}-{b}" if b > a else "the sample") + " off the table's "
+                                    f"rate by {_arcsec(enc[k[j]] - out[k[j]])}: extrapolated from the neighbour by "
+                                    "the gyros' turn"))
+            continue
+        if abs(total) <= thr and 1 <= last - first + 1 <= th.repair_samples:
+            k = np.arange(first, last + 1)
+            out[k] = enc[i1] + (k - i1) * (enc[i2 + 1] - enc[i1]) / (i2 + 1 - i1)
+            off = enc[first:last + 1] - out[first:last + 1]
+            j = int(np.argmax(np.abs(off)))
+            span = f"samples {first}-{last}" if last > first else "the sample"
+            findings.append(Finding("encoder", first, float(t[first]), "repaired",
+                                    f"{span} off by {_arcsec(off[j])} from the neighbours' "
+                                    "interpolation: replaced by it"))
+            continue
+        if gnorm is None:
+            gnorm = _gyro_turn(gyro)
+        k = i1 + 1
+        seen = float(np.linalg.norm(gyro[k])) * math.copysign(1.0, c)
+        # the gyros' turn in each bad step against the encoder's (scaled to the encoder's)
+        g_steps = np.sqrt(np.einsum("ij,ij->i", gyro[k:i2 + 2], gyro[k:i2 + 2])) * (c / gnorm)
+        g_turn, e_turn = float(g_steps.sum()), float(enc[i2 + 1] - enc[i1])
+        agree = bool(np.abs(d[i1:i2 + 1] - g_steps).max() <= thr)
+        if i2 == i1:
+            what = (f"encoder jumps by {_arcsec(dev[i1])} at this step and does not come back (the table's "
+                    f"step {_arcsec(c)}, allowed within {_arcsec(thr)}; the gyros turned "
+                    f"{_arcsec(seen)} against their usual {_arcsec(gnorm * math.copysign(1.0, c))}: "
+                    + ("the table jerked" if agree else "lost counts or a slipped zero")
+                    + ")")
+        else:
+            stuck = int(np.count_nonzero(d[i1:i2 + 1] == 0.0)) >= i2 - i1     # (and one catch-up step)
+            cause = ("the table stalled or jerked: the gyros turned with it" if agree else
+                     "the encoder is stuck" if stuck else "the encoder disagrees with the gyros")
+            what = (f"encoder steps off the table's {_arcsec(c)} by more than {_arcsec(thr)} over samples "
+                    f"{k}-{i2 + 1} ({i2 + 1 - i1} steps; the encoder turned {_arcsec(e_turn)}, the gyros "
+                    f"{_arcsec(g_turn)}: {cause}; allowed: at most {th.repair_samples} bad samples in a row "
+                    "between samples that keep the rate)")
+        findings.append(Finding("encoder", k, float(t[k]), "refused", what))
+    return out
+
+
+def _gyro_turn(gyro):
+    """Median |gyro increment| over every 7th sample, rad (the table's turn seen by the gyros)."""
+    g = gyro[1::7]
+    return float(np.median(np.sqrt(np.einsum("ij,ij->i", g, g))))
+
+
+def _arcsec(x):
+    """An angle in rad as display text (arcsec, or rad when large)."""
+    x = float(x)
+    return f"{x:+.4g} rad" if abs(x) >= 0.1 else f"{x / units.ARCSEC:+.4g} arcsec"
+
+
+# -- windows: 2. rate and 3. channels -----------------------------------------------------------
+def _windows(n, dt, th):
+    """(L, m): samples per window and whole windows over samples 1 .. m L."""
+    L = max(8, int(round(th.window_s / dt)))
+    return L, (n - 1) // L
+
+
+def _check_rate(t, enc, L, m, th, findings):
+    """Check 2 on windows of L samples; returns the window turns (m,) for check 3."""
+    edges = enc[0:m * L + 1:L]
+    turn = np.diff(edges)
+    rate = turn / np.diff(t[0:m * L + 1:L])
+    med = float(np.median(rate))
+    if med == 0.0:
+        return turn
+    rel = rate / med - 1.0
+    w = int(np.argmax(np.abs(rel)))
+    if rate[w] / med < th.stall or abs(rel[w]) > th.rate_ripple:
+        k = w * L
+        kind = ("the table stalls" if rate[w] / med < th.stall else "the table's rate varies")
+        findings.append(Finding("rate", k, float(t[k]), "refused",
+                                f"{kind}: {rate[w] / units.DEG_PER_S:.6g} deg/s over samples {k}-{k + L} against the "
+                                f"median {med / units.DEG_PER_S:.6g} deg/s ({rel[w]:+.3g}; allowed within "
+                                f"{th.rate_ripple:g}, a stall below {th.stall:g} of the rate)"))
+    return turn
+
+
+def _window_sums(x, L, m):
+    """Sums of ``x[1 + w L : 1 + (w + 1) L]`` for w < m, shape (m, 3) (as a view's sum for a
+    column-major array, by ``reduceat`` for a row-major one: each reads the samples once)."""
+    if x.flags.f_contiguous and not x.flags.c_contiguous:
+        return x.T[:, 1:m * L + 1].reshape(3, m, L).sum(axis=2).T
+    return np.add.reduceat(x[1:m * L + 1], np.arange(0, m * L, L), axis=0)
+
+
+def _robust_flags(v, sigmas, floor):
+    """(deviation from the median, threshold, flags) of each column of ``v`` (m, k): a value is
+    flagged beyond ``max(sigmas x robust 1-sigma, floor)``."""
+    dev = v - np.median(v, axis=0)
+    thr = np.maximum(sigmas * _MAD * np.median(np.abs(dev), axis=0), floor)
+    return dev, thr, np.abs(dev) > thr
+
+
+def _fit(A, Y, keep):
+    """Least-squares coefficients of Y on A over the rows ``keep`` (normal equations: the
+    columns are O(1) and nearly orthogonal, a 5x5 solve)."""
+    Ak = A[keep]
+    return np.linalg.solve(Ak.T @ Ak, Ak.T @ Y[keep])
+
+
+def _check_channels(t, enc, gyro, accel, turn, L, m, th, findings):
+    """Check 3; returns (gyro, accel, enc), repaired copies where a spike rule applied."""
+    if m < 8:
+        return gyro, accel, enc
+    X = np.hstack([_window_sums(gyro, L, m), _window_sums(accel, L, m)])      # (m, 6)
+    total = float(turn.sum())
+    beta = X[:, :3].sum(axis=0) / total
+    # the norms first: the gyros' turn against the encoder's, the specific force; no fit to
+    # bend, so a fault in many windows (a clipped range) cannot hide in a fitted sinusoid
+    ratio = np.sqrt(np.einsum("ij,ij->i", X[:, :3], X[:, :3])) / np.abs(turn)
+    force = np.sqrt(np.einsum("ij,ij->i", X[:, 3:], X[:, 3:]))
+    scale = float(np.median(ratio))
+    if abs(scale - 1.0) > th.gyro_scale:
+        findings.append(Finding("channel", 1, float(t[1]), "refused",
+                                f"the gyros turn {scale:.6g} times the encoder's turn (median over windows of {L} "
+                                f"samples); allowed: within 1 +- {th.gyro_scale:g} (a wrong pulse weight, a channel "
+                                "clipped or stuck throughout, or an encoder with the wrong counts per revolution)"))
+        return gyro, accel, enc
+    g = float(np.median(force)) / float(t[L] - t[0])
+    if not th.gravity[0] <= g <= th.gravity[1]:
+        findings.append(Finding("channel", 1, float(t[1]), "refused",
+                                f"the accelerometers' specific force is {g:.6g} m/s^2 (median over windows of {L} "
+                                f"samples); allowed: {th.gravity[0]:g}-{th.gravity[1]:g} m/s^2 (gravity on a static "
+                                "base; a channel clipped or stuck throughout, or a wrong pulse weight)"))
+        return gyro, accel, enc
+    norms = np.column_stack([ratio / scale, force / np.median(force)])
+    _, _, nbad = _robust_flags(norms, th.channel_sigmas, th.norm_floor)
+    nbad = nbad.any(axis=1)
+    Y = X.copy()
+    Y[:, :3] -= np.outer(turn, beta)
+    mid = enc[L // 2 + L * np.arange(m)]
+    tau = np.linspace(-1.0, 1.0, m)
+    A = np.column_stack([np.ones(m), np.cos(mid), np.sin(mid), tau, tau * tau])
+    floor = np.array([th.gyro_floor] * 3 + [th.accel_floor] * 3)
+    keep = ~nbad
+    R = Y - A @ _fit(A, Y, keep)
+    dev, thr, bad = _robust_flags(R, th.channel_sigmas, floor)
+    if bad.any():               # refit without the bad windows (a fault must not bend the fit)
+        keep &= ~bad.any(axis=1)
+        if keep.sum() >= 8:
+            R = Y - A @ _fit(A, Y, keep)
+            dev, thr, bad = _robust_flags(R, th.channel_sigmas, floor)
+    # a window whose norm is off with no channel past its threshold: the worst channel
+    alone = nbad & ~bad.any(axis=1)
+    if alone.any():
+        w = np.flatnonzero(alone)
+        bad[w, np.argmax(np.abs(dev[w]) / thr, axis=1)] = True
+    if not bad.any():
+        return gyro, accel, enc
+
+    gyro, accel, enc = gyro.copy(), accel.copy(), enc.copy()
+    handled = np.zeros_like(bad)
+    _encoder_windows(t, enc, bad, dev, thr, beta, L, handled, findings)
+    arrays = (gyro, gyro, gyro, accel, accel, accel)
+    for j in range(6):
+        ws = np.flatnonzero(bad[:, j] & ~handled[:, j])
+        if ws.size:
+            _channel_fault(t, enc, arrays[j][:, j % 3], j, beta, ws, dev[:, j], thr[j], L, th, findings)
+    return gyro, accel, enc
+
+
+def _encoder_windows(t, enc, bad, dev, thr, beta, L, handled, findings):
+    """Encoder faults too small for check 1: all three gyros off in one window in the ratio of
+    their shares ``beta`` of the turn, the accelerometers not (``enc`` repaired in place)."""
+    delta = {}
+    for w in np.flatnonzero(bad[:, :3].all(axis=1) & ~bad[:, 3:].any(axis=1)).tolist():
+        dj = -dev[w, :3] / beta
+        if np.all(np.isfinite(dj)) and np.ptp(dj) <= 0.3 * np.abs(dj).max():
+            delta[w] = float(np.mean(dj))
+    for w in sorted(delta):
+        if handled[w, 0]:
+            continue
+        d_w = delta[w]
+        handled[w, :3] = True
+        nxt = delta.get(w + 1)
+        if nxt is not None and abs(d_w + nxt) <= 0.3 * abs(d_w):
+            k = (w + 1) * L                        # the common edge sample of windows w, w + 1
+            new = 0.5 * (enc[k - 1] + enc[k + 1])
+            findings.append(Finding("encoder", k, float(t[k]), "repaired",
+                                    f"the sample off by {_arcsec(enc[k] - new)} against the gyros' turn "
+                                    "over the windows either side: replaced by the neighbours' interpolation"))
+            enc[k] = new
+            handled[w + 1, :3] = True
+            continue
+        s0 = 1 + w * L
+        dd = np.diff(enc[s0 - 1:s0 + L])
+        k = s0 + int(np.argmax(np.abs(dd - np.median(dd))))
+        findings.append(Finding("encoder", k, float(t[k]), "refused",
+                                f"the encoder turned {_arcsec(d_w)} more than the gyros over samples {s0}-"
+                                f"{s0 + L - 1} and does not come back (a jump: lost counts or a slipped zero; "
+                                f"allowed: within {_arcsec(np.max(thr[:3] / np.abs(beta)))})"))
+
+
+def _channel_fault(t, enc, x, j, beta, ws, dev, thr, L, th, findings):
+    """One channel's bad windows ``ws``: a one-sample spike is repaired in ``x`` (in place);
+    anything else refuses the log (one finding for the channel, its first bad stretch)."""
+    name, unit = CHANNELS[j], ("gyro" if j < 3 else "accel")
+    n = x.size
+    stretches = _clusters(ws, 1)
+    for w1, w2 in stretches:
+        s0, s1 = 1 + w1 * L, min(n - 1, (w2 + 1) * L)
+        if w1 == w2:        # one window: a spike if one sample's deviation explains the residual
+            seg = x[s0 - 1:s1 + 2]
+            spike = seg[1:-1] - 0.5 * (seg[:-2] + seg[2:])
+            if j < 3:       # a gyro follows the table's steps (its jitter): their part is no spike
+                de = np.diff(enc[s0 - 2:s1 + 2]) if s0 >= 2 else None
+                if de is not None and de.size == seg.size:
+                    spike -= beta[j] * (de[1:-1] - 0.5 * (de[:-2] + de[2:]))
+            i = int(np.argmax(np.abs(spike)))
+            k = s0 + i
+            if 0 < k < n - 1 and abs(spike[i] - dev[w1]) <= thr:
+                findings.append(Finding("channel", k, float(t[k]), "repaired",
+                                        f"{name} spike of {_value(spike[i], unit)} against its neighbours: "
+                                        "replaced by their mean" + (" and its share of the table's step" if j < 3
+                                                                    else "")))
+                x[k] -= spike[i]
+                continue
+        seg = x[s0:s1 + 1]
+        k, what = s0, None
+        hi, lo = float(x.max()), float(x.min())
+        for ext in (hi, lo):
+            at = np.flatnonzero(seg == ext)
+            if at.size >= 3:
+                k = s0 + int(at[0])
+                what = f"{name} saturated: {at.size} samples at its extreme {_value(ext, unit)} (a clipped range)"
+                break
+        if what is None:
+            change = np.flatnonzero(np.diff(seg) != 0.0)
+            starts = np.concatenate(([0], change + 1))
+            runs = np.diff(np.concatenate((starts, [seg.size])))
+            r = int(np.argmax(runs))
+            if runs[r] >= th.stuck_samples:
+                a = s0 + int(starts[r])
+                v = x[a]
+                b = a + int(runs[r])
+                while a > 0 and x[a - 1] == v:          # the whole run (it may start before the window)
+                    a -= 1
+                while b < n and x[b] == v:
+                    b += 1
+                k = a
+                what = f"{name} stuck at {_value(v, unit)} for {b - a} samples ({a}-{b - 1})"
+        if what is None:
+            what = f"{name} does not follow the table's turn"
+        more = len(stretches) - 1
+        findings.append(Finding("channel", k, float(t[k]), "refused",
+                                f"{what}: windows of samples {s0}-{s1} off the fit by up to "
+                                f"{_value(np.abs(dev[w1:w2 + 1]).max(), unit)}"
+                                + (f" (and {more} more bad stretch{'es' if more > 1 else ''})" if more else "")
+                                + f"; allowed: within {_value(thr, unit)} of a constant, a sinusoid of the table "
+                                "angle" + (", the gyro's share of the turn" if j < 3 else "") + " and slow drift"))
+        return
+
+
+def _value(x, unit):
+    x = float(x)
+    return f"{x / units.ARCSEC:+.4g} arcsec" if unit == "gyro" else f"{x:+.4g} m/s"
+
+
+# -- 4. temperature ------------------------------------------------------------------------------
+def _check_temperature(t, temp, L, m, th, findings):
+    temp = np.asarray(temp, dtype=float)
+    if temp.shape != t.shape:
+        raise ValueError(f"temperature has shape {temp.shape}; allowed: one value per sample {t.shape}")
+    ok = np.isfinite(temp)
+    if not ok.any():
+        return
+    w = max(1, min(L, temp.size // 4))
+    first, last = float(np.nanmean(temp[:w])), float(np.nanmean(temp[-w:]))
+    if abs(last - first) > th.temp_drift_c:
+        k = int(np.nanargmax(np.abs(temp - first)))
+        findings.append(Finding("temperature", k, float(t[k]), "noted",
+                                f"the temperature drifts {last - first:+.3g} degC over the run ({first:.4g} -> "
+                                f"{last:.4g} degC; above {th.temp_drift_c:g} degC the gyro bias change may "
+                                "not average out)"))
+
+
+# -- the whole assessment ------------------------------------------------------------------------
+def assess(log, *, thresholds=None, temperature=None):
+    """Check a raw log and repair what a documented rule allows (module docstring).
+
+    Parameters
+    ----------
+    log : RawLog
+        The log (validated and checked by the loader).
+    thresholds : Thresholds, optional
+    temperature : array_like, shape (n,), optional
+        The IMU temperature at each sample, degC (a mapping file's ``temp_c`` column).
+
+    Returns
+    -------
+    Quality
+        ``quality.log`` is the log to align (repaired, or ``log`` itself); ``quality.refused``
+        says whether to align it at all.
+    """
+    th = thresholds or Thresholds()
+    findings = check_metadata(log.meta)
+    t, enc = log.t, log.encoder
+    n = t.size
+    dt = float(t[-1] - t[0]) / (n - 1)
+    enc2 = _check_encoder(t, enc, log.gyro, th, findings)
+    L, m = _windows(n, dt, th)
+    gyro, accel = log.gyro, log.accel
+    if m >= 2 and not any(f.action == "refused" and f.check == "encoder" for f in findings):
+        turn = _check_rate(t, enc2, L, m, th, findings)
+        if not any(f.check == "rate" for f in findings):
+            gyro, accel, enc2 = _check_channels(t, enc2, gyro, accel, turn, L, m, th, findings)
+    if temperature is not None:
+        _check_temperature(t, temperature, L, m, th, findings)
+    findings.sort(key=lambda f: (-1 if f.sample is None else f.sample))
+    if any(f.action == "repaired" for f in findings):
+        log = type(log)._trusted(t, gyro, accel, enc2, log.meta)
+    return Quality(log=log, findings=tuple(findings))

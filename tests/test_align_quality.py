@@ -1,0 +1,327 @@
+"""Raw-log quality checks (hse_opt.align.quality): each fault injected at a known sample of a
+simulated log, detected there, repaired by its rule or refused.
+
+References: the clean simulated log (its alignment and the filter's own 1-sigma), the sample
+index and timestamp where the test injected the fault, and the simulator's truth (clean logs
+of several systems, seeds and rates raise no finding).
+"""
+import json
+
+import numpy as np
+import pytest
+
+from hse_opt import units
+from hse_opt.align import RawLog, align
+from hse_opt.align.quality import Thresholds, assess, check_metadata
+from hse_opt.cli import main
+from hse_opt.data import load_runs
+from hse_opt.sim import RunSpec, TruthConfig, default_align_config, generate, save_rawlog
+
+TRUTH = TruthConfig.default()
+CFG = default_align_config(TRUTH)
+K = 150_000                     # the sample the faults are put at (mid-run, inside a window)
+
+
+@pytest.fixture(scope="module")
+def clean():
+    spec = RunSpec(rate=10 * units.DEG_PER_S, azimuth=0.3, duration=600.0, t_start=3600.0)
+    log = generate(TRUTH, spec, np.random.default_rng(7))
+    return log, align(log, CFG)
+
+
+def _faulty(log, *, gyro=None, accel=None, encoder=None, meta=None):
+    """A copy of ``log`` with its arrays changed in place by the given functions."""
+    g, a, e = log.gyro.copy(), log.accel.copy(), log.encoder.copy()
+    for arr, f in ((g, gyro), (a, accel), (e, encoder)):
+        if f is not None:
+            f(arr)
+    return RawLog(log.t, g, a, e, {**log.meta, **(meta or {})})
+
+
+def _only(quality, action):
+    assert len(quality.findings) == 1, quality.summary()
+    f = quality.findings[0]
+    assert f.action == action, quality.summary()
+    return f
+
+
+def _same_heading(quality, clean):
+    """The repaired log's heading equals the clean log's within the filter's 1-sigma."""
+    log0, res0 = clean
+    res = align(quality.log, CFG)
+    assert abs(res.heading - res0.heading) < res0.heading_std
+    return abs(res.heading - res0.heading)
+
+
+# -- no false alarms ------------------------------------------------------------------------------
+SYSTEMS = {
+    "default": TRUTH, "ideal": TruthConfig.ideal(), "noise-free": TRUTH.noise_free(),
+    "encoder harmonics, sync delay": TRUTH.updated({"encoder": {"sync_delay_us": 50.0, "harmonics": [
+        {"order": 1, "amplitude_arcsec": 3.0, "phase_deg": 10.0},
+        {"order": 2, "amplitude_arcsec": 1.5, "phase_deg": 40.0}]}}),
+    "ripple 3e-3, jitter 3 arcsec": TRUTH.updated({"table": {"ripple_ppm": 3000, "ripple_order": 2,
+                                                             "jitter_arcsec": 3.0}}),
+    "thermal swing": TRUTH.updated({"mount": {"xi_z_tempco_arcsec_per_c": 2.0},
+                                    "thermal": {"swing_c": 2.0, "swing_period_s": 600.0}}),
+}
+
+
+@pytest.mark.parametrize("name", sorted(SYSTEMS))
+def test_clean_logs_raise_no_finding(name):
+    for seed in range(3):
+        rng = np.random.default_rng([seed, len(name)])
+        spec = RunSpec(rate=float(rng.choice([-1, 1]) * rng.uniform(5, 30)) * units.DEG_PER_S,
+                       azimuth=float(rng.uniform(0, 2 * np.pi)), duration=float(rng.choice([120.0, 600.0])),
+                       t_start=float(rng.uniform(0, 7200)))
+        log = generate(SYSTEMS[name], spec, np.random.default_rng(seed))
+        q = assess(log)
+        assert q.findings == () and q.summary() == "ok" and q.log is log, (name, seed, q.summary())
+
+
+# -- encoder -------------------------------------------------------------------------------------
+def test_one_encoder_sample_off_by_1_rad_is_repaired_at_its_sample(clean):
+    log, res0 = clean
+
+    def glitch(e):
+        e[K] += 1.0
+    bad = _faulty(log, encoder=glitch)
+    unrepaired = abs(align(bad, CFG).heading - res0.heading)
+    q = assess(bad)
+    f = _only(q, "repaired")
+    assert (f.check, f.sample, f.time) == ("encoder", K, log.t[K])
+    assert "+1 rad" in f.detail and f"at sample {K} (t = {log.t[K]:.6g} s)" in q.summary()
+    assert abs(q.log.encoder[K] - log.encoder[K]) < 2 * units.ARCSEC        # the interpolation
+    assert _same_heading(q, clean) < 1e-3 * unrepaired
+
+
+def test_a_first_encoder_sample_off_by_1_rad_no_longer_moves_a_short_run_by_degrees():
+    """A 1-minute run: unrepaired, the heading moves by more than half a degree (ten of its
+    sigmas); repaired, by less than a tenth of its sigma."""
+    spec = RunSpec(rate=10 * units.DEG_PER_S, azimuth=0.5, duration=60.0, t_start=900.0)
+    log = generate(TRUTH, spec, np.random.default_rng(1))
+    res0 = align(log, CFG)
+
+    def glitch(e):
+        e[0] += 1.0
+    bad = _faulty(log, encoder=glitch)
+    assert abs(align(bad, CFG).heading - res0.heading) > 0.5 * units.DEG > 10 * res0.heading_std
+    q = assess(bad)
+    assert _only(q, "repaired").sample == 0
+    assert abs(align(q.log, CFG).heading - res0.heading) < 0.1 * res0.heading_std
+
+
+@pytest.mark.parametrize("where", ["first", "last"])
+def test_first_or_last_encoder_sample_off_is_extrapolated_by_the_gyros(clean, where):
+    log, _ = clean
+    k = 0 if where == "first" else len(log) - 1
+
+    def glitch(e):
+        e[k] -= 0.3
+    q = assess(_faulty(log, encoder=glitch))
+    f = _only(q, "repaired")
+    assert (f.check, f.sample) == ("encoder", k)
+    assert abs(q.log.encoder[k] - log.encoder[k]) < 0.5 * units.ARCSEC
+    _same_heading(q, clean)
+
+
+def test_three_arcsec_encoder_sample_at_a_window_edge_is_repaired_by_the_gyros(clean):
+    """Below check 1's threshold (8 arcsec here) but on the edge of two windows: the gyros see
+    the encoder turn too much in one window and too little in the next."""
+    log, _ = clean
+    L = int(round(Thresholds().window_s / log.sample_period))
+    k = (K // L) * L
+
+    def glitch(e):
+        e[k] += 3 * units.ARCSEC
+    q = assess(_faulty(log, encoder=glitch))
+    f = _only(q, "repaired")
+    assert (f.check, f.sample, f.time) == ("encoder", k, log.t[k])
+    assert abs(q.log.encoder[k] - log.encoder[k]) < 1.5 * units.ARCSEC
+    _same_heading(q, clean)
+
+
+def test_a_glitch_below_the_thresholds_does_not_move_the_heading(clean):
+    """What the encoder floor lets through: a 1.9-arcsec sample inside a window."""
+    log, res0 = clean
+
+    def glitch(e):
+        e[K + 7] += 1.9 * units.ARCSEC
+    bad = _faulty(log, encoder=glitch)
+    assert assess(bad).findings == ()
+    assert abs(align(bad, CFG).heading - res0.heading) < 1e-4 * units.ARCSEC
+
+
+@pytest.mark.parametrize("jump_arcsec, via", [(20.0, "per sample"), (3.0, "windows")])
+def test_an_encoder_jump_is_refused_at_its_sample(clean, jump_arcsec, via):
+    log, res0 = clean
+
+    def jump(e):
+        e[K:] += jump_arcsec * units.ARCSEC
+    bad = _faulty(log, encoder=jump)
+    moved = abs(align(bad, CFG).heading - res0.heading) / units.ARCSEC
+    assert moved > 0.2 * jump_arcsec                # a silently wrong heading if aligned
+    q = assess(bad)
+    f = _only(q, "refused")
+    assert (f.check, f.sample, f.time) == ("encoder", K, log.t[K])
+    assert "does not come back" in f.detail and "lost counts or a slipped zero" in f.detail
+    with pytest.raises(ValueError, match=rf"^run\.npz: encoder at sample {K} \(t = 3900 s\)"):
+        q.raise_if_refused("run.npz")
+
+
+def test_a_stuck_encoder_is_refused_and_a_stall_named_as_such(clean):
+    log, _ = clean
+
+    def stuck(e):
+        e[K:K + 20] = e[K]
+        e[K + 20:] -= 0.0                            # then it catches up: 19 steps of zero, one big
+    q = assess(_faulty(log, encoder=stuck))
+    f = _only(q, "refused")
+    assert (f.sample, f.time) == (K + 1, log.t[K + 1]) and "the encoder is stuck" in f.detail
+
+    # a stall: the table holds for 2 s (encoder and gyros agree), then turns on
+    n = 1000
+    step = np.diff(log.encoder)[K:K + n].copy()
+    beta = log.gyro.sum(axis=0) / (log.encoder[-1] - log.encoder[0])
+
+    def hold(e):
+        e[K + 1:] -= np.concatenate([np.cumsum(step), np.full(len(e) - K - 1 - n, step.sum())])
+
+    def gyro_hold(g):
+        g[K + 1:K + 1 + n] -= np.outer(step, beta)
+    q = assess(_faulty(log, encoder=hold, gyro=gyro_hold))
+    f = q.findings[0]
+    assert f.action == "refused" and f.sample == K + 1 and "the gyros turned with it" in f.detail
+
+
+@pytest.mark.parametrize("ppm, refused", [(1000, False), (10000, True)])
+def test_a_table_rate_ripple_beyond_the_threshold_is_refused(ppm, refused):
+    truth = TRUTH.updated({"table": {"ripple_ppm": ppm}})
+    spec = RunSpec(rate=10 * units.DEG_PER_S, azimuth=0.3, duration=120.0, t_start=3600.0, alpha0=0.0)
+    log = generate(truth, spec, np.random.default_rng(3))
+    q = assess(log)
+    assert q.refused is refused, q.summary()
+    if refused:
+        f = _only(q, "refused")
+        assert f.check == "rate" and "the table's rate varies" in f.detail
+        # the window of the largest deviation: the ripple's peak, where the rate's deviation
+        # cos(|W| t) is +-1, i.e. the table angle is 0 or pi from alpha0 = 0
+        L = int(round(Thresholds().window_s / log.sample_period))
+        assert abs(np.sin(log.encoder[f.sample + L // 2])) < np.sin(np.radians(10))
+
+
+# -- sensor channels -----------------------------------------------------------------------------
+def test_a_gyro_spike_is_repaired_with_the_table_step_share(clean):
+    log, res0 = clean
+
+    def spike(g):
+        g[K, 1] += 5 * units.ARCSEC
+    bad = _faulty(log, gyro=spike)
+    assert abs(align(bad, CFG).heading - res0.heading) > 10 * units.ARCSEC
+    q = assess(bad)
+    f = _only(q, "repaired")
+    assert (f.check, f.sample, f.time) == ("channel", K, log.t[K]) and "gyro_y spike of +" in f.detail
+    assert abs(q.log.gyro[K, 1] - log.gyro[K, 1]) < 0.2 * units.ARCSEC
+    _same_heading(q, clean)
+
+
+def test_an_accelerometer_spike_is_repaired(clean):
+    log, _ = clean
+
+    def spike(a):
+        a[K, 2] += 0.01
+    q = assess(_faulty(log, accel=spike))
+    f = _only(q, "repaired")
+    assert (f.check, f.sample) == ("channel", K) and "accel_z spike of +0.01 m/s" in f.detail
+    assert abs(q.log.accel[K, 2] - log.accel[K, 2]) <= TRUTH.accel.pulse
+    _same_heading(q, clean)
+
+
+@pytest.mark.parametrize("j, name", [(0, "gyro_x"), (3, "accel_x")])
+def test_a_stuck_channel_is_refused_from_its_first_sample(clean, j, name):
+    log, _ = clean
+    arr = "gyro" if j < 3 else "accel"
+
+    def stuck(x):
+        x[K:K + 10_000, j % 3] = x[K, j % 3]
+    q = assess(_faulty(log, **{arr: stuck}))
+    f = q.findings[0]
+    assert q.refused and f.check == "channel" and f"{name} stuck" in f.detail
+    # the run of the repeated value starts at K, or a few samples before where the healthy
+    # channel already held that value
+    assert K - 50 <= f.sample <= K and f.time == log.t[f.sample]
+
+
+def test_a_saturated_channel_is_refused(clean):
+    log, _ = clean
+    top = log.accel[:, 1].max() + 0.02            # the logger's clip, above the channel's values
+
+    def clip(a):
+        a[K:K + 200, 1] = top                      # a knock the logger clips
+    q = assess(_faulty(log, accel=clip))
+    f = q.findings[0]
+    assert q.refused and f.sample == K and "accel_y saturated: 200 samples at its extreme" in f.detail
+
+
+def test_gyros_off_the_encoder_by_a_wrong_pulse_weight_are_refused(clean):
+    log, _ = clean
+
+    def scale(g):
+        g[:, 2] *= 1.03                            # one gyro's pulse weight 3 % off
+    q = assess(_faulty(log, gyro=scale))
+    f = _only(q, "refused")
+    assert f.check == "channel" and "the gyros turn 1.0099" in f.detail and "allowed: within 1 +- 0.005" in f.detail
+
+
+def test_a_temperature_drift_is_noted_not_refused(clean):
+    log, _ = clean
+    temp = 25.0 + 1.5 * (log.t - log.t[0]) / (log.t[-1] - log.t[0])
+    q = assess(log, temperature=temp)
+    f = _only(q, "noted")
+    assert f.check == "temperature" and "+1.5 degC" in f.detail and not q.refused
+    assert q.log is log
+    assert assess(log, temperature=25.0 + 0.5 * np.sin(log.t)).findings == ()
+
+
+# -- metadata ------------------------------------------------------------------------------------
+@pytest.mark.parametrize("key, value, allowed", [
+    ("latitude_deg", "28.07", "a number"), ("azimuth_deg", float("nan"), "a finite number"),
+    ("run", 1.5, "an integer"), ("run", True, "an integer"), ("position", ["A"], "a text label"),
+    ("t_start_s", -5.0, ">= 0")])
+def test_metadata_of_the_wrong_type_is_refused_naming_the_key(key, value, allowed):
+    f, = check_metadata({key: value, "latitude_deg": 28.0} if key != "latitude_deg" else {key: value})
+    assert f.action == "refused" and f.detail.startswith(f"'{key}' = {value!r}; allowed: ") and allowed in f.detail
+
+
+def test_metadata_of_the_right_types_passes():
+    assert check_metadata({"latitude_deg": 28, "azimuth_deg": 30.5, "run": np.int64(3), "position": "A",
+                           "t_start_s": 0.0, "temp_c": 21.5, "source": "stand 2", "operator": ["x"]}) == []
+
+
+# -- the batch -----------------------------------------------------------------------------------
+def test_align_repairs_refuses_and_counts_in_one_batch(clean, tmp_path, capsys):
+    log, res0 = clean
+    meta = {**log.meta, "run": 1}
+
+    def glitch(e):
+        e[K] += 1.0
+
+    def jump(e):
+        e[K:] += 20 * units.ARCSEC
+    save_rawlog(RawLog(log.t, log.gyro, log.accel, log.encoder, meta), tmp_path / "a_clean.npz")
+    save_rawlog(_faulty(log, encoder=glitch, meta={"run": 2}), tmp_path / "b_glitch.npz")
+    save_rawlog(_faulty(log, encoder=jump, meta={"run": 3}), tmp_path / "c_jump.npz")
+    with open(tmp_path / "b_glitch.npz", "rb") as fh:
+        before = fh.read()
+    out = tmp_path / "RUNS.csv"
+    assert main(["align", str(tmp_path), "-o", str(out), "--no-progress"]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    bad = [line for line in err if "error" in line]
+    assert len(bad) == 1 and f"c_jump.npz: encoder at sample {K} (t = 3900 s): encoder jumps by +20" in bad[0]
+    assert "2 of 3 logs aligned" in err[-1] and "1 bad log" in err[-1]
+    runs = load_runs(out)
+    assert runs.run.tolist() == [1, 2]
+    quality = runs.metadata["quality"].tolist()
+    assert quality[0] == "ok" and quality[1].startswith(f"repaired: encoder at sample {K} (t = 3900 s)")
+    assert abs(runs.heading[1] - runs.heading[0]) < res0.heading_std
+    with open(tmp_path / "b_glitch.npz", "rb") as fh:
+        assert fh.read() == before                 # the input is never modified
