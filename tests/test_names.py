@@ -58,8 +58,11 @@ def test_hostile_csv_header_is_refused(tmp_path, rng, capsys, name):
     code, err = _run(capsys, ["fit", str(path), "--effects", f"covariate:{name}", "-o", str(tmp_path / "FIT.json")])
     assert code == 2, err
     lines = err.strip().splitlines()
-    assert len(lines) == 1 and str(path) in lines[0] and "header field" in lines[0]
-    assert "allowed: letters A-Z a-z, digits 0-9 and _" in lines[0]
+    assert len(lines) == 1 and str(path) in lines[0] and "allowed:" in lines[0]
+    if "\n" in name:   # a quoted cell over several lines is refused first, by the CSV reader
+        assert "line 1: a quoted header field" in lines[0]
+    else:
+        assert "header field" in lines[0] and "allowed: letters A-Z a-z, digits 0-9 and _" in lines[0]
     assert path.read_bytes() == before and not (tmp_path / "FIT.json").exists()
 
 
