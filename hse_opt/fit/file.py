@@ -167,7 +167,7 @@ def load_fit(path, model=None):
 def _check_numbers(src, d, mm, names, n_runs):
     """ValueError naming the first field of the FIT.json object ``d`` whose numbers disagree
     with the others or with the model ``mm`` (the module docstring's list)."""
-    from .ranges import RANGES
+    from ..ranges import RANGES
 
     def refuse(field, problem, allowed):
         raise ValueError(f"{src}: \"{field}\" {problem}; allowed: {allowed}")
