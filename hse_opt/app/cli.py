@@ -12,7 +12,7 @@ import sys
 import warnings
 
 #: command modules, in the order ``--help`` lists them
-COMMANDS = ("demo", "design", "simulate", "align", "fit", "compensate", "diagnose", "export")
+COMMANDS = ("demo", "design", "simulate", "align", "fit", "compensate", "diagnose", "export", "config")
 
 
 class _Parser(argparse.ArgumentParser):
@@ -29,14 +29,41 @@ def build_parser():
                     "constant-rate biased RLG system.")
     from hse_opt import __version__
     parser.add_argument("--version", action="version", version=f"hse-opt {__version__}")
+    parser.add_argument("--config", metavar="PATH",
+                        help="the project file (default: hse-opt.toml in the working folder, if any); "
+                             "may stand anywhere on the line; see 'hse-opt config --help'")
     sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
+    parser.commands = {}
     for name in COMMANDS:
         mod = importlib.import_module(f"hse_opt.app.commands.{name}")
         p = sub.add_parser(mod.NAME, help=mod.HELP, description=getattr(mod, "DESCRIPTION", mod.HELP),
                            epilog=mod.EXAMPLE, formatter_class=argparse.RawDescriptionHelpFormatter)
         mod.add_arguments(p)
         p.set_defaults(run=mod.run, subparser=p)
+        parser.commands[mod.NAME] = p
     return parser
+
+
+def _with_project(parser, argv):
+    """``argv`` without ``--config``; the project file's settings made the commands' defaults
+    (:mod:`hse_opt.app.project`). Raises ValueError naming the file and key."""
+    from hse_opt.app import project
+    argv, path = project.pop_config(sys.argv[1:] if argv is None else argv)
+    proj = project.find(path)
+    for p in parser.commands.values():
+        proj.apply(p)
+        p.set_defaults(project=proj)
+    return argv
+
+
+def _from_project(text, args, argv):
+    """A message about an option whose value the project file gave says so."""
+    project = getattr(args, "project", None)
+    for s in () if project is None else project.settings:
+        given = any(a == s.option or a.startswith(s.option + "=") for a in argv or ())
+        if not given and text.startswith(s.option):
+            return f"{text} (from {s.source})"
+    return text
 
 
 @contextlib.contextmanager
@@ -124,6 +151,11 @@ def _main(argv):
     try:
         with _signals_as_exceptions():
             parser = build_parser()
+            try:
+                argv = _with_project(parser, argv)
+            except ValueError as err:
+                print(f"{command}: error: {_message(err)}", file=sys.stderr)
+                return 2
             args, extra = parser.parse_known_args(argv)
             command = f"hse-opt {args.command}"
             if extra:  # reported by the command's own parser, so the message names the command
@@ -138,7 +170,7 @@ def _main(argv):
             except (ValueError, FileNotFoundError, IsADirectoryError, NotADirectoryError,
                     PermissionError) as err:
                 # bad input: one line naming the file, row, column or parameter and what is allowed
-                print(f"{command}: error: {_message(err)}", file=sys.stderr)
+                print(f"{command}: error: {_from_project(_message(err), args, argv)}", file=sys.stderr)
                 return 2
             except (KeyboardInterrupt, Terminated, BrokenPipeError):
                 raise
