@@ -171,3 +171,29 @@ def test_aligned_repeats_of_one_setting_are_replicates(tmp_path):
     assert len(set(runs.rate.tolist())) == 5                    # five different measured rates
     labels, groups = replicate_groups(runs)
     assert groups == 2 and len(set(labels[:3])) == 1 and len(set(labels[3:])) == 1
+
+
+def test_align_on_a_dask_scheduler_gives_the_rows_of_one_local_process(logdir, tmp_path, capsys):
+    """``--dask ADDRESS`` (issue 26 item 4): a scheduler with worker processes, reached by its
+    address; the RUNS.csv is byte-identical to ``--jobs 1``'s."""
+    distributed = pytest.importorskip("distributed")
+    d, _ = logdir
+    serial, remote = tmp_path / "serial.csv", tmp_path / "remote.csv"
+    assert main(["align", str(d), "-o", str(serial), "--jobs", "1", "--no-progress"]) == 0
+    with distributed.LocalCluster(n_workers=2, processes=True, threads_per_worker=1,
+                                  dashboard_address=None) as cluster:
+        assert main(["align", str(d), "-o", str(remote), "--no-progress",
+                     "--dask", cluster.scheduler_address]) == 0
+    assert remote.read_bytes() == serial.read_bytes()
+
+
+@pytest.mark.parametrize("command", ["align", "simulate"])
+def test_a_dask_address_that_does_not_connect_names_the_option(logdir, tmp_path, capsys, command):
+    d, _ = logdir
+    first = str(d) if command == "align" else str(tmp_path / "PLAN.csv")
+    if command == "simulate":
+        (tmp_path / "PLAN.csv").write_text("run,rate_dps,azimuth_deg,t_start_s,duration_s\n1,40,0,0,60\n")
+    status = main([command, first, "-o", str(tmp_path / "out.csv"), "--no-progress", "--dask", "not an address"])
+    err = capsys.readouterr().err
+    assert status == 2 and "--dask not an address" in err and "allowed:" in err, err
+    assert not (tmp_path / "out.csv").exists()

@@ -72,7 +72,7 @@ def _align_chunk(paths, config):
         return [_align_one(path, config) for path in paths]
 
 
-def align_logs(paths, config, jobs=1, progress=None):
+def align_logs(paths, config, jobs=1, progress=None, client=None):
     """Align raw logs (:mod:`hse_opt.align.rawlog`), in parallel; a bad log does not stop the others.
 
     Parameters
@@ -86,6 +86,10 @@ def align_logs(paths, config, jobs=1, progress=None):
         Local worker processes (1: in this process).
     progress : callable, optional
         ``progress(done, total)``, called as logs complete.
+    client : dask.distributed.Client, optional
+        Align on this Dask cluster instead (``jobs`` is then ignored; the workers must see the
+        paths). The rows are the same as with ``jobs=1``: each log is aligned alone, by the same
+        code, and collected in path order.
 
     Returns
     -------
@@ -111,7 +115,16 @@ def align_logs(paths, config, jobs=1, progress=None):
         if progress is not None:
             progress(len(done), len(paths))
 
-    if jobs == 1 or len(paths) <= 1:
+    if client is not None:
+        from distributed import as_completed as dask_as_completed
+        workers = max(1, len(client.scheduler_info().get("workers", {})))
+        size = max(1, min(8, len(paths) // (4 * workers)))
+        futures = [client.submit(_align_chunk, paths[i:i + size], config, pure=False)
+                   for i in range(0, len(paths), size)]
+        for fut in dask_as_completed(futures):
+            for item in fut.result():
+                _collect(item)
+    elif jobs == 1 or len(paths) <= 1:
         for path in paths:
             _collect(_align_one(path, config))
     else:

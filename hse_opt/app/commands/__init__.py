@@ -4,6 +4,7 @@
 Commands print (the library never does); with ``--json`` stdout carries one JSON object and
 nothing else, messages go to stderr.
 """
+import contextlib
 import json
 import os
 import sys
@@ -66,3 +67,34 @@ def write_report(args, sections, title):
         from ...report import write_report as write
         write(args.tx.path("report"), sections, title)
         message(f"report: {os.path.join(args.report, REPORT_NAME)}")
+
+
+def add_dask_argument(parser):
+    """The ``--dask ADDRESS`` option: run the work on a Dask cluster's scheduler instead of local
+    worker processes (the results are the same as with ``--jobs 1``)."""
+    parser.add_argument("--dask", metavar="ADDRESS",
+                        help="run on the Dask scheduler at ADDRESS (e.g. tcp://host:8786) instead of "
+                             "local processes (needs the dask extra: pip install 'hse_opt[dask]')")
+
+
+@contextlib.contextmanager
+def dask_client(address):
+    """A ``distributed.Client`` connected to ``address`` for the ``with`` block, or None when
+    ``address`` is None; an address that does not connect is bad input naming ``--dask``."""
+    if not address:
+        yield None
+        return
+    try:
+        from distributed import Client
+    except ImportError:
+        raise ValueError(f"--dask {address}: the dask extra is not installed; allowed: "
+                         f"pip install 'hse_opt[dask]', or --jobs N without --dask") from None
+    try:
+        client = Client(address, timeout="10s")
+    except (OSError, ValueError, TypeError) as err:
+        raise ValueError(f"--dask {address}: cannot connect to a scheduler ({' '.join(str(err).split())}); "
+                         f"allowed: a running scheduler's address, e.g. tcp://host:8786") from None
+    try:
+        yield client
+    finally:
+        client.close()

@@ -2,7 +2,7 @@
 import os
 import sys
 
-from . import message
+from . import add_dask_argument, dask_client, message
 from .outputs import FILE
 
 NAME = "align"
@@ -28,6 +28,7 @@ INPUTS = ("logs", "truth")
 OUTPUTS = {"output": FILE}
 EXAMPLE = """examples:
   hse-opt align logs/ -o RUNS.csv --jobs 2
+  hse-opt align logs/ -o RUNS.csv --dask tcp://scheduler:8786
   hse-opt align run_01.npz run_02.csv -o RUNS.csv --truth TRUTH.toml --latitude-deg 28.07"""
 
 _SUFFIXES = (".npz", ".csv")
@@ -42,6 +43,7 @@ def add_arguments(parser):
     parser.add_argument("--latitude-deg", type=float, metavar="L",
                         help="latitude for every log (default: each log's latitude_deg metadata)")
     parser.add_argument("--jobs", type=int, default=1, help="local worker processes (default 1)")
+    add_dask_argument(parser)
     parser.add_argument("--no-progress", dest="progress", action="store_false",
                         help="no progress bar on stderr")
 
@@ -85,9 +87,9 @@ def run(args):
     latitude = None if args.latitude_deg is None else float(args.latitude_deg) * units.DEG
     config = dataclasses.replace(default_align_config(truth), latitude=latitude)
     paths = _expand(args.logs)
-    with tqdm(total=len(paths), unit="log", desc="align", file=sys.stderr,
-              disable=None if args.progress else True) as bar:
-        rows, errors = align_logs(paths, config, jobs=args.jobs,
+    with dask_client(args.dask) as client, tqdm(total=len(paths), unit="log", desc="align", file=sys.stderr,
+                                                disable=None if args.progress else True) as bar:
+        rows, errors = align_logs(paths, config, jobs=args.jobs, client=client,
                                   progress=lambda done, total: bar.update(done - bar.n))
     for err in errors:
         message(f"hse-opt align: error: {' '.join(err.split())}")

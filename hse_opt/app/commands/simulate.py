@@ -2,7 +2,7 @@
 import os
 import sys
 
-from . import message
+from . import add_dask_argument, dask_client, message
 from .outputs import FILE
 
 NAME = "simulate"
@@ -32,8 +32,7 @@ def add_arguments(parser):
     parser.add_argument("-o", "--output", metavar="RUNS.csv", required=True, help="results to write")
     parser.add_argument("--seed", type=int, default=0, help="campaign seed, >= 0 (default 0)")
     parser.add_argument("--jobs", type=int, default=1, help="local worker processes (default 1)")
-    parser.add_argument("--dask", metavar="ADDRESS",
-                        help="run on the Dask scheduler at ADDRESS (e.g. tcp://host:8786) instead")
+    add_dask_argument(parser)
     parser.add_argument("--write-truth", metavar="FILE",
                         help="also write the truth used, every key, to FILE (TOML)")
     parser.add_argument("--field", action="store_true",
@@ -67,24 +66,13 @@ def run(args):
         raise ValueError(f"--raw-logs {args.raw_logs}: the directory does not exist; allowed: an existing directory")
     truth = _io("read", "truth", TruthConfig.from_toml, args.truth) if args.truth else TruthConfig.default()
     plan = _io("read", "plan", load_plan, args.plan)
-    client = None
-    if args.dask:
-        from distributed import Client
-        try:
-            client = Client(args.dask)
-        except OSError as err:
-            raise ValueError(f"--dask {args.dask}: cannot connect to the scheduler: {err}") from None
     # tqdm: on stderr, off with --no-progress and when stderr is not a terminal
-    with tqdm(total=len(plan), unit="run", desc="simulate", file=sys.stderr,
-              disable=None if args.progress else True) as bar:
-        try:
-            runs = run_campaign(plan, truth, args.seed, jobs=args.jobs, client=client,
-                                progress=lambda done, total: bar.update(done - bar.n),
-                                field=args.field, surveyed=surveyed,
-                                raw_logs=args.tx.path("raw_logs") if args.raw_logs else None)
-        finally:
-            if client is not None:
-                client.close()
+    with dask_client(args.dask) as client, tqdm(total=len(plan), unit="run", desc="simulate", file=sys.stderr,
+                                                disable=None if args.progress else True) as bar:
+        runs = run_campaign(plan, truth, args.seed, jobs=args.jobs, client=client,
+                            progress=lambda done, total: bar.update(done - bar.n),
+                            field=args.field, surveyed=surveyed,
+                            raw_logs=args.tx.path("raw_logs") if args.raw_logs else None)
     _io("write", "runs", save_runs, args.tx.path("output"), runs)
     if args.write_truth:
         _io("write", "truth", truth.to_toml, args.tx.path("write_truth"))
