@@ -11,6 +11,8 @@ import os
 import sys
 import warnings
 
+from hse_opt.interrupts import Terminated, check as check_interrupt, handling as handling_signals
+
 #: command modules, in the order ``--help`` lists them
 COMMANDS = ("demo", "design", "simulate", "align", "fit", "compensate", "diagnose", "export", "config")
 
@@ -91,36 +93,6 @@ def json_stdout():
         os.close(real)
 
 
-class Terminated(BaseException):
-    """A termination signal (SIGTERM, SIGHUP) turned into an exception, so that temporary
-    outputs are removed on the way out (like KeyboardInterrupt for SIGINT)."""
-
-    def __init__(self, signum):
-        super().__init__(signum)
-        self.signum = signum
-
-
-def _raise_terminated(signum, frame):
-    raise Terminated(signum)
-
-
-@contextlib.contextmanager
-def _signals_as_exceptions():
-    """SIGTERM and SIGHUP raise :class:`Terminated` while a command runs (main thread only)."""
-    import signal
-    import threading
-    if threading.current_thread() is not threading.main_thread():
-        yield
-        return
-    names = [n for n in ("SIGTERM", "SIGHUP") if hasattr(signal, n)]
-    old = {n: signal.signal(getattr(signal, n), _raise_terminated) for n in names}
-    try:
-        yield
-    finally:
-        for n, handler in old.items():
-            signal.signal(getattr(signal, n), handler)
-
-
 def _message(err):
     """One line for a bad-input exception."""
     if isinstance(err, OSError):
@@ -149,7 +121,7 @@ def _warnings_in_one_line(command):
 def _main(argv):
     command, tx = "hse-opt", None
     try:
-        with _signals_as_exceptions():
+        with handling_signals():
             parser = build_parser()
             try:
                 argv = _with_project(parser, argv)
@@ -166,15 +138,19 @@ def _main(argv):
                 tx = Transaction.from_args(args, sys.modules[args.run.__module__], args.subparser)
                 with tx.check() as args.tx, _warnings_in_one_line(command), \
                         json_stdout() if getattr(args, "json", False) else contextlib.nullcontext():
-                    return args.run(args)
+                    status = args.run(args)
+                    check_interrupt()  # a signal a solver in C swallowed: no output is renamed into place
+                    return status
+            except (KeyboardInterrupt, Terminated, BrokenPipeError):
+                raise
             except (ValueError, FileNotFoundError, IsADirectoryError, NotADirectoryError,
                     PermissionError) as err:
+                check_interrupt()  # a failure that a swallowed interrupt caused is the interrupt
                 # bad input: one line naming the file, row, column or parameter and what is allowed
                 print(f"{command}: error: {_from_project(_message(err), args, argv)}", file=sys.stderr)
                 return 2
-            except (KeyboardInterrupt, Terminated, BrokenPipeError):
-                raise
             except Exception as err:  # noqa: BLE001 - the command line reports, never tracebacks
+                check_interrupt()
                 from hse_opt.fit.result import SolverError
                 if isinstance(err, SolverError):  # a numerical failure: the status and what to try
                     print(f"{command}: error: {_message(err)}", file=sys.stderr)

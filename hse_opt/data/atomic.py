@@ -81,8 +81,8 @@ def atomic_path(path):
         raise FileNotFoundError(f"{os.fspath(path)}: cannot write: the folder {directory} does not exist; "
                                 "allowed: a path in an existing folder")
     tmp = temp_path(target)
-    os.close(os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o666))
-    try:
+    try:  # created inside: a signal that lands right after the creation still removes it
+        os.close(os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o666))
         with contextlib.suppress(FileNotFoundError):
             os.chmod(tmp, os.stat(target).st_mode & 0o7777)
         yield tmp

@@ -18,6 +18,7 @@ import cvxpy as cp
 import numpy as np
 
 from ..information import UnidentifiableError
+from ..interrupts import check as check_interrupt
 from .criteria import CASADI, CvxOps, NotSmooth, Scaled, as_criterion
 from . import ties
 from .problem import Problem, Rows
@@ -206,6 +207,7 @@ def polish_weights(prob, w, loss0):
                  lbx=np.concatenate([np.zeros(m), np.full(n_f, -np.inf)]), ubx=np.inf,
                  lbg=np.concatenate([np.full(n_lin, -np.inf), [gd.bound for gd in prob.guards], eq]),
                  ubg=np.concatenate([np.concatenate(ub), np.full(n_g, np.inf), eq]))
+    check_interrupt()  # a Ctrl-C inside IPOPT ends as its status NonIpopt_Exception_Thrown
     if not solver.stats()["success"]:
         return None
     out = np.zeros_like(w)
@@ -303,14 +305,17 @@ def _solve(problem, solver):
 
 
 def _run_solver(problem, name):
-    if name == "SCS":
-        problem.solve(solver=name, eps_abs=1e-8, eps_rel=1e-8, max_iters=20000)  # a fallback: seconds, not minutes
-    elif name == "CLARABEL":  # the chordal split of the small dense cones costs accuracy; A-optimal
-        # programs with time slots take 200-400 iterations (the default 200 ended them user_limit,
-        # and SCS then took 1 s a program)
-        problem.solve(solver=name, chordal_decomposition_enable=False, max_iter=1000)
-    else:
-        problem.solve(solver=name)
+    try:
+        if name == "SCS":
+            problem.solve(solver=name, eps_abs=1e-8, eps_rel=1e-8, max_iters=20000)  # a fallback: seconds, not minutes
+        elif name == "CLARABEL":  # the chordal split of the small dense cones costs accuracy; A-optimal
+            # programs with time slots take 200-400 iterations (the default 200 ended them user_limit,
+            # and SCS then took 1 s a program)
+            problem.solve(solver=name, chordal_decomposition_enable=False, max_iter=1000)
+        else:
+            problem.solve(solver=name)
+    finally:
+        check_interrupt()  # a solver in C that caught the Ctrl-C returns a status, or fails
 
 
 def certificate(prob, loss, h, w, mus, tangent=None):

@@ -8,6 +8,7 @@ from __future__ import annotations
 import casadi as ca
 import numpy as np
 
+from ..interrupts import check as check_interrupt
 from .approximate import DesignError
 from .criteria import CASADI
 from .problem import mean_loss
@@ -55,6 +56,7 @@ def refine(prob, exact, stand, mm, space):
     if g:
         args.update(lbg=np.array(floors) + 1e-7, ubg=np.full(len(g), np.inf))  # inside: IPOPT's tolerance
     sol = solver(**args)
+    check_interrupt()  # a Ctrl-C inside IPOPT ends as its status NonIpopt_Exception_Thrown
     stats = solver.stats()
     # verify IPOPT's point independently: within the bounds, guards kept, loss lower
     vopt = np.clip(np.array(sol["x"]).ravel(), lbx, ubx)

@@ -6,6 +6,7 @@ import casadi as ca
 import numpy as np
 
 from ..information import null_space
+from ..interrupts import check as check_interrupt
 from .result import SolverError
 
 #: chi2 changes below ``_CHI2_NOISE * sqrt(1 + chi2 / 10)`` are rounding, not fit
@@ -187,6 +188,7 @@ def _ipopt(prob, w, z0):
         args["lbg"] = np.concatenate([prob.b_eq, prob.l_in])
         args["ubg"] = np.concatenate([prob.b_eq, prob.u_in])
     sol = solver(**args)
+    check_interrupt()  # a Ctrl-C inside IPOPT ends as its status NonIpopt_Exception_Thrown
     stats = solver.stats()
     if not stats["success"]:
         status = stats["return_status"]

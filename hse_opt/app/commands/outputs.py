@@ -149,9 +149,9 @@ class Transaction:
         if dest not in self._staged:
             opt, target, files = self.outputs[dest]
             tmp = temp_path(target)
+            self._staged[dest] = tmp  # first: a signal right after the mkdir still removes it
             if files is not FILE:
                 os.mkdir(tmp)
-            self._staged[dest] = tmp
         return self._staged[dest]
 
     def target(self, dest):
@@ -190,14 +190,20 @@ class Transaction:
                 signal.pthread_sigmask(signal.SIG_SETMASK, old)
 
     def abort(self):
-        """Remove whatever was staged; no target is touched."""
-        for tmp in self._staged.values():
-            with contextlib.suppress(OSError):
-                if os.path.isdir(tmp):
-                    shutil.rmtree(tmp)
-                else:
-                    os.unlink(tmp)
-        self._staged.clear()
+        """Remove whatever was staged, the termination signals held meanwhile (a second Ctrl-C
+        does not leave half of it); no target is touched."""
+        old = signal.pthread_sigmask(signal.SIG_BLOCK, _SIGNALS) if _SIGNALS else None
+        try:
+            for tmp in self._staged.values():
+                with contextlib.suppress(OSError):  # FileNotFoundError too: staged, not yet created
+                    if os.path.isdir(tmp):
+                        shutil.rmtree(tmp)
+                    else:
+                        os.unlink(tmp)
+            self._staged.clear()
+        finally:
+            if old is not None:
+                signal.pthread_sigmask(signal.SIG_SETMASK, old)
 
     def __enter__(self):
         return self
