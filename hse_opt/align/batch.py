@@ -14,6 +14,7 @@ import numpy as np
 
 from hse_opt import units
 from hse_opt.align.processor import align
+from hse_opt.align.mapping import read_mapped
 from hse_opt.align.quality import assess
 from hse_opt.align.rawlog import load_rawlog
 from hse_opt.data import DataError, Runs
@@ -35,14 +36,18 @@ def single_blas_thread():
     return threadpool_limits(limits=1, user_api="blas")
 
 
-def _align_one(path, config):
+def _align_one(path, config, mapping=None):
     """Worker: load, check and align one raw log; returns ``(path, row, error)``: the RUNS row
     (column -> value in file units, plus ``run`` and ``position`` from the metadata when given)
     or the one-line error (the file named)."""
     from hse_opt.data import DEFAULT_MIN_RATE_DPS
 
     try:
-        quality = assess(load_rawlog(path))
+        if mapping is None:
+            quality = assess(load_rawlog(path))
+        else:
+            mapped = read_mapped(path, mapping)
+            quality = assess(mapped.log, temperature=mapped.temperature)
         quality.raise_if_refused(path)
         log = quality.log
         res = align(log, config)
@@ -66,13 +71,13 @@ def _align_one(path, config):
     return path, row, None
 
 
-def _align_chunk(paths, config):
+def _align_chunk(paths, config, mapping=None):
     """Worker: :func:`_align_one` on each path, BLAS on one thread (the workers are parallel)."""
     with single_blas_thread():
-        return [_align_one(path, config) for path in paths]
+        return [_align_one(path, config, mapping) for path in paths]
 
 
-def align_logs(paths, config, jobs=1, progress=None, client=None):
+def align_logs(paths, config, jobs=1, progress=None, client=None, *, mapping=None):
     """Align raw logs (:mod:`hse_opt.align.rawlog`), in parallel; a bad log does not stop the others.
 
     Parameters
@@ -90,6 +95,8 @@ def align_logs(paths, config, jobs=1, progress=None, client=None):
         Align on this Dask cluster instead (``jobs`` is then ignored; the workers must see the
         paths). The rows are the same as with ``jobs=1``: each log is aligned alone, by the same
         code, and collected in path order.
+    mapping : hse_opt.align.mapping.Mapping, optional
+        Read every log as a test stand's CSV through it (:func:`hse_opt.align.mapping.read_mapped`).
 
     Returns
     -------
@@ -119,18 +126,18 @@ def align_logs(paths, config, jobs=1, progress=None, client=None):
         from distributed import as_completed as dask_as_completed
         workers = max(1, len(client.scheduler_info().get("workers", {})))
         size = max(1, min(8, len(paths) // (4 * workers)))
-        futures = [client.submit(_align_chunk, paths[i:i + size], config, pure=False)
+        futures = [client.submit(_align_chunk, paths[i:i + size], config, mapping, pure=False)
                    for i in range(0, len(paths), size)]
         for fut in dask_as_completed(futures):
             for item in fut.result():
                 _collect(item)
     elif jobs == 1 or len(paths) <= 1:
         for path in paths:
-            _collect(_align_one(path, config))
+            _collect(_align_one(path, config, mapping))
     else:
         size = max(1, min(8, len(paths) // (4 * jobs)))
         with ProcessPoolExecutor(max_workers=jobs) as pool:
-            futures = [pool.submit(_align_chunk, paths[i:i + size], config)
+            futures = [pool.submit(_align_chunk, paths[i:i + size], config, mapping)
                        for i in range(0, len(paths), size)]
             for fut in as_completed(futures):
                 for item in fut.result():

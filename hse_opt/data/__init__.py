@@ -116,12 +116,12 @@ tables share), :mod:`~hse_opt.data.runs` (:class:`Runs`, field campaigns),
 from __future__ import annotations
 
 from .atomic import TEMP_TAG, atomic_path, fsync_folder, remove_leftovers, temp_path, write_text_atomic
-from .csvfile import load_plan, load_runs, read_text, save_plan, save_runs
+from .csvfile import load_plan, load_runs, read_text, read_toml, save_plan, save_runs
 from .errors import DataError, DataWarning
 from .plan import Plan
 from .runs import MAX_POSITION_SPREAD_DEG, Runs
 from .table import DEFAULT_MIN_RATE_DPS
 
 __all__ = ["DataError", "DataWarning", "Runs", "Plan", "load_runs", "load_plan", "save_runs", "save_plan",
-           "DEFAULT_MIN_RATE_DPS", "MAX_POSITION_SPREAD_DEG", "read_text", "write_text_atomic", "atomic_path",
+           "DEFAULT_MIN_RATE_DPS", "MAX_POSITION_SPREAD_DEG", "read_text", "read_toml", "write_text_atomic", "atomic_path",
            "temp_path", "remove_leftovers", "fsync_folder", "TEMP_TAG"]

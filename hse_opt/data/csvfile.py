@@ -95,6 +95,26 @@ def read_text(path, allowed, limit=MAX_FILE_BYTES):
     return data.decode("utf-8-sig")
 
 
+def read_toml(path, allowed, *, parse_float=float):
+    """The tables of a UTF-8 TOML input file (:func:`read_text`); ValueError naming the file
+    for text that is no TOML, no UTF-8 or nested too deeply. ``allowed`` names the file kind
+    (``"a mapping file (TOML)"``); ``parse_float=decimal.Decimal`` keeps numbers exact."""
+    try:
+        import tomllib
+    except ModuleNotFoundError:  # pragma: no cover - Python < 3.11
+        import tomli as tomllib
+    src = os.fspath(path)
+    try:
+        return tomllib.loads(read_text(src, allowed), parse_float=parse_float)
+    except tomllib.TOMLDecodeError as exc:
+        raise ValueError(f"{src}: not valid TOML: {exc}; allowed: {allowed}") from None
+    except UnicodeDecodeError as exc:
+        raise ValueError(f"{src}: is not UTF-8 text ({exc.reason} at byte {exc.start}); allowed: "
+                         f"{allowed}") from None
+    except RecursionError:
+        raise ValueError(f"{src}: arrays or tables nested too deeply; allowed: {allowed}") from None
+
+
 def load_runs(path, *, min_rate_dps=DEFAULT_MIN_RATE_DPS, allow_small_azimuths=False) -> Runs:
     """Read and validate a ``RUNS.csv`` file (the file is only read).
 

@@ -104,7 +104,6 @@ import dataclasses
 import difflib
 import functools
 import math
-import sys
 from dataclasses import dataclass, field
 from decimal import Decimal
 
@@ -116,11 +115,6 @@ from hse_opt import units
 from hse_opt.data import atomic_path
 from hse_opt.data.decimals import _to_si, _to_text
 from hse_opt.align.rotations import R_ZB_S_IDEAL, c_b_s, skew
-
-if sys.version_info >= (3, 11):
-    import tomllib
-else:  # pragma: no cover
-    import tomli as tomllib
 
 __all__ = [
     "Harmonic", "SiteConfig", "TimingConfig", "TableConfig", "EncoderConfig", "GyroConfig",
@@ -595,17 +589,8 @@ class TruthConfig:
     @classmethod
     def from_toml(cls, path):
         """Load ``TRUTH.toml``; missing keys take the default system's values."""
-        from hse_opt.data import read_text
-        try:
-            d = tomllib.loads(read_text(path, "a UTF-8 TOML file"), parse_float=Decimal)  # exact: see _si
-        except tomllib.TOMLDecodeError as exc:
-            raise ValueError(f"{path}: not valid TOML: {exc}") from None
-        except UnicodeDecodeError as exc:
-            raise ValueError(f"{path}: is not UTF-8 text ({exc.reason} at byte {exc.start}); allowed: a "
-                             "UTF-8 TOML file") from None
-        except RecursionError:
-            raise ValueError(f"{path}: arrays or tables nested too deeply; allowed: the sections of "
-                             "TRUTH.toml (two levels)") from None
+        from hse_opt.data import read_toml
+        d = read_toml(path, "a UTF-8 TOML file (the sections of TRUTH.toml)", parse_float=Decimal)  # exact: see _si
         try:
             return cls.from_dict(d)
         except ValueError as exc:

@@ -24,14 +24,16 @@ DESCRIPTION = (
     "dead channel, wrong units, a refused quality check) is reported on one line naming the "
     "file, sample and time; the others are still aligned and written, and the exit status is "
     "2 with the count of bad logs.")
-INPUTS = ("logs", "truth")
+INPUTS = ("logs", "truth", "mapping")
 OUTPUTS = {"output": FILE}
 EXAMPLE = """examples:
   hse-opt align logs/ -o RUNS.csv --jobs 2
   hse-opt align logs/ -o RUNS.csv --dask tcp://scheduler:8786
-  hse-opt align run_01.npz run_02.csv -o RUNS.csv --truth TRUTH.toml --latitude-deg 28.07"""
+  hse-opt align run_01.npz run_02.csv -o RUNS.csv --truth TRUTH.toml --latitude-deg 28.07
+  hse-opt align stand_logs/ --mapping counter_stand.toml -o RUNS.csv"""
 
 _SUFFIXES = (".npz", ".csv")
+_MAPPED_SUFFIXES = (".csv", ".txt", ".dat")
 
 
 def add_arguments(parser):
@@ -42,21 +44,27 @@ def add_arguments(parser):
                              "processor applies (default: the paper-like system)")
     parser.add_argument("--latitude-deg", type=float, metavar="L",
                         help="latitude for every log (default: each log's latitude_deg metadata)")
+    parser.add_argument("--mapping", metavar="MAP.toml",
+                        help="read every log as a test stand's own CSV through this mapping file (column "
+                             "names, units, time base, pulse weights, encoder counts per revolution, signs "
+                             "and axis order: docs/rawlogs.md; examples in hse_opt/datasets/mappings/), "
+                             "e.g. --mapping counter_stand.toml; a directory then stands for its .csv, "
+                             ".txt and .dat files")
     parser.add_argument("--jobs", type=int, default=1, help="local worker processes (default 1)")
     add_dask_argument(parser)
     parser.add_argument("--no-progress", dest="progress", action="store_false",
                         help="no progress bar on stderr")
 
 
-def _expand(items):
-    """Files as given; a directory -> its raw logs (.npz, .csv), sorted by name."""
+def _expand(items, suffixes=_SUFFIXES):
+    """Files as given; a directory -> its raw logs (``suffixes``), sorted by name."""
     paths = []
     for item in items:
         if os.path.isdir(item):
             found = sorted(os.path.join(item, f) for f in os.listdir(item)
-                           if f.endswith(_SUFFIXES) and not f.startswith("."))
+                           if f.endswith(suffixes) and not f.startswith("."))
             if not found:
-                raise ValueError(f"{item}: no raw logs (.npz, .csv) in the directory")
+                raise ValueError(f"{item}: no raw logs ({', '.join(suffixes)}) in the directory")
             paths += found
         elif not os.path.exists(item):
             raise ValueError(f"{item}: no such file or directory; allowed: raw-log files or directories")
@@ -86,10 +94,14 @@ def run(args):
         raise ValueError(f"{args.truth}: cannot read the truth: {err.strerror or err}") from None
     latitude = None if args.latitude_deg is None else float(args.latitude_deg) * units.DEG
     config = dataclasses.replace(default_align_config(truth), latitude=latitude)
-    paths = _expand(args.logs)
+    mapping = None
+    if args.mapping:
+        from ...align.mapping import load_mapping
+        mapping = load_mapping(args.mapping)
+    paths = _expand(args.logs, _MAPPED_SUFFIXES if mapping else _SUFFIXES)
     with dask_client(args.dask) as client, tqdm(total=len(paths), unit="log", desc="align", file=sys.stderr,
                                                 disable=None if args.progress else True) as bar:
-        rows, errors = align_logs(paths, config, jobs=args.jobs, client=client,
+        rows, errors = align_logs(paths, config, jobs=args.jobs, client=client, mapping=mapping,
                                   progress=lambda done, total: bar.update(done - bar.n))
     for err in errors:
         message(f"hse-opt align: error: {' '.join(err.split())}")
