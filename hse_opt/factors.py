@@ -21,6 +21,9 @@ Derived columns
     ``heading_err_comp_arcsec``/``heading_comp_std_arcsec`` that ``hse-opt compensate``
     adds follow it), and every column the user names (``derived=``; ``--derived COLUMN`` on
     the command line). Name your own derived columns ``heading_...`` or pass them.
+    Likewise the figures ``hse-opt align`` writes about a log's own sensors (its noise:
+    ``gyro_arw_dph_rthz``, ``accel_vrw_ug_rthz``, ...; :data:`SENSOR_PREFIXES`) are outcomes
+    of the log, not settings: every covariate whose name begins with ``gyro_`` or ``accel_``.
 """
 from dataclasses import dataclass
 
@@ -28,7 +31,8 @@ import numpy as np
 
 from . import units
 
-__all__ = ["Factor", "Factors", "RESOLUTION", "DERIVED_PREFIX", "campaign_factors", "is_derived"]
+__all__ = ["Factor", "Factors", "RESOLUTION", "DERIVED_PREFIX", "SENSOR_PREFIXES", "campaign_factors",
+           "is_derived"]
 
 #: resolution of each run setting, in the unit of its label (see the module docstring)
 RESOLUTION = {
@@ -43,11 +47,14 @@ RESOLUTION = {
 }
 #: a covariate whose name begins with this is derived from the heading error
 DERIVED_PREFIX = "heading"
+#: a covariate whose name begins with one of these is a figure of the log's own sensors
+SENSOR_PREFIXES = ("gyro_", "accel_")
 
 
 def is_derived(name, derived=()):
-    """Whether column ``name`` is derived from the heading error (module docstring)."""
-    return name.startswith(DERIVED_PREFIX) or name in set(derived)
+    """Whether column ``name`` is an outcome, not a setting: derived from the heading error or
+    a figure of the log's sensors (module docstring)."""
+    return name.startswith((DERIVED_PREFIX, *SENSOR_PREFIXES)) or name in set(derived)
 
 
 @dataclass(frozen=True)

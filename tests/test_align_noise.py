@@ -240,3 +240,70 @@ def test_a_short_log_is_refused_naming_what_is_needed():
     log = _SyntheticLog(np.random.default_rng(12), 200)
     with pytest.raises(ValueError, match="allowed: at least"):
         noise_from_log(log)
+
+
+# -- hse-opt align: the columns, the tuning from the data -----------------------------------------
+
+@pytest.fixture(scope="module")
+def sim_logs(tmp_path_factory):
+    """Three 2-minute simulated logs of a noisy system and one noise-free log, on disk."""
+    from hse_opt.align import save_rawlog
+    from hse_opt.sim import TruthConfig
+    truth = TruthConfig.default().updated({"gyro": {"arw_dph_rthz": 0.05}, "accel": {"vrw_ug_rthz": 20.0}})
+    d = tmp_path_factory.mktemp("noisy")
+    for seed in (1, 2, 3):
+        save_rawlog(_sim_log(truth, seed), d / f"log{seed}.npz")
+    free = tmp_path_factory.mktemp("free")
+    save_rawlog(_sim_log(TruthConfig.default().noise_free(), 4), free / "free.npz")
+    return truth, d, free
+
+
+def test_align_writes_the_noise_columns_and_prints_the_campaigns_figures(sim_logs, tmp_path, capsys):
+    from hse_opt.cli import main
+    from hse_opt.data import load_runs
+    truth, d, _ = sim_logs
+    out = tmp_path / "RUNS.csv"
+    assert main(["align", str(d), "-o", str(out), "--no-progress"]) == 0
+    runs = load_runs(out)
+    assert set(NOISE_COLUMNS) <= set(runs.covariates)
+    # each log's own figures, against the truth's (one 2-minute log: 25 %)
+    assert np.allclose(runs.covariates["gyro_arw_dph_rthz"], 0.05, rtol=0.25)
+    assert np.allclose(runs.covariates["accel_vrw_ug_rthz"], 20.0, rtol=0.25)
+    err = capsys.readouterr().err
+    assert "noise (Allan, IEEE 952) over 3 logs: gyro ARW" in err
+    # outcomes of the log, not settings: never a factor or a covariate candidate
+    from hse_opt.factors import is_derived
+    assert all(is_derived(c) for c in NOISE_COLUMNS) and not is_derived("temp_c")
+
+
+def test_the_filter_is_tuned_from_the_logs_noise_unless_a_truth_gives_it(sim_logs, tmp_path):
+    from hse_opt.cli import main
+    from hse_opt.data import load_runs
+    from hse_opt.sim import TruthConfig, save_truth
+    truth, d, free = sim_logs
+    # the issue: a noise-free log reported heading_std 11.6 arcsec (the default system's
+    # tuning whatever the log holds); tuned from the log, the filter's 1-sigma is its own
+    assert main(["align", str(free), "-o", str(tmp_path / "free.csv"), "--no-progress"]) == 0
+    assert load_runs(tmp_path / "free.csv").heading_std[0] < 0.5 * units.ARCSEC
+    # the noisy system (4.2 x the default's ARW): the 1-sigma grows with the data's noise ...
+    assert main(["align", str(d), "-o", str(tmp_path / "data.csv"), "--no-progress"]) == 0
+    data = load_runs(tmp_path / "data.csv")
+    # ... to that of the filter tuned with the truth's own noise (within the pooled ARW's error)
+    save_truth(truth, tmp_path / "TRUTH.toml")
+    assert main(["align", str(d), "-o", str(tmp_path / "truth.csv"), "--no-progress",
+                 "--truth", str(tmp_path / "TRUTH.toml")]) == 0
+    told = load_runs(tmp_path / "truth.csv")
+    assert np.allclose(data.heading_std, told.heading_std, rtol=0.12)
+    # and not the default system's (0.012 deg/h/sqrt(Hz)), which the logs would have had before
+    assert np.all(data.heading_std > 3 * _default_sigma(TruthConfig.default(), d, tmp_path))
+
+
+def _default_sigma(truth, d, tmp_path):
+    """The heading 1-sigma the default system's tuning gives these logs, rad."""
+    from hse_opt.cli import main
+    from hse_opt.data import load_runs
+    from hse_opt.sim import save_truth
+    save_truth(truth, tmp_path / "DEFAULT.toml")
+    assert main(["align", str(d), "-o", str(tmp_path / "dflt.csv"), "--no-progress",
+                 "--truth", str(tmp_path / "DEFAULT.toml")]) == 0
+    return load_runs(tmp_path / "dflt.csv").heading_std

@@ -13,6 +13,7 @@ from concurrent.futures import ProcessPoolExecutor, as_completed
 import numpy as np
 
 from hse_opt import units
+from hse_opt.align.noise import NOISE_COLUMNS, combine_noise, noise_from_log
 from hse_opt.align.processor import align
 from hse_opt.align.mapping import read_mapped
 from hse_opt.align.quality import assess
@@ -36,48 +37,106 @@ def single_blas_thread():
     return threadpool_limits(limits=1, user_api="blas")
 
 
-def _align_one(path, config, mapping=None):
-    """Worker: load, check and align one raw log; returns ``(path, row, error)``: the RUNS row
-    (column -> value in file units, plus ``run`` and ``position`` from the metadata when given)
-    or the one-line error (the file named)."""
+def _checked_log(path, mapping=None):
+    """Load ``path`` (through ``mapping`` when given) and run the quality checks: the
+    (repaired) log and its Quality."""
+    if mapping is None:
+        quality = assess(load_rawlog(path))
+    else:
+        mapped = read_mapped(path, mapping)
+        quality = assess(mapped.log, temperature=mapped.temperature)
+    quality.raise_if_refused(path)
+    return quality.log, quality
+
+
+def _error_line(path, exc):
+    """The one-line error of a bad log, naming the file."""
+    if isinstance(exc, OSError):
+        return f"{path}: cannot read: {exc.strerror or exc}"
+    text = str(exc)
+    return text if text.startswith(path) else f"{path}: {text}"
+
+
+def _noise_one(path, config, mapping=None, noise=None):
+    """Worker: the noise figures of one raw log; ``(path, figures, error)``."""
+    try:
+        return path, noise_from_log(_checked_log(path, mapping)[0]), None
+    except (ValueError, OSError) as exc:
+        return path, None, _error_line(path, exc)
+
+
+def _align_one(path, config, mapping=None, noise=None):
+    """Worker: load, check, characterise the noise of and align one raw log; returns ``(path,
+    row, error)``: the RUNS row (column -> value in file units, plus ``run`` and ``position``
+    from the metadata when given, and ``noise``: the log's :class:`NoiseFigures`) or the
+    one-line error (the file named). ``noise``: the log's figures when already computed."""
     from hse_opt.data import DEFAULT_MIN_RATE_DPS
 
     try:
-        if mapping is None:
-            quality = assess(load_rawlog(path))
-        else:
-            mapped = read_mapped(path, mapping)
-            quality = assess(mapped.log, temperature=mapped.temperature)
-        quality.raise_if_refused(path)
-        log = quality.log
+        log, quality = _checked_log(path, mapping)
+        noise = noise_from_log(log) if noise is None else noise
         res = align(log, config)
         if abs(res.rate) < DEFAULT_MIN_RATE_DPS * units.DEG_PER_S:
             raise ValueError(f"the encoder's mean rate is {res.rate / units.DEG_PER_S:.4g} deg/s; allowed: "
                              f"|rate| >= {DEFAULT_MIN_RATE_DPS:g} deg/s (outside the gyros' lock-in zone)")
-    except ValueError as exc:
-        text = str(exc)
-        return path, None, text if text.startswith(path) else f"{path}: {text}"
-    except OSError as exc:
-        return path, None, f"{path}: cannot read: {exc.strerror or exc}"
+    except (ValueError, OSError) as exc:
+        return path, None, _error_line(path, exc)
     lat = config.latitude if config.latitude is not None else float(log.meta["latitude_deg"]) * units.DEG
     row = {"rate_dps": res.rate / units.DEG_PER_S,
            "heading_deg": float(np.mod(res.heading, 2 * np.pi)) / units.DEG,
            "latitude_deg": lat / units.DEG, "duration_s": round(len(log) * log.sample_period, 6),
            "pitch_arcsec": res.pitch / units.ARCSEC, "roll_arcsec": res.roll / units.ARCSEC,
-           "heading_std_arcsec": res.heading_std / units.ARCSEC, "quality": quality.summary()}
+           "heading_std_arcsec": res.heading_std / units.ARCSEC, "quality": quality.summary(),
+           **noise.columns(), "noise": noise}
     for key in ("run", "position", *LOG_META_COLUMNS):
         if log.meta.get(key) is not None:
             row[key] = log.meta[key]
     return path, row, None
 
 
-def _align_chunk(paths, config, mapping=None):
-    """Worker: :func:`_align_one` on each path, BLAS on one thread (the workers are parallel)."""
+def _chunk(worker, paths, config, mapping, noise):
+    """Worker: ``worker`` on each path, BLAS on one thread (the workers are parallel)."""
     with single_blas_thread():
-        return [_align_one(path, config, mapping) for path in paths]
+        return [worker(path, config, mapping, noise.get(path)) for path in paths]
 
 
-def align_logs(paths, config, jobs=1, progress=None, client=None, *, mapping=None):
+def _map(worker, paths, config, jobs, progress, client, mapping, noise=None):
+    """``worker(path, config, mapping, noise)`` on every path, in ``jobs`` local processes or
+    on a Dask ``client``'s workers; results by path."""
+    noise = noise or {}
+    done = {}
+
+    def _collect(item):
+        done[item[0]] = item
+        if progress is not None:
+            progress(len(done), len(paths))
+
+    def _chunks(workers):
+        size = max(1, min(8, len(paths) // (4 * workers)))
+        return [(paths[i:i + size], {p: noise[p] for p in paths[i:i + size] if p in noise})
+                for i in range(0, len(paths), size)]
+
+    if client is not None:
+        from distributed import as_completed as dask_as_completed
+        workers = max(1, len(client.scheduler_info().get("workers", {})))
+        futures = [client.submit(_chunk, worker, part, config, mapping, known, pure=False)
+                   for part, known in _chunks(workers)]
+        for fut in dask_as_completed(futures):
+            for item in fut.result():
+                _collect(item)
+    elif jobs == 1 or len(paths) <= 1:
+        for path in paths:
+            _collect(worker(path, config, mapping, noise.get(path)))
+    else:
+        with ProcessPoolExecutor(max_workers=jobs) as pool:
+            futures = [pool.submit(_chunk, worker, part, config, mapping, known) for part, known in _chunks(jobs)]
+            for fut in as_completed(futures):
+                for item in fut.result():
+                    _collect(item)
+    return done
+
+
+def align_logs(paths, config, jobs=1, progress=None, client=None, *, mapping=None, tune_from_data=False):
     """Align raw logs (:mod:`hse_opt.align.rawlog`), in parallel; a bad log does not stop the others.
 
     Parameters
@@ -97,6 +156,13 @@ def align_logs(paths, config, jobs=1, progress=None, client=None, *, mapping=Non
         code, and collected in path order.
     mapping : hse_opt.align.mapping.Mapping, optional
         Read every log as a test stand's CSV through it (:func:`hse_opt.align.mapping.read_mapped`).
+    tune_from_data : bool
+        Tune the filter from the logs' own noise instead of ``config``'s ``arw``, ``vrw``,
+        ``gyro_pulse``, ``accel_pulse`` (for a system whose noise no calibration file gives):
+        a first pass takes every log's Allan analysis (:func:`hse_opt.align.noise.noise_from_log`),
+        pooled over the logs (:func:`hse_opt.align.noise.combine_noise`: one system, so one
+        noise; a single log's long-cluster points are few), and every log is aligned with
+        :meth:`~hse_opt.align.noise.NoiseFigures.tuning` of the pooled figures.
 
     Returns
     -------
@@ -106,42 +172,28 @@ def align_logs(paths, config, jobs=1, progress=None, client=None, *, mapping=Non
         period, to the microsecond: the record's length),
         ``pitch_arcsec``, ``roll_arcsec``, ``heading_std_arcsec`` (the filter's 1-sigma),
         ``quality`` (:meth:`hse_opt.align.quality.Quality.summary`: ``ok``, or what was
-        repaired or noted before alignment), and
+        repaired or noted before alignment), the noise columns
+        (:data:`hse_opt.align.noise.NOISE_COLUMNS`: ``gyro_arw_dph_rthz``, ...) and ``noise``
+        (the log's :class:`hse_opt.align.noise.NoiseFigures`, for reports), and
         from the log's metadata, when present: ``run``, ``position``, ``azimuth_deg``,
         ``t_start_s``, ``temp_c``. Each row also has ``log`` (its path).
     errors : list of str
         One line per bad log (the file and, where it applies, the sample), in path order.
     """
+    import dataclasses
+
     if isinstance(jobs, bool) or not isinstance(jobs, (int, np.integer)) or jobs < 1:
         raise ValueError(f"jobs = {jobs!r} is not allowed: an integer >= 1 is required")
     paths = [str(p) for p in paths]
-    done = {}
-
-    def _collect(item):
-        done[item[0]] = item
-        if progress is not None:
-            progress(len(done), len(paths))
-
-    if client is not None:
-        from distributed import as_completed as dask_as_completed
-        workers = max(1, len(client.scheduler_info().get("workers", {})))
-        size = max(1, min(8, len(paths) // (4 * workers)))
-        futures = [client.submit(_align_chunk, paths[i:i + size], config, mapping, pure=False)
-                   for i in range(0, len(paths), size)]
-        for fut in dask_as_completed(futures):
-            for item in fut.result():
-                _collect(item)
-    elif jobs == 1 or len(paths) <= 1:
-        for path in paths:
-            _collect(_align_one(path, config, mapping))
-    else:
-        size = max(1, min(8, len(paths) // (4 * jobs)))
-        with ProcessPoolExecutor(max_workers=jobs) as pool:
-            futures = [pool.submit(_align_chunk, paths[i:i + size], config, mapping)
-                       for i in range(0, len(paths), size)]
-            for fut in as_completed(futures):
-                for item in fut.result():
-                    _collect(item)
+    noise, report = None, progress
+    if tune_from_data:      # two passes: progress counts each log's half in each
+        first = _map(_noise_one, paths, config, jobs,
+                     None if report is None else (lambda done, total: report(done // 2, total)), client, mapping)
+        noise = {p: f for p, f, _ in first.values() if f is not None}
+        if noise:
+            config = dataclasses.replace(config, **combine_noise(noise.values()).tuning())
+        progress = None if report is None else (lambda done, total: report((total + done) // 2, total))
+    done = _map(_align_one, paths, config, jobs, progress, client, mapping, noise)
     rows, errors = [], []
     for path in paths:
         _, row, err = done[path]
@@ -191,6 +243,9 @@ def runs_from_rows(rows, source="<aligned logs>"):
         columns["position"] = [str(r["position"]) for r in rows]
     if any("quality" in r for r in rows):
         columns["quality"] = [r.get("quality", "") for r in rows]
+    for name in NOISE_COLUMNS:
+        if all(name in r for r in rows):
+            columns[name] = [r[name] for r in rows]
     for name in ("t_start_s", "temp_c"):
         have = sum(name in r for r in rows)
         if have == len(rows):

@@ -209,6 +209,15 @@ class NoiseFigures:
             "accel_quantization_mps": float(self.quantization[a].mean()),
         }
 
+    def summary(self):
+        """One line of the figures in file units (the means over the three sensors)."""
+        c = self.columns()
+        return (f"gyro ARW {c['gyro_arw_dph_rthz']:.4g} deg/h/sqrt(Hz) ({c['gyro_arw_dph_rthz'] / 60:.3g} "
+                f"deg/sqrt(h)), bias instability {c['gyro_bias_instability_dph']:.3g} deg/h, quantization "
+                f"{c['gyro_quantization_arcsec']:.3g} arcsec, rate random walk {c['gyro_rrw_dph_rth']:.3g} "
+                f"deg/h/sqrt(h); accelerometer VRW {c['accel_vrw_ug_rthz']:.4g} ug/sqrt(Hz), bias instability "
+                f"{c['accel_bias_instability_ug']:.3g} ug, quantization {c['accel_quantization_mps']:.3g} m/s")
+
 
 def _block_sums(x, stop, nb, block):
     """Sums of rows 1..stop-1 of ``x`` (n, 3) over blocks of ``block`` rows, shape (3, nb)

@@ -23,7 +23,14 @@ DESCRIPTION = (
     "so ('ok' otherwise); anything else refuses the log. A bad log (truncated, gaps, NaN, a "
     "dead channel, wrong units, a refused quality check) is reported on one line naming the "
     "file, sample and time; the others are still aligned and written, and the exit status is "
-    "2 with the count of bad logs.")
+    "2 with the count of bad logs. Each log's sensor noise comes from the log itself "
+    "(hse_opt/align/noise.py: the overlapping Allan deviation of the six channels with the "
+    "table's turn, Earth rate and gravity fitted out, and the IEEE Std 952 terms) into the "
+    "columns gyro_arw_dph_rthz (angle random walk, deg/h/sqrt(Hz), as TRUTH.toml's "
+    "arw_dph_rthz), gyro_bias_instability_dph, gyro_quantization_arcsec, gyro_rrw_dph_rth, "
+    "accel_vrw_ug_rthz, accel_bias_instability_ug and accel_quantization_mps (means over the "
+    "three sensors), and the campaign's pooled figures are printed; without --truth the "
+    "filter is tuned from the logs' pooled figures.")
 INPUTS = ("logs", "truth", "mapping")
 OUTPUTS = {"output": FILE}
 EXAMPLE = """examples:
@@ -41,7 +48,8 @@ def add_arguments(parser):
     parser.add_argument("-o", "--output", metavar="RUNS.csv", required=True, help="results to write")
     parser.add_argument("--truth", metavar="TRUTH.toml",
                         help="the system whose lab calibration (K~_g, C~_s^b) and sensor noise the "
-                             "processor applies (default: the paper-like system)")
+                             "processor applies (default: the paper-like system's calibration, the "
+                             "filter's noise from each log's own Allan analysis)")
     parser.add_argument("--latitude-deg", type=float, metavar="L",
                         help="latitude for every log (default: each log's latitude_deg metadata)")
     parser.add_argument("--mapping", metavar="MAP.toml",
@@ -82,6 +90,7 @@ def run(args):
     from ...data import save_runs
     from ...sim import TruthConfig
     from ...align.batch import align_logs, runs_from_rows
+    from ...align.noise import combine_noise
     from ...sim.campaign import default_align_config
 
     if args.jobs < 1:
@@ -102,6 +111,7 @@ def run(args):
     with dask_client(args.dask) as client, tqdm(total=len(paths), unit="log", desc="align", file=sys.stderr,
                                                 disable=None if args.progress else True) as bar:
         rows, errors = align_logs(paths, config, jobs=args.jobs, client=client, mapping=mapping,
+                                  tune_from_data=args.truth is None,
                                   progress=lambda done, total: bar.update(done - bar.n))
     for err in errors:
         message(f"hse-opt align: error: {' '.join(err.split())}")
@@ -115,6 +125,9 @@ def run(args):
         save_runs(runs, args.tx.path("output"))
     except OSError as err:
         raise ValueError(f"{args.output}: cannot write the runs: {err.strerror or err}") from None
+    pooled = combine_noise(r["noise"] for r in rows)
+    message(f"hse-opt align: noise (Allan, IEEE 952) over {pooled.n_logs} log{'s' if pooled.n_logs != 1 else ''}: "
+            f"{pooled.summary()}")
     bad = f"; {len(errors)} bad log{'s' if len(errors) != 1 else ''} (above) left out" if errors else ""
     message(f"hse-opt align: {len(runs)} of {len(paths)} logs aligned, written to {args.output}{bad}")
     return 2 if errors else 0
