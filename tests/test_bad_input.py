@@ -4,6 +4,7 @@ command line on the paper's Table 1 with one cell changed and holds it against t
 file's answer or a refusal that names file, row and column."""
 import csv
 import io
+import json
 from contextlib import redirect_stderr, redirect_stdout
 from pathlib import Path
 
@@ -120,3 +121,83 @@ def test_covariate_lookup_names_the_columns_there_are():
     with open(paper_table1_path(), newline="") as fh:
         column = [float(r["heading_err_compensated_arcsec"]) for r in csv.DictReader(fh)]
     assert runs.covariate("heading_err_compensated_arcsec", "x").tolist() == column
+
+
+# -- copies: rows written twice carry no new information --------------------------------------
+FIELD = [("A", 37.0, 150, -400), ("B", 212.0, -300, 250)]
+
+
+@pytest.fixture(scope="module")
+def field_runs(tmp_path_factory):
+    """The README's field campaign (two positions without a reference, rates 20/60/-40 twice),
+    simulated with the paper-like default system."""
+    d = tmp_path_factory.mktemp("field")
+    rows = [["run", "rate_dps", "azimuth_deg", "t_start_s", "duration_s", "tilt_x_arcsec", "tilt_y_arcsec",
+             "position"]]
+    t = 3600
+    for label, heading, tx, ty in FIELD:
+        for rate in (20, 60, -40, 20, 60, -40):
+            rows.append([str(len(rows)), str(rate), str(heading), str(t), "300", str(tx), str(ty), label])
+            t += 360
+    write(d / "PLAN.csv", rows)
+    code, _, err = cli(["simulate", d / "PLAN.csv", "-o", d / "RUNS.csv", "--field", "--seed", "3", "--no-progress"])
+    assert code == 0, err
+    return d / "RUNS.csv"
+
+
+def _with_copies(src, dst, which):
+    """``src`` with the rows ``which`` (0-based data rows) appended again under new run ids."""
+    with open(src, newline="") as fh:
+        rows = list(csv.reader(fh))
+    j = rows[0].index("run")
+    for k, i in enumerate(which):
+        again = list(rows[1 + i])
+        again[j] = str(1000 + k)
+        rows.append(again)
+    write(dst, rows)
+    return dst
+
+
+def _fit_json(path, *extra):
+    code, out, err = cli(["fit", path, *extra, "--json"])
+    assert code == 0, err
+    return json.loads(out)
+
+
+@pytest.mark.parametrize("which", ["all", "some"])
+def test_field_copies_change_no_answer_and_are_named(tmp_path, field_runs, which):
+    """Field rows appended again under new run ids (before: diagnose went from adequate to
+    missing-effect and sigma(lambda2) shrank by sqrt(2), no note): every number of the fit and
+    the diagnosis is the clean campaign's (copies add no information), and both say which rows
+    are copies."""
+    rows = list(range(12)) if which == "all" else [0, 4, 7]
+    copies = _with_copies(field_runs, tmp_path / "COPIES.csv", rows)
+    clean, dup = _fit_json(field_runs), _fit_json(copies)
+    for name, p in clean["parameters"].items():
+        assert dup["parameters"][name]["value"] == pytest.approx(p["value"], rel=1e-9, abs=1e-12)
+        assert dup["parameters"][name]["std"] == pytest.approx(p["std"], rel=1e-9, abs=1e-12)
+    for key in ("chi2", "dof", "chi2_red", "aic", "bic"):
+        assert dup[key] == pytest.approx(clean[key], rel=1e-9), key
+    note = f"{len(rows)} of {12 + len(rows)} rows are copies of another row (run 1000 = 1,"
+    assert any(note in n for n in dup["notes"]), dup["notes"]
+    d_clean, d_dup = (json.loads(cli(["diagnose", p, "--json"])[1]) for p in (field_runs, copies))
+    assert d_dup["verdict"] == d_clean["verdict"]
+    assert d_dup["lack_of_fit_p"] == pytest.approx(d_clean["lack_of_fit_p"], rel=1e-6)
+    for c, c2 in zip(d_clean["candidates"], d_dup["candidates"]):
+        assert c2["effect"] == c["effect"]
+        assert (c2["p_value"] is None) == (c["p_value"] is None)
+        if c["p_value"] is not None:
+            assert c2["p_value"] == pytest.approx(c["p_value"], rel=1e-6)
+    assert any("measurements once" in n for n in d_dup["notes"])
+
+
+def test_surveyed_copies_of_some_rows_change_no_answer(tmp_path):
+    """Table 1 with three of its rows written again: the fit is Table 1's (before: the copies
+    counted as runs only when every replicate group was copies; these three pulled the fit)."""
+    copies = _with_copies(paper_table1_path(), tmp_path / "T1C.csv", [0, 5, 11])
+    clean, dup = _fit_json(paper_table1_path(), *FIX), _fit_json(copies, *FIX)
+    for name, p in clean["parameters"].items():
+        assert dup["parameters"][name]["value"] == pytest.approx(p["value"], rel=1e-9, abs=1e-12)
+        assert dup["parameters"][name]["std"] == pytest.approx(p["std"], rel=1e-9, abs=1e-12)
+    assert dup["dof"] == clean["dof"] and dup["n_runs"] == 15
+    assert any("3 of 15 rows are copies" in n for n in dup["notes"])

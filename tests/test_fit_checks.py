@@ -71,7 +71,7 @@ def test_identical_replicates_are_said():
     d = diagnose(exact.replace(heading_err=h, heading_std=None), refit=False)
     assert d.lack_of_fit is not None and d.lack_of_fit.p_value is None
     assert "identical" in d.lack_of_fit.note
-    assert d.fit.weighting == "residual" and any("replicates are identical" in n for n in d.notes)
+    assert d.fit.weighting == "residual" and any("are copies of another row" in n for n in d.notes)
 
 
 def test_chi2_quantile_matches_scipy():

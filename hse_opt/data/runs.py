@@ -13,10 +13,13 @@ from .errors import DataError
 from .table import (_AZIMUTH, _DURATION, _NONNEGATIVE_T_START, _POSITIVE_DURATION, _RATE, _RUN, _T_START,
                     _Col, _looks_like_radians, _sequence, _Table)
 
-__all__ = ["Runs", "MAX_POSITION_SPREAD_DEG"]
+__all__ = ["Runs", "MAX_POSITION_SPREAD_DEG", "COPY_TOL_ARCSEC"]
 
 #: largest distance of an unsurveyed row's heading from its position's mean heading, deg
 MAX_POSITION_SPREAD_DEG = 2.0
+#: rows of one setting whose headings differ by less than this (arcsec) are copies of one
+#: measurement (:meth:`Runs.copies`): far below any alignment's noise, above rounding
+COPY_TOL_ARCSEC = 1e-6
 
 
 def _wrap(angle):
@@ -136,6 +139,48 @@ class Runs(_Table):
                                          "allowed: a position is surveyed (azimuth_deg in every row) or "
                                          "not (azimuth_deg empty in every row)", row=i + 1, column="azimuth_deg")
 
+    def copies(self):
+        """Rows that repeat another row's measurement: the same rate, azimuth (or position),
+        latitude, duration and tilt, and a heading (``heading_err``, and ``heading`` where given)
+        within :data:`COPY_TOL_ARCSEC` -- a row written twice (under a new run id, say), or
+        repeats without noise, not a run measured again (a measured heading differs by its
+        noise, arcseconds).
+
+        Returns
+        -------
+        labels : numpy.ndarray of int64, shape (n,)
+            The measurement of each row, 0 .. m-1 (copies share one), in order of first
+            appearance.
+        m : int
+            How many distinct measurements there are (``m == n``: no copies).
+
+        The fit counts each measurement once (its copies share its weight) and says so
+        (:func:`hse_opt.fit.run_sigma`); the diagnosis counts its degrees of freedom over the
+        ``m`` measurements.
+        """
+        n = len(self)
+        if n == 0:
+            return np.zeros(0, np.int64), 0
+        cols = [self.rate, self.azimuth, self.latitude, self.duration]
+        cols += [a for a in (self.pitch, self.roll) if a is not None]
+        if self.position is not None:
+            cols.append(np.unique(self.position, return_inverse=True)[1].astype(float))
+        setting = np.unique(np.column_stack(cols), axis=0, return_inverse=True)[1].ravel()
+        # within a setting, headings within COPY_TOL_ARCSEC of a neighbour's are one measurement
+        err = np.asarray(self.heading_err, float) / ARCSEC
+        own = np.zeros(n) if self.heading is None else np.asarray(self.heading, float) / ARCSEC
+        order = np.lexsort((own, err, setting))
+        new = np.ones(n, bool)
+        new[1:] = ((np.diff(setting[order]) != 0) | (np.abs(np.diff(err[order])) > COPY_TOL_ARCSEC)
+                   | (np.abs(np.diff(own[order])) > COPY_TOL_ARCSEC))
+        group = np.empty(n, np.int64)
+        group[order] = np.cumsum(new) - 1
+        first = np.full(int(new.sum()), n)
+        np.minimum.at(first, group, np.arange(n))
+        rank = np.empty(first.size, np.int64)
+        rank[np.argsort(first, kind="stable")] = np.arange(first.size)  # in order of first appearance
+        return rank[group], int(first.size)
+
     def reference_groups(self):
         """Which rows share which unknown heading constant.
 
@@ -216,10 +261,12 @@ class Runs(_Table):
         heading_err, azimuth = np.array(runs.heading_err), np.array(runs.azimuth)
         labels = runs.position
         groups = labels if labels is not None else np.full(n, "field")
+        copy_of, _ = runs.copies()  # a row written twice counts once in its position's mean
+        share = 1.0 / np.bincount(copy_of)[copy_of]
         for label in np.unique(groups[~surveyed]):
             rows = np.flatnonzero((groups == label) & ~surveyed)
             h = runs.heading[rows]
-            ref = np.angle(np.mean(np.exp(1j * h)))
+            ref = np.angle(np.sum(share[rows] * np.exp(1j * h)) / rows.size)  # np.mean without copies
             dev = _wrap(h - ref)
             k = int(np.argmax(np.abs(dev)))
             if abs(dev[k]) > MAX_POSITION_SPREAD_DEG * DEG:

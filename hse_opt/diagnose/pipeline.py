@@ -55,8 +55,9 @@ def diagnose(runs, model=None, *, fix=None, tilt_known=None, alpha=ALPHA, candid
     ValueError
         Bad arguments (unknown effect, covariate column not in the runs, alpha outside (0, 1)),
         or heading errors without noise (the model reproduces them to rounding: every test
-        would compare rounding errors). Identical replicates (copies of one measurement) are
-        no error: the tests count each setting once, and a note says so.
+        would compare rounding errors). Copies of one measurement (rows written twice:
+        :meth:`hse_opt.data.Runs.copies`) are no error: the tests count each measurement
+        once, and a note says so.
     """
     if not (0.0 < alpha < 1.0):
         raise ValueError(f"alpha = {alpha!r}; allowed: a significance level in (0, 1)")
@@ -77,8 +78,8 @@ def diagnose(runs, model=None, *, fix=None, tilt_known=None, alpha=ALPHA, candid
     null = Null(f0, runs)
     notes = list(dict.fromkeys(f0.notes))
     if null.n_eff < null.n:
-        notes.append(f"the replicates are identical (copies, not runs measured again): the tests count each "
-                     f"of the {null.n_eff} settings once, not the {null.n} rows")
+        notes.append(f"copies (rows written twice, not runs measured again): the tests count each of the "
+                     f"{null.n_eff} measurements once, not the {null.n} rows")
 
     # comparison: influence and outliers
     lev, cooks, stud = null.influence()

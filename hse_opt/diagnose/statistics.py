@@ -11,9 +11,9 @@ linearised extended model would give (the Lagrange-multiplier statistic). It is 
 models linear in their parameters, and independent of the sigmas' absolute scale (only their
 ratios weight the runs). The lack-of-fit test is the same test with one indicator column per
 replicate group. Influence (leverage, Cook's distance, externally studentised residuals) is
-that of the same weighted linear model. When every replicate group's runs are identical
-(copies of one measurement), ``n`` in the degrees of freedom counts the settings, not the rows,
-and each copy carries its setting's influence.
+that of the same weighted linear model. Rows that are copies of one measurement
+(:meth:`hse_opt.data.Runs.copies`) share its weight in the fit; ``n`` in the degrees of freedom
+counts the measurements, not the rows, and each copy carries its measurement's influence.
 """
 from __future__ import annotations
 
@@ -24,6 +24,7 @@ import numpy as np
 from scipy import stats
 
 from ..fit import replicate_groups
+from ..fit.weights import multiplicity
 from ..information import MAX_CONDITION, weighted_jacobian
 from ..units import ARCSEC
 from ._format import num
@@ -32,9 +33,6 @@ from ._format import num
 ALPHA = 0.05
 #: a projected direction (unit columns) shorter than this is in the span of the model
 _TOL = 1.0 / MAX_CONDITION
-#: replicates whose weighted pure-error sum of squares is below this share of the residual's
-#: are identical (a scatter below 1e-6 of the total)
-_IDENTICAL = 1e-12
 
 
 @dataclass(frozen=True)
@@ -107,27 +105,17 @@ class Null:
         d = np.linalg.norm(M, axis=0)
         self.Q, _ = np.linalg.qr(M / np.where(d > 0, d, 1.0))
         self.n = self.r.size
-        # profiled parameters count as fitted (FitResult.dof already holds that)
-        self.k = self.n - int(f.dof)
         self.rss = float(self.r @ self.r)
-        self.copies = self._copies(runs)
-        self.n_eff = self.n if self.copies is None else int(self.copies.max()) + 1
+        # copies of one measurement (Runs.copies: rows written twice) share its weight in the
+        # fit (hse_opt.fit.run_sigma), so the weighted sums of squares are those of one row per
+        # measurement and the degrees of freedom count the measurements (an F test of a
+        # function that fits them exactly is then not F = inf but not possible)
+        labels, m = runs.copies()
+        self.copies = labels if m < self.n else None
+        self.n_eff = m
+        # profiled parameters count as fitted (FitResult.dof already holds that)
+        self.k = self.n_eff - int(f.dof)
         self.scale = LikelihoodScale.of(f)
-
-    def _copies(self, runs):
-        """Each run's setting (labels 0 .. g-1) when every replicate group's runs are identical
-        (copies of one measurement, zero pure error), else None. The copies add nothing but
-        weight: the weighted sums of squares are those of one run per setting, so the degrees
-        of freedom count the settings (and an F test of a function that fits the settings
-        exactly is not F = inf but not possible)."""
-        labels, g = replicate_groups(runs, self.f.measurement)
-        if g == self.n:
-            return None
-        w = 1.0 / self.sigma ** 2
-        e = np.asarray(self.f.residuals, float)
-        mean = np.bincount(labels, w * e, g) / np.bincount(labels, w, g)
-        pure = float(np.sum(w * (e - mean[labels]) ** 2))
-        return labels if pure <= _IDENTICAL * self.rss else None
 
     def within_share(self, Z):
         """Per column of Z (n, q; weighted): the share of its norm left after removing each
@@ -237,10 +225,10 @@ def lack_of_fit(null, runs):
     D[np.arange(null.n), labels] = 1.0
     U = null.basis(D / null.sigma[:, None])
     F, dof, p, logp = null.score(U)
-    if null.n_eff < null.n:
+    if p is None and null.n_eff < null.n:
         return Test("lack of fit", f"{g} replicate groups", None, dof, None, None, "",
-                    "the replicates are identical (zero pure error): no lack-of-fit test; check "
-                    "that the repeated runs were really measured again")
+                    "the replicates are identical (copies: zero pure error): no lack-of-fit test; "
+                    "check that the repeated runs were really measured again")
     if p is None:
         return Test("lack of fit", f"{g} replicate groups", None, dof, None, None, "",
                     "not enough replicate groups beyond the model's parameters")
@@ -270,8 +258,11 @@ class LikelihoodScale:
         return cls(kind, np.asarray(f.sigma, float), f.weighting)
 
     def refit_runs(self, runs):
-        """The runs as a candidate is refitted: with the base sigmas as their own when fixed."""
-        return runs.replace(heading_std=self.sigma.copy()) if self.kind == "fixed" else runs
+        """The runs as a candidate is refitted: with the base sigmas as their own when fixed
+        (each copy's share of its measurement's weight taken out again: the refit shares it)."""
+        if self.kind != "fixed":
+            return runs
+        return runs.replace(heading_std=self.sigma / np.sqrt(multiplicity(runs)[0]))
 
     def bic(self, residuals, dof):
         r = np.asarray(residuals, float)

@@ -9,7 +9,7 @@ from ..model.composition import as_model
 from .problem import Problem, position_projector, setup
 from .result import FitResult, SolverError
 from .solvers import gauss_newton, gauss_newton_step, solve, subspace
-from .weights import HUBER_C, huber_weights, mad_scale, run_sigma
+from .weights import HUBER_C, huber_weights, mad_scale, multiplicity, run_sigma
 
 
 #: the profile start runs on at most this many runs (evenly spread in run order)
@@ -169,14 +169,19 @@ def _fit(runs, model, *, fix, tilt_known, bounds, constraints, prior, robust, hu
     k = int(free.sum())
     sigma, weighting, more = run_sigma(runs, robust, mm)
     notes += more
+    # copies of one measurement (Runs.copies) share its weight: they count once in the degrees
+    # of freedom and in the likelihood, and a sigma estimated from the residuals is shared too
+    count, _ = multiplicity(runs)
+    n_meas = int(round(float(np.sum(1.0 / count))))
     project, n_pos = position_projector(runs, sigma)
     prob = Problem(mm, X, y, p_base, free, lower[free], upper[free], A_eq, b_eq, A_in, l_in, u_in,
                    L, Lmu, jit, project=project)
     r_prior = L.shape[0]
     k_eq = np.linalg.matrix_rank(A_eq) if A_eq.size else 0
-    if n - n_pos + r_prior <= k - k_eq:
+    if n_meas - n_pos + r_prior <= k - k_eq:
         field = f" ({n_pos} go to the positions' unknown headings)" if n_pos else ""
-        raise ValueError(f"{runs.source}: {n} runs{field} cannot fit {k - k_eq} free parameters "
+        field += f" (the {n} rows hold {n_meas} distinct measurements: the others are copies)" if n_meas < n else ""
+        raise ValueError(f"{runs.source}: {n_meas} runs{field} cannot fit {k - k_eq} free parameters "
                          f"({', '.join(prob.names)}); need more runs than parameters")
     units_free = [q.unit for q, f in zip(mm.params, free) if f]
 
@@ -232,17 +237,17 @@ def _fit(runs, model, *, fix, tilt_known, bounds, constraints, prior, robust, hu
         z, C, binding, act, method, status = solve(prob, np.sqrt(hw) / sigma, z, notes)
         res = prob.residual(z)
         k_eff = null_space(C, k).shape[1]
-        dof = n + r_prior - k_eff - n_pos
+        dof = n_meas + r_prior - k_eff - n_pos
         if dof <= 0:
-            raise ValueError(f"{runs.source}: no degrees of freedom left ({n} runs, {k_eff} free "
+            raise ValueError(f"{runs.source}: no degrees of freedom left ({n_meas} runs, {k_eff} free "
                              "directions)")
         new_sigma = sigma
         if weighting in ("residual", "robust-scale"):
-            s = np.sqrt(np.sum(res ** 2) / dof) if weighting == "residual" else mad_scale(res)
+            s = np.sqrt(np.sum(res ** 2 / count) / dof) if weighting == "residual" else mad_scale(res)
             if s <= 0:
                 raise ValueError(f"{runs.source}: the model fits the runs exactly; sigma cannot be "
                                  "estimated from the residuals (give heading_std_arcsec)")
-            new_sigma = np.full(n, s)
+            new_sigma = s * np.sqrt(count)
         new_hw = huber_weights(res / new_sigma, huber_c) if robust else hw
         settled = (np.max(np.abs(new_hw - hw)) < 1e-7  # ~1e-7/n sigma on the estimates
                    and np.max(np.abs(new_sigma / sigma - 1)) < 1e-6)
@@ -254,7 +259,7 @@ def _fit(runs, model, *, fix, tilt_known, bounds, constraints, prior, robust, hu
     if robust:
         method += "+huber"
     if weighting == "residual":
-        notes.append(f"sigma {sigma[0] / units.ARCSEC:.3g} arcsec estimated from the residuals")
+        notes.append(f"sigma {sigma[0] / np.sqrt(count[0]) / units.ARCSEC:.3g} arcsec estimated from the residuals")
     elif weighting == "robust-scale":
         notes.append(f"sigma {sigma[0] / units.ARCSEC:.3g} arcsec from the residuals' median absolute "
                      "deviation")
@@ -282,7 +287,8 @@ def _fit(runs, model, *, fix, tilt_known, bounds, constraints, prior, robust, hu
     e = L @ z - Lmu
     chi2_prior = float(e @ e)
     chi2 = float(u @ u) + chi2_prior
-    ll_term = n * np.log(np.sum(res ** 2) / n) + chi2_prior if weighting == "residual" else chi2
+    rss = np.sum(res ** 2 / count)
+    ll_term = n_meas * np.log(rss / n_meas) + chi2_prior if weighting == "residual" else chi2
     binding_names = tuple(str(prob.names[j]) for j in binding)
     for nm in binding_names:
         notes.append(f"{nm} is held at its bound (std 0: the bound, not the data, sets it)")
@@ -296,7 +302,7 @@ def _fit(runs, model, *, fix, tilt_known, bounds, constraints, prior, robust, hu
         values=p / mm.scale, std=std, covariance=cov, correlation=corr, free=free, p=p,
         run=np.asarray(runs.run), residuals=res, sigma=sigma, standardized=u,
         chi2=chi2, dof=int(dof), chi2_red=chi2 / dof, aic=ll_term + 2 * (k_eff + n_pos),
-        bic=ll_term + (k_eff + n_pos) * np.log(n), condition=info.condition, weighting=weighting,
+        bic=ll_term + (k_eff + n_pos) * np.log(n_meas), condition=info.condition, weighting=weighting,
         method=method, status=status, binding=binding_names, downweighted=down, notes=tuple(notes),
         lower=lower, upper=upper, constraints=kept, active=active, weights=hw, chi2_prior=chi2_prior,
         inputs=X)

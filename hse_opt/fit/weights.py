@@ -7,6 +7,7 @@ import casadi as ca
 import numpy as np
 
 from .. import units
+from ..data.runs import COPY_TOL_ARCSEC
 from ..information import heading_sigma
 from ..model.inputs import RUN_FIELDS, RunInputs
 
@@ -68,8 +69,35 @@ def _inputs_used(mm):
     return used
 
 
+def multiplicity(runs):
+    """``(count (n,), note or None)``: how many rows carry each row's measurement
+    (:meth:`hse_opt.data.Runs.copies`: rows written twice), and the note that says which rows
+    are copies; ``count`` is all ones without copies."""
+    copies = getattr(runs, "copies", None)
+    if copies is None:
+        return np.ones(len(runs)), None
+    labels, m = copies()
+    n = labels.size
+    if m == n:
+        return np.ones(n), None
+    count = np.bincount(labels, minlength=m)[labels].astype(float)
+    first = np.unique(labels, return_index=True)[1][labels]   # each row's first row
+    again = np.flatnonzero(first != np.arange(n))
+    pairs = [f"{runs.run[i]} = {runs.run[first[i]]}" for i in again[:6]]
+    shown = ", ".join(pairs) + (f", ... ({again.size} in all)" if again.size > 6 else "")
+    return count, (f"{n - m} of {n} rows are copies of another row (run {shown}: the same settings and "
+                   "heading to the last bit, written twice rather than measured again): each of the "
+                   f"{m} measurements counted once, its weight shared among its copies")
+
+
 def pure_error(runs, mm=None):
-    """``(sigma, dof)`` from the scatter within replicate groups (rad), or ``(None, dof)``."""
+    """``(sigma, dof)`` from the scatter within replicate groups (rad), or ``(None, dof)``;
+    copies of one measurement (:func:`multiplicity`) count once."""
+    copies = getattr(runs, "copies", None)
+    if copies is not None:
+        labels, m = copies()
+        if m < labels.size:
+            runs = runs.subset(np.unique(labels, return_index=True)[1])
     labels, g = replicate_groups(runs, mm)
     dof = runs.rate.size - g
     if dof < 2:
@@ -80,13 +108,21 @@ def pure_error(runs, mm=None):
 
 
 #: replicates whose scatter is below this (arcsec) are copies, not measurements
-IDENTICAL_ARCSEC = 1e-6
+IDENTICAL_ARCSEC = COPY_TOL_ARCSEC
 
 
 def run_sigma(runs, robust=False, mm=None):
     """``(sigma (n,) rad, weighting, notes)`` by the rules of the module docstring (replicates
     as :func:`replicate_groups` of the measurement model ``mm``); where sigma is estimated
-    later from the residuals, the default noise model's (:func:`heading_sigma`)."""
+    later from the residuals, the default noise model's (:func:`heading_sigma`). Copies of one
+    measurement (:func:`multiplicity`: ``c`` rows) each get ``sqrt(c)`` times its sigma, so
+    that together they weigh as the one measurement they are."""
+    count, note = multiplicity(runs)
+    sigma, weighting, notes = _run_sigma(runs, robust, mm)
+    return sigma * np.sqrt(count), weighting, notes + ([note] if note else [])
+
+
+def _run_sigma(runs, robust, mm):
     n = len(runs)
     reference = getattr(runs, "azimuth_std", None)
     if runs.heading_std is not None:
