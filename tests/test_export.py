@@ -61,13 +61,16 @@ def _campaign(effects, n, rng):
     return runs, fit(runs, model, fix=held)
 
 
-def _expected_range(runs):
-    """The documented rule on the runs' own columns: [min, max] widened by
-    max(MARGIN_FRACTION * span, floor); |rate|; times and |rate| not below 0."""
-    cols = {"rate": np.abs(runs.rate), "pitch": runs.pitch, "roll": runs.roll, "latitude": runs.latitude,
-            "t_start": runs.t_start, "duration": runs.duration, **runs.covariates}
+def _expected_range(runs, bounded):
+    """The documented rule (hse_opt/fit/domain.py) on the runs' own columns: [min, max] of
+    |rate|, C23 = -roll cos(azimuth) + pitch sin(azimuth) and the other bounded inputs,
+    widened by max(MARGIN_FRACTION * span, floor); |rate| and times not below 0."""
+    c23 = -runs.roll * np.cos(runs.azimuth) + runs.pitch * np.sin(runs.azimuth)
+    cols = {"rate": np.abs(runs.rate), "c23": c23, "t_start": runs.t_start, "duration": runs.duration,
+            **runs.covariates}
     out = {}
-    for name, v in cols.items():
+    for name in bounded:
+        v = cols[name]
         m = max(MARGIN_FRACTION * np.ptp(v), MARGIN_FLOOR.get(name, 0.0))
         lo = v.min() - m
         out[name] = (max(lo, 0.0) if name in ("rate", "t_start", "duration") else lo, v.max() + m)
@@ -98,19 +101,28 @@ def _call(f, X):
 
 
 def _random_points(cal_json, n, rng):
-    """``n`` operating points drawn uniformly over the validity range (SI, C order)."""
+    """``n`` operating points drawn uniformly over the validity domain (SI, C order): inputs
+    with an interval within it, the others over the calibration runs' range (headings all
+    round, tilts up to 1 mrad), then kept where C23 lies in its interval."""
     rows = cal_json["inputs"]
-    X = np.empty((len(rows), n))
-    for r in rows:
-        rng_ = r["range"]
-        if r["name"] == "azimuth":
-            X[r["index"]] = rng.uniform(0, 2 * np.pi, n)
-        elif rng_ is None:  # pitch/roll of a tilt-unknown fit: not model inputs
-            X[r["index"]] = rng.uniform(-1e-3, 1e-3, n)
-        else:
-            X[r["index"]] = rng.uniform(rng_["lower"], rng_["upper"], n)
-    X[0] *= rng.choice(rows[0]["senses"], n)
-    return X
+    c23 = {q["name"]: q for q in cal_json["domain"]["quantities"]}.get("c23")
+    X = np.empty((len(rows), 0))
+    while X.shape[1] < n:
+        Y = np.empty((len(rows), 4 * n))
+        for r in rows:
+            rng_ = r["range"] or r["data_range"]
+            if r["name"] == "azimuth":
+                Y[r["index"]] = rng.uniform(0, 2 * np.pi, 4 * n)
+            elif r["name"] in ("pitch", "roll"):
+                Y[r["index"]] = rng.uniform(-1e-3, 1e-3, 4 * n)
+            else:
+                Y[r["index"]] = rng.uniform(rng_["lower"], rng_["upper"], 4 * n)
+        Y[0] *= rng.choice(rows[0]["senses"], 4 * n)
+        if c23 is not None:
+            v = -Y[3] * np.cos(Y[1]) + Y[2] * np.sin(Y[1])
+            Y = Y[:, (v > c23["lower"]) & (v < c23["upper"])]
+        X = np.concatenate([X, Y], axis=1)
+    return X[:, :n]
 
 
 def _compensate_cli(tmp_path, fit_json, X, covariates):
@@ -127,7 +139,7 @@ def _compensate_cli(tmp_path, fit_json, X, covariates):
     out = load_runs(tmp_path / "OUT.csv", allow_small_azimuths=True)
     # heading_err 0: the compensated error is minus the modelled error, the correction to add
     return (out.covariates["heading_err_comp_arcsec"] * units.ARCSEC,
-            out.covariates["heading_comp_std_arcsec"] * units.ARCSEC)
+            out.covariates["heading_comp_std_arcsec"] * units.ARCSEC, out.covariates["comp_status"])
 
 
 def _export(tmp_path, calibration):
@@ -140,8 +152,8 @@ def _check_against_compensate(tmp_path, cal_json, rng, covariates=()):
     f = _build(tmp_path / "nav")
     X = _random_points(cal_json, N_POINTS, rng)
     status, corr_c, sigma_c = _call(f, X)
-    corr_py, sigma_py = _compensate_cli(tmp_path, tmp_path / "FIT.json", X, covariates)
-    assert np.all(status == 0)
+    corr_py, sigma_py, status_py = _compensate_cli(tmp_path, tmp_path / "FIT.json", X, covariates)
+    assert np.all(status == 0) and np.all(status_py == 0)
     assert np.abs(corr_c - corr_py).max() / units.ARCSEC < 1e-6
     assert np.abs(sigma_c - sigma_py).max() / units.ARCSEC < 1e-6
     assert np.ptp(corr_py) > 1.0 * units.ARCSEC and sigma_py.min() > 0  # a comparison that can fail
@@ -149,25 +161,39 @@ def _check_against_compensate(tmp_path, cal_json, rng, covariates=()):
 
 
 def _check_status(f, cal_json, expected):
-    """Each checked input just outside its range sets exactly its own bit; just inside, 0."""
+    """Each bounded input just outside its interval sets exactly its own bit, just inside 0;
+    every input NaN sets its bit; C23 just outside sets bit 30; the other sense its bit."""
     rows = cal_json["inputs"]
-    base = np.array([[0.5 * (r["range"]["lower"] + r["range"]["upper"]) if r["range"] else 0.1]
-                     for r in rows])
+    quantities = {q["name"]: q for q in cal_json["domain"]["quantities"]}
+    assert set(quantities) == set(expected)
+    base = np.array([[0.5 * (r["range"]["lower"] + r["range"]["upper"]) if r["range"] else
+                      0.0 if r["name"] in ("pitch", "roll") else
+                      0.5 * (r["data_range"]["lower"] + r["data_range"]["upper"])] for r in rows])
     assert _call(f, base)[0, 0] == 0
     for r in rows:
         k = r["index"]
+        X = base.copy()
+        X[k] = np.nan   # heading, pitch or roll NaN: C23 too
+        c23_too = "c23" in quantities and r["name"] in ("azimuth", "pitch", "roll")
+        assert _call(f, X)[0, 0] == (1 << k) | (c23_too << 30), r["name"]
         if r["range"] is None:
-            X = base.copy()
-            X[k] = np.nan
-            assert _call(f, X)[0, 0] == 1 << k, r["name"]
             continue
         lo, hi = expected[r["name"]]
         assert r["range"]["lower"] == pytest.approx(lo, rel=1e-12, abs=1e-15)
         assert r["range"]["upper"] == pytest.approx(hi, rel=1e-12)
-        for value, bit in ((hi * (1 + 1e-9) + 1e-12, 1 << k), (hi * (1 - 1e-9), 0), (np.nan, 1 << k)):
+        for value, bit in ((hi * (1 + 1e-9) + 1e-12, 1 << k), (hi * (1 - 1e-9), 0)):
             X = base.copy()
             X[k] = value
             assert _call(f, X)[0, 0] == bit, (r["name"], value)
+    if "c23" in quantities:   # roll alone at heading 0: C23 = -roll
+        lo, hi = expected["c23"]
+        assert quantities["c23"]["lower"] == pytest.approx(lo, rel=1e-12)
+        assert quantities["c23"]["upper"] == pytest.approx(hi, rel=1e-12)
+        for value, bit in ((hi * (1 + 1e-9) + 1e-12, 1 << 30), (hi * (1 - 1e-9), 0),
+                           (lo * (1 + 1e-9) - 1e-12, 1 << 30), (lo * (1 - 1e-9), 0)):
+            X = base.copy()
+            X[1], X[3] = 0.0, -value
+            assert _call(f, X)[0, 0] == bit, ("c23", value)
     X = base.copy()
     X[0] = -X[0]  # the other rotation sense
     assert _call(f, X)[0, 0] == (0 if len(rows[0]["senses"]) == 2 else 1)
@@ -179,7 +205,7 @@ def test_paper_model_c_equals_compensate(tmp_path, monkeypatch, rng):
     runs, calibration = _campaign(["hse"], 60, rng)
     cal_json = _export(tmp_path, calibration)
     f, _ = _check_against_compensate(tmp_path, cal_json, rng)
-    _check_status(f, cal_json, _expected_range(runs))
+    _check_status(f, cal_json, _expected_range(runs, ("rate", "c23")))
     # Eq. 14 coefficients: K_HSE at each position from the closed form with the fitted lambda2
     lam, lam_std = calibration.value("lambda2")
     assert cal_json["eq14"]["lambda2_arcsec"] == {"value": lam, "std": lam_std}
@@ -198,7 +224,9 @@ def test_every_catalogue_effect_c_equals_compensate(tmp_path, monkeypatch, rng):
     assert cal_json["effects"] == EVERY_EFFECT and cal_json["eq14"] is None
     assert [r["name"] for r in cal_json["inputs"]][-1] == "temp_c"
     f, _ = _check_against_compensate(tmp_path, cal_json, rng, covariates=("temp_c",))
-    _check_status(f, cal_json, _expected_range(runs))
+    # warmup: the correction depends on the time since power-on and the duration; the
+    # covariate is the stand's (not compensated): not bounded
+    _check_status(f, cal_json, _expected_range(runs, ("rate", "c23", "t_start", "duration")))
 
 
 @needs_cc
@@ -212,7 +240,8 @@ def test_paper_table1_export(tmp_path, monkeypatch):
     calibration = fit(runs, fix={"lambda2*tilt_const": 0.0})
     cal_json = _export(tmp_path, calibration)
     f, X = _check_against_compensate(tmp_path, cal_json, np.random.default_rng(1))
-    assert [r["range"] is None for r in cal_json["inputs"][:4]] == [False, True, True, True]
+    assert [r["range"] is None for r in cal_json["inputs"]] == [False] + [True] * 6   # |rate| alone
+    assert [q["name"] for q in cal_json["domain"]["quantities"]] == ["rate"]          # C23 fitted per heading
     assert cal_json["inputs"][0]["senses"] == [1]
     eq = cal_json["eq14"]
     assert eq["lambda2_arcsec"] is None and len(eq["positions"]) == 4

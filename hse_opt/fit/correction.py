@@ -11,6 +11,10 @@ COMPENSATION_STD_COLUMN = "heading_comp_std_arcsec"
 #: column :func:`compensate` adds for runs with their own heading (``heading_deg``): the
 #: compensated heading, deg -- what a field alignment reports after compensation
 COMPENSATED_HEADING_COLUMN = "heading_comp_deg"
+#: column :func:`compensate` adds: the validity domain's status of each run, the exported C's
+#: return value (0 inside; else the bitmask of :mod:`hse_opt.fit.domain`; -1 when the fit
+#: carries no run inputs to set the domain from)
+DOMAIN_STATUS_COLUMN = "comp_status"
 
 
 def compensated_parameters(fit_result):
@@ -80,23 +84,46 @@ def compensation(runs, fit_result, parameters=None):
     return correction, propagated_std(Jd, C, np.array(mm.names)[use])
 
 
+def domain_status(runs, fit_result, parameters=None):
+    """Whether each run lies in the calibration's validity domain (:mod:`hse_opt.fit.domain`).
+
+    Returns
+    -------
+    status : numpy.ndarray of int, shape (n,)
+        0 inside, else the bitmask the exported C returns; -1 for every run when
+        ``fit_result`` has no run inputs (a FitResult built without them).
+    reasons : list of str
+        Per run, what is outside and where the domain is (``''`` inside).
+    """
+    from .domain import Domain
+    if fit_result.inputs is None:
+        return np.full(len(runs), -1, dtype=np.int64), ["the calibration carries no run inputs"] * len(runs)
+    domain = Domain.from_fit(fit_result, parameters=parameters)
+    X = fit_result.measurement.inputs_from_runs(runs)
+    return domain.status(X), domain.reasons(X)
+
+
 def compensate(runs, fit_result, parameters=None):
     """``runs`` with the compensated heading error and its 1-sigma added as columns.
 
     ``heading_err_comp_arcsec`` = ``heading_err_arcsec`` minus the :func:`compensation`;
     ``heading_comp_std_arcsec`` = the compensation's 1-sigma from the fit's covariance; for
     runs with their own heading (``heading_deg``, field campaigns) also ``heading_comp_deg`` =
-    ``heading_deg`` minus the compensation, the compensated alignment heading. At an unsurveyed
+    ``heading_deg`` minus the compensation, the compensated alignment heading; and
+    ``comp_status``, the run's :func:`domain_status` (nonzero: the calibration never saw such
+    a run, its correction is the model's extrapolation). At an unsurveyed
     position ``heading_err`` is relative to the position's mean heading (:mod:`hse_opt.data`),
     and so is its compensated value. The other columns are unchanged. Raises ``ValueError``
     when ``runs`` already has them.
     """
-    for col in (COMPENSATED_COLUMN, COMPENSATION_STD_COLUMN, COMPENSATED_HEADING_COLUMN):
+    for col in (COMPENSATED_COLUMN, COMPENSATION_STD_COLUMN, COMPENSATED_HEADING_COLUMN, DOMAIN_STATUS_COLUMN):
         if col in runs.covariates:
             raise ValueError(f"{runs.source}, column '{col}': already present; allowed: runs without "
                              "it (compensate the uncompensated runs)")
     correction, std = compensation(runs, fit_result, parameters)
     heading = {} if runs.heading is None else {
         COMPENSATED_HEADING_COLUMN: np.mod(runs.heading - correction, 2 * np.pi) / units.DEG}
+    status, _ = domain_status(runs, fit_result, parameters)
     return runs.replace(**{COMPENSATED_COLUMN: (runs.heading_err - correction) / units.ARCSEC,
-                           COMPENSATION_STD_COLUMN: std / units.ARCSEC, **heading})
+                           COMPENSATION_STD_COLUMN: std / units.ARCSEC, **heading,
+                           DOMAIN_STATUS_COLUMN: status})

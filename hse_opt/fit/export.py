@@ -23,31 +23,23 @@ FIT.json -o DIR``):
     not the run's own noise). Only ``<math.h>``; no allocation; re-entrant (no static or
     global mutable state: CasADi's work arrays live on the caller's stack).
 
-    The return value is 0 inside the validity range; otherwise bit ``k`` (``1 << k``) is set
-    for every input ``k`` outside its range or not finite (macros ``HSE_COMP_OUT_<NAME>``).
-    The outputs are written in every case (outside the range they are the model's
-    extrapolation).
+    The return value is 0 inside the calibration's validity domain
+    (:mod:`hse_opt.fit.domain`); otherwise a bitmask: bit ``k`` (``1 << k``, macros
+    ``HSE_COMP_OUT_<NAME>``) for input ``k`` not finite, beyond its model limit or outside its
+    domain interval (``|rate|`` and its sense, and time, duration or covariates where the
+    correction depends on them), bit 30 (``HSE_COMP_OUT_C23``) for C23 = -roll cos(heading) +
+    pitch sin(heading) outside the calibration runs' interval (fits with known tilt); -1 if
+    the generated code fails. The outputs are written in every case (outside the domain they
+    are the model's extrapolation: do not apply them without a reason).
 
 ``calibration.json``
     Entry point, inputs and outputs in order with units, the fitted parameters with sigmas
-    and covariance, the effects, the validity range, and for the paper's model the Eq. 14
+    and covariance, the effects, the validity domain, and for the paper's model the Eq. 14
     coefficients (lambda2, and K_HSE at each calibration position, the paper's sign).
-
-Validity range
---------------
-Each checked input must lie within the range the calibration runs covered, widened by a
-margin of ``MARGIN_FRACTION`` of that range or the input's floor in ``MARGIN_FLOOR``,
-whichever is larger: ``|rate|`` (and only the rotation senses the runs used), pitch and
-roll (tilt-known fits), latitude, time since power-on (never below 0), duration and the
-covariates. The heading is not range-checked (the model's heading dependence is the
-physics the calibration is for); pitch and roll of a tilt-unknown fit are not inputs of
-the model (its C23 coefficients hold for the stand it was calibrated on) and are only
-checked for being finite.
 """
 import json
 import os
 import re
-from dataclasses import dataclass
 
 import casadi as ca
 import numpy as np
@@ -59,19 +51,14 @@ from ..information import covariance_factor, propagated_std
 from ..model import closed_form as cf
 from ..model.inputs import RUN_FIELDS, RunInputs
 from ..model.symbolic import c_b0_n
+from .domain import C23_BIT, MARGIN_FLOOR, MARGIN_FRACTION, Domain
 
-__all__ = ["ENTRY_POINT", "MARGIN_FRACTION", "MARGIN_FLOOR", "Validity", "compensation_function",
+__all__ = ["ENTRY_POINT", "MARGIN_FRACTION", "MARGIN_FLOOR", "Domain", "compensation_function",
            "export_calibration", "CALIBRATION_FORMAT"]
 
 #: the C entry point's name (also the .c/.h file stem)
 ENTRY_POINT = "hse_compensation"
 CALIBRATION_FORMAT = "hse_opt.calibration"
-#: margin around the calibration data's range, as a fraction of that range ...
-MARGIN_FRACTION = 0.1
-#: ... or at least this (SI) per input; covariates have no floor
-MARGIN_FLOOR = {"rate": 1.0 * units.DEG_PER_S, "pitch": 30.0 * units.ARCSEC,
-                "roll": 30.0 * units.ARCSEC, "latitude": 0.5 * units.DEG,
-                "t_start": 10 * units.MINUTE, "duration": 1 * units.MINUTE}
 #: the run inputs' units and meaning (C side, SI)
 _INPUTS = {
     "rate": ("rad/s", "RATE", "bias rate Omega of the table, signed (sense of rotation about z_b, down)"),
@@ -82,56 +69,6 @@ _INPUTS = {
     "t_start": ("s", "TIME", "time since power-on at the start of the alignment"),
     "duration": ("s", "DURATION", "length of the alignment"),
 }
-
-
-@dataclass(frozen=True)
-class Validity:
-    """Where a calibration holds: per run input (``names``, SI), the range of the data and
-    the accepted range (with the margin). ``checked[k]`` False: only finiteness is checked.
-    The rate's entries are of ``|rate|``; ``senses`` are the accepted signs of the rate."""
-
-    names: tuple
-    checked: np.ndarray
-    data_lower: np.ndarray
-    data_upper: np.ndarray
-    lower: np.ndarray
-    upper: np.ndarray
-    senses: tuple
-
-    @classmethod
-    def from_inputs(cls, X, names, tilt_known, margin_fraction=MARGIN_FRACTION, margin_floor=None):
-        """From the run inputs ``X`` (n_x, n) of the calibration runs (measurement-model order)."""
-        floor = {**MARGIN_FLOOR, **(margin_floor or {})}
-        X = np.asarray(X, dtype=float)
-        V = X.copy()
-        RunInputs(V).rate = np.abs(RunInputs(X).rate)
-        lo, hi = V.min(axis=1), V.max(axis=1)
-        margin = np.array([max(margin_fraction * (h - lo_), floor.get(nm, 0.0))
-                           for nm, lo_, h in zip(names, lo, hi)])
-        lower, upper = lo - margin, hi + margin
-        k = {nm: i for i, nm in enumerate(names)}
-        lower[k["rate"]] = max(lower[k["rate"]], 0.0)
-        lower[k["t_start"]] = max(lower[k["t_start"]], 0.0)
-        lower[k["duration"]] = max(lower[k["duration"]], 0.0)
-        checked = np.ones(len(names), dtype=bool)
-        checked[k["azimuth"]] = False
-        if not tilt_known:
-            checked[[k["pitch"], k["roll"]]] = False
-        senses = tuple(s for s in (1, -1) if np.any(np.sign(RunInputs(X).rate) == s))
-        return cls(tuple(names), checked, lo, hi, lower, upper, senses)
-
-    def status(self, X):
-        """The C entry point's status of each column of ``X`` (n_x, n): 0 inside, else the
-        bitmask of the inputs outside their range or not finite."""
-        X = np.asarray(X, dtype=float)
-        V = X.copy()
-        RunInputs(V).rate = np.abs(RunInputs(X).rate)
-        with np.errstate(invalid="ignore"):
-            inside = (V >= self.lower[:, None]) & (V <= self.upper[:, None])
-        ok = np.where(self.checked[:, None], inside, np.isfinite(X))
-        ok[RunInputs.INDEX["rate"]] &= np.isin(np.sign(RunInputs(X).rate), self.senses)
-        bits = (1 << np.arange(len(self.names), dtype=np.int64))[:, None]
-        return np.sum(np.where(ok, 0, bits), axis=0)
 
 
 def compensation_function(fit_result, parameters=None):
@@ -150,7 +87,7 @@ def compensation_function(fit_result, parameters=None):
     ``w``, so that the constant linear chain from ``w`` to the revolution-averaged rate folds
     into one small matrix before ``w = C_n^b0 omega_ie_n`` is put back, and each form with the
     sin and cos of pitch and roll as Taylor series (exact to double rounding for tilts up to
-    ``SMALL_ANGLE`` = 0.2 rad; the validity range holds them within a few degrees).
+    ``SMALL_ANGLE`` = 0.2 rad; the domain's model limits hold them within 2 degrees).
     """
     from .correction import compensation_point
     from ..model.folding import cost, fold_linear
@@ -170,7 +107,7 @@ def compensation_function(fit_result, parameters=None):
     if fit_result.tilt_known:
         folded = _folded(fit_result.model, mm, p_expr, x, q, zero, L)
         built += [folded] if folded is not None else []
-        # pitch and roll are small (the validity range): their sin/cos as Taylor series
+        # pitch and roll are small (the domain's model limits): their sin/cos as Taylor series
         small = [(0, RunInputs.INDEX["pitch"]), (0, RunInputs.INDEX["roll"])]
         built += [fold_linear([x], b, small=small) for b in list(built)]
     outputs = min((ca.cse(o) for o in built),  # shared subexpressions once
@@ -236,7 +173,7 @@ def _comment(text):
     return re.sub(r"[^A-Za-z0-9 _.,:;()=+\-'\"/|<>\[\]]", "_", str(text))
 
 
-def _header(rows, validity, fit_result, source):
+def _header(rows, domain, fit_result, source):
     n = len(rows)
     lines = [
         f"/* {ENTRY_POINT}.h - heading compensation of a rotating RLG system, calibrated by hse_opt",
@@ -256,21 +193,26 @@ def _header(rows, validity, fit_result, source):
         lines.append(f" *   {r['index']}  {_comment(r['name']):<10} {r['unit']:<6} {_comment(r['description'])}")
     lines += [
         " *",
-        " * Returns 0 inside the calibration's validity range; otherwise bit k (1 << k) is set for",
-        " * every input k outside its range or not finite (HSE_COMP_OUT_<NAME>). The outputs are",
-        " * written in every case: outside the range they are the model's extrapolation.",
+        " * Returns 0 inside the calibration's validity domain (where its runs were; hse_opt/fit/domain.py),",
+        " * else a bitmask: bit k (HSE_COMP_OUT_<NAME>, 1 << k) for input k not finite, beyond its model",
+        " * limit or outside its domain interval; HSE_COMP_OUT_C23 (1 << 30) for C23 = -roll cos(heading)",
+        " * + pitch sin(heading) outside the calibration's interval; -1 if the generated code fails.",
+        " * The outputs are written in every case: outside the domain they are the model's",
+        " * extrapolation, which the calibration cannot vouch for.",
+        " * Domain (SI):",
     ]
-    for k, nm in enumerate(validity.names):
-        label = "|rate|" if nm == "rate" else nm
-        if validity.checked[k]:
-            extra = ""
-            if nm == "rate":
-                extra = ", senses: " + " and ".join("positive" if s > 0 else "negative" for s in validity.senses)
-            lines.append(f" *   {label}: [{validity.lower[k]:.17g}, {validity.upper[k]:.17g}] {rows[k]['unit']}"
-                         f"{extra}")
-        else:
-            lines.append(f" *   {label}: any finite value")
+    for k, nm in enumerate(domain.bounded):
+        label = {"rate": "|rate|", "c23": "C23"}.get(nm, _comment(nm))
+        unit = {"rate": "rad/s", "c23": "rad"}.get(nm, rows[domain.names.index(nm)]["unit"] if nm in domain.names
+                                                 else "")
+        extra = ""
+        if nm == "rate":
+            extra = ", senses: " + " and ".join("positive" if s_ > 0 else "negative" for s_ in domain.senses)
+        lines.append(f" *   {label}: [{domain.lower[k]:.17g}, {domain.upper[k]:.17g}] {unit}{extra}")
+    for nm, v in domain.limited().items():
+        lines.append(f" *   |{nm}| <= {v:.17g} rad (model limit)")
     lines += [
+        " *   every input finite; heading and latitude otherwise free (their influence is modelled physics)",
         " *",
         " * Only <math.h>; no allocation; re-entrant (no static or global mutable state: the",
         " * work arrays are on the caller's stack). C99.",
@@ -287,6 +229,7 @@ def _header(rows, validity, fit_result, source):
     lines += [f"#define HSE_COMP_IN_{r['macro']} {r['index']}" for r in rows]
     lines.append("#define HSE_COMP_OK 0")
     lines += [f"#define HSE_COMP_OUT_{r['macro']} (1 << {r['index']})" for r in rows]
+    lines.append(f"#define HSE_COMP_OUT_C23 (1 << {C23_BIT})")
     lines += [
         "",
         f"int {ENTRY_POINT}(const double in[HSE_COMP_N_INPUTS], double *correction_rad, double *sigma_rad);",
@@ -328,23 +271,28 @@ def _unused_marked(code):
     return "\n".join(out)
 
 
-def _source(function, rows, validity, source):
+def _source(function, rows, domain, source):
     cg = ca.CodeGenerator(f"{ENTRY_POINT}_model.c",
                           {"with_header": False, "with_export": False, "verbose": False,
                            "casadi_int": "int", "casadi_real": "double"})
     cg.add(function)
     generated = _unused_marked(cg.dump())
     name = function.name()
-    checks = []
-    for k, r in enumerate(rows):
-        if not validity.checked[k]:
-            checks.append(f"  if (!isfinite(in[{k}])) status |= HSE_COMP_OUT_{r['macro']};")
-            continue
-        value = "fabs(in[0])" if r["name"] == "rate" else f"in[{k}]"
-        cond = f"!({value} >= {_c_float(validity.lower[k])} && {value} <= {_c_float(validity.upper[k])})"
-        if r["name"] == "rate" and len(validity.senses) == 1:
-            cond += " || !(in[0] > 0.0)" if validity.senses[0] > 0 else " || !(in[0] < 0.0)"
-        checks.append(f"  if ({cond}) status |= HSE_COMP_OUT_{r['macro']};")
+    checks = [f"  if (!isfinite(in[{k}])) status |= HSE_COMP_OUT_{r['macro']};" for k, r in enumerate(rows)]
+    for nm, v in domain.limited().items():
+        k = domain.names.index(nm)
+        checks.append(f"  if (!(fabs(in[{k}]) <= {_c_float(v)})) status |= HSE_COMP_OUT_{rows[k]['macro']};")
+    value = {"rate": "fabs(in[0])", "c23": "c23"}
+    for j, nm in enumerate(domain.bounded):
+        macro = "C23" if nm == "c23" else rows[domain.names.index(nm)]["macro"]
+        v = value[nm] if nm in value else f"in[{domain.names.index(nm)}]"
+        cond = f"!({v} >= {_c_float(domain.lower[j])} && {v} <= {_c_float(domain.upper[j])})"
+        if nm == "rate" and len(domain.senses) == 1:
+            cond += " || !(in[0] > 0.0)" if domain.senses[0] > 0 else " || !(in[0] < 0.0)"
+        checks.append(f"  if ({cond}) status |= HSE_COMP_OUT_{macro};")
+    i = RunInputs.INDEX
+    c23 = (f"  const double c23 = -in[{i['roll']}] * cos(in[{i['azimuth']}]) + in[{i['pitch']}] * "
+           f"sin(in[{i['azimuth']}]);  /* C23, as hse_opt.model.inputs.c23 */\n" if "c23" in domain.bounded else "")
     wrapper = f"""
 /* ---- entry point (see {ENTRY_POINT}.h) ---- */
 int {ENTRY_POINT}(const double in[HSE_COMP_N_INPUTS], double *correction_rad, double *sigma_rad) {{
@@ -353,7 +301,7 @@ int {ENTRY_POINT}(const double in[HSE_COMP_N_INPUTS], double *correction_rad, do
   casadi_int iw[{max(function.sz_iw(), 1)}];
   casadi_real w[{max(function.sz_w(), 1)}];
   int status = 0;
-{chr(10).join(checks)}
+{c23}{chr(10).join(checks)}
   arg[0] = in;
   res[0] = correction_rad;
   res[1] = sigma_rad;
@@ -443,24 +391,27 @@ def export_calibration(fit_result, directory, inputs=None, source="a FitResult",
 
     X = getattr(fit_result, "inputs", None) if inputs is None else inputs
     if X is None:
-        raise ValueError(f"{source}: no run inputs to set the validity range from; allowed: a FIT.json "
+        raise ValueError(f"{source}: no run inputs to set the validity domain from; allowed: a FIT.json "
                          "written by this version of hse-opt fit -o (it stores them)")
     mm = fit_result.measurement
     X = np.asarray(X, dtype=float)
     if X.ndim != 2 or X.shape[0] != mm.n_x or X.shape[1] < 1:
         raise ValueError(f"{source}: run inputs of shape {X.shape}; allowed: ({mm.n_x}, n >= 1)")
-    names = RUN_FIELDS + tuple(mm.covariates)
-    validity = Validity.from_inputs(X, names, fit_result.tilt_known)
+    domain = Domain.from_fit(fit_result, X, parameters)
     function = compensation_function(fit_result, parameters)
     rows = _input_table(fit_result)
     comp = compensated_parameters(fit_result) if parameters is None else tuple(parameters)
     for k, r in enumerate(rows):
-        r["range"] = ({"lower": float(validity.lower[k]), "upper": float(validity.upper[k])}
-                      if validity.checked[k] else None)
-        r["data_range"] = {"lower": float(validity.data_lower[k]), "upper": float(validity.data_upper[k])}
+        nm = domain.names[k]
+        r["range"] = ({"lower": float(domain.lower[domain.bounded.index(nm)]),
+                       "upper": float(domain.upper[domain.bounded.index(nm)])} if nm in domain.bounded else None)
+        r["limit_abs"] = domain.limited().get(nm)
+        r["data_range"] = {"lower": float(X[k].min()), "upper": float(X[k].max())}
         r["status_bit"] = 1 << k
+    rows[0]["range"] = {"lower": float(domain.lower[0]), "upper": float(domain.upper[0])}
+    rows[0]["data_range"] = {"lower": float(domain.data_lower[0]), "upper": float(domain.data_upper[0])}
     rows[0]["range_of"] = "|rate|"
-    rows[0]["senses"] = list(validity.senses)
+    rows[0]["senses"] = list(domain.senses)
     d = fit_result.to_dict()
     calibration = {
         "format": CALIBRATION_FORMAT, "version": 1, "hse_opt_version": __version__, "source": str(source),
@@ -468,9 +419,10 @@ def export_calibration(fit_result, directory, inputs=None, source="a FitResult",
             "name": ENTRY_POINT, "header": f"{ENTRY_POINT}.h", "source": f"{ENTRY_POINT}.c",
             "signature": f"int {ENTRY_POINT}(const double in[{len(rows)}], double *correction_rad, "
                          "double *sigma_rad)",
-            "returns": "0 inside the validity range, else the bitmask of inputs (1 << index) outside "
-                       "their range or not finite; -1 if the generated code fails; outputs written in "
-                       "every case",
+            "returns": "0 inside the validity domain (\"domain\"), else the bitmask: 1 << index for an "
+                       "input not finite, beyond its model limit or outside its domain interval, "
+                       f"1 << {C23_BIT} for C23 outside its interval; -1 if the generated code fails; "
+                       "outputs written in every case",
             "link": "-lm", "reentrant": True},
         "inputs": rows,
         "outputs": [
@@ -479,11 +431,7 @@ def export_calibration(fit_result, directory, inputs=None, source="a FitResult",
                      "(minus the modelled heading error, estimated - true)"},
             {"name": "sigma_rad", "unit": "rad", "description": "1-sigma of the correction from the fit's "
                                                                 "covariance"}],
-        "validity": {"margin_fraction": MARGIN_FRACTION,
-                     "margin_floor": {k: v for k, v in MARGIN_FLOOR.items()},
-                     "margin_floor_units": {k: _INPUTS[k][0] for k in MARGIN_FLOOR},
-                     "rule": "each checked input within the calibration runs' range widened by "
-                             "max(margin_fraction * range, floor); heading unchecked"},
+        "domain": domain.to_dict(),
         "effects": d["effects"], "tilt_known": d["tilt_known"], "compensated_parameters": list(comp),
         "parameters": d["parameters"],
         "covariance": {"names": list(fit_result.names), "units": list(fit_result.units),
@@ -492,8 +440,8 @@ def export_calibration(fit_result, directory, inputs=None, source="a FitResult",
         "eq14": _eq14(fit_result, X),
     }
     os.makedirs(directory, exist_ok=True)
-    write_text_atomic(os.path.join(directory, f"{ENTRY_POINT}.h"), _header(rows, validity, fit_result, source))
-    write_text_atomic(os.path.join(directory, f"{ENTRY_POINT}.c"), _source(function, rows, validity, source))
+    write_text_atomic(os.path.join(directory, f"{ENTRY_POINT}.h"), _header(rows, domain, fit_result, source))
+    write_text_atomic(os.path.join(directory, f"{ENTRY_POINT}.c"), _source(function, rows, domain, source))
     write_text_atomic(os.path.join(directory, "calibration.json"),
                       json.dumps(calibration, indent=1, allow_nan=False) + "\n")
     return calibration

@@ -9,8 +9,12 @@ HELP = "compensate alignments with a calibration (FIT.json from hse-opt fit -o)"
 DESCRIPTION = """\
 Subtract the heading error the calibration predicts for each run (every system effect: the
 stand's own errors - the offset of its zero mark and its reading errors - are left alone) and
-write RUNS.csv with two more columns: heading_err_comp_arcsec, the compensated heading error,
-and heading_comp_std_arcsec, the compensation's 1-sigma from the calibration's covariance.
+write RUNS.csv with more columns: heading_err_comp_arcsec, the compensated heading error,
+heading_comp_std_arcsec, the compensation's 1-sigma from the calibration's covariance, and
+comp_status, 0 for a run inside the calibration's validity domain, else the exported C's
+status bitmask (|rate| or sense, C23 = -roll cos(heading) + pitch sin(heading), time or
+covariates outside what the calibration runs covered; hse_opt/fit/domain.py): such rows are
+also named on stderr.
 A calibration fitted with known tilt uses each run's pitch/roll (the paper's Eq. 14); one
 fitted without tilt holds for the stand it was fitted on."""
 INPUTS = ("runs", "fit")
@@ -36,7 +40,8 @@ def _stats(x):
 def run(args):
     from ... import units
     from ...data import load_runs, save_runs
-    from ...fit.correction import COMPENSATED_COLUMN, COMPENSATION_STD_COLUMN, compensate, compensated_parameters
+    from ...fit.correction import (COMPENSATED_COLUMN, COMPENSATION_STD_COLUMN, DOMAIN_STATUS_COLUMN, compensate,
+                                   compensated_parameters, domain_status)
     from ...fit.file import load_fit
 
     calibration = load_fit(args.fit)
@@ -44,6 +49,13 @@ def run(args):
     out = compensate(runs, calibration)
     save_runs(out, args.tx.path("output"))
     message(f"hse-opt compensate: wrote {args.output}")
+    status, reasons = domain_status(runs, calibration)
+    outside = np.flatnonzero(status != 0)
+    if outside.size:
+        shown = ", ".join(f"run {runs.run[i]} ({reasons[i]})" for i in outside[:3])
+        message(f"hse-opt compensate: {outside.size} of {len(runs)} runs outside the calibration's validity "
+                f"domain, flagged in {DOMAIN_STATUS_COLUMN} (their correction is an extrapolation the "
+                f"calibration cannot vouch for): {shown}{', ...' if outside.size > 3 else ''}")
     before = runs.heading_err / units.ARCSEC
     after = np.array(out.covariates[COMPENSATED_COLUMN])
     group, positions = runs.reference_groups()
@@ -52,7 +64,8 @@ def run(args):
     summary = {"n_runs": len(runs), "fit": args.fit, "output": args.output,
                "parameters": list(compensated_parameters(calibration)),
                "before": _stats(before), "after": _stats(after),
-               "comp_std_mean_arcsec": float(np.mean(out.covariates[COMPENSATION_STD_COLUMN]))}
+               "comp_std_mean_arcsec": float(np.mean(out.covariates[COMPENSATION_STD_COLUMN])),
+               "outside_domain": [int(runs.run[i]) for i in outside]}
     if args.json:
         print_json(summary)
     else:
