@@ -29,6 +29,8 @@ CASES = int(os.environ.get("HSE_FUZZ_CASES", "0")) or None
 FIX = ["--fix", "lambda2*tilt_const=0"]
 PLAN = "run,rate_dps,azimuth_deg,t_start_s,duration_s\n1,40,0,0,60\n2,-40,90,100,60\n"
 TRUTH = "[site]\nlatitude_deg = 28.07\n\n[gyro]\narw_dph_rthz = 0.012\neps_arcsec = [1.6, 1.2, 1.4]\n"
+PROJECT = ('[site]\nlatitude_deg = 28.07\n[system]\narw_dph_rthz = 0.012\n[model]\neffects = "hse"\n'
+           '[compute]\njobs = 1\n')
 
 # -- cell, text and byte mutations ------------------------------------------------------------
 BAD_CELLS = ["", " ", "abc", "nan", "NaN", "inf", "-inf", "1e999999999", "-1e999999999", "9" * 400,
@@ -276,6 +278,7 @@ def base(tmp_path_factory):
     (d / "SHEET.csv").write_text("\n".join(sheet) + "\n")
     (d / "PLAN.csv").write_text(PLAN)
     (d / "TRUTH.toml").write_text(TRUTH)
+    (d / "PROJECT.toml").write_text(PROJECT)
     assert run_case(d, ["fit", "T1.csv", *FIX, "-o", "FIT.json"], {"FIT.json"}) == 0
     return d
 
@@ -301,6 +304,10 @@ def _argv_for(kind, name):
                 (["design", "--evaluate", name, "--json"], set())]
     if kind == "toml":
         return [(["simulate", "PLAN.csv", "--truth", name, "-o", "S.csv", "--no-progress"], {"S.csv"})]
+    if kind == "toml-project":
+        return [(["config", "--config", name, "--json"], set()),
+                (["fit", "T1.csv", *FIX, "--config", name, "-o", "F2.json"], {"F2.json"}),
+                (["design", "--evaluate", "PLAN.csv", "--config", name, "--json"], set())]
     return [(["compensate", "T1.csv", "--fit", name, "-o", "C.csv"], {"C.csv"}),
             (["fit", "T1.csv", *FIX, "--prior", name], set()),
             (["export", name, "-o", "EXP"], {"EXP"}),
@@ -310,6 +317,7 @@ def _argv_for(kind, name):
 # (input kind, base file, mutation, cases per class in CI, seed)
 FILE_CLASSES = [("csv-runs", "T1.csv", mutate_csv, 24, 11), ("csv-runs", "SHEET.csv", mutate_csv, 12, 12),
                 ("csv-plan", "PLAN.csv", mutate_csv, 14, 13), ("toml", "TRUTH.toml", mutate_toml, 12, 14),
+                ("toml-project", "PROJECT.toml", mutate_toml, 10, 17),
                 ("json", "FIT.json", mutate_json, 14, 15)]
 TALLY = Counter()
 
@@ -356,7 +364,7 @@ def test_malformed_options(work):
 
 def test_every_command_is_fuzzed():
     """The fuzz covers every registered command (a new command must be added here)."""
-    fuzzed = {"fit", "compensate", "simulate", "design", "diagnose", "demo", "export", "align"}
+    fuzzed = {"fit", "compensate", "simulate", "design", "diagnose", "demo", "export", "align", "config"}
     assert set(COMMANDS) <= fuzzed, set(COMMANDS) - fuzzed
 
 

@@ -123,8 +123,11 @@ def _main(argv):
     try:
         with handling_signals():
             parser = build_parser()
+            given = sys.argv[1:] if argv is None else list(argv)
+            named = next((a for a in given if a in parser.commands), None)
+            command = "hse-opt" if named is None else f"hse-opt {named}"
             try:
-                argv = _with_project(parser, argv)
+                argv = _with_project(parser, given)
             except ValueError as err:
                 print(f"{command}: error: {_message(err)}", file=sys.stderr)
                 return 2
