@@ -63,16 +63,21 @@ SYSTEMS = {
                                                              "jitter_arcsec": 3.0}}),
     "thermal swing": TRUTH.updated({"mount": {"xi_z_tempco_arcsec_per_c": 2.0},
                                     "thermal": {"swing_c": 2.0, "swing_period_s": 600.0}}),
+    "coarse pulses (1 arcsec, 1e-3 m/s)": TRUTH.updated({"gyro": {"pulse_arcsec": 1.0, "arw_dph_rthz": 0.05},
+                                                         "accel": {"pulse_mps": 1e-3, "vrw_ug_rthz": 20.0}}),
+    "coarse encoder (20 arcsec), no jitter": TRUTH.updated({"encoder": {"resolution_arcsec": 20.0},
+                                                            "table": {"jitter_arcsec": 0.0}}),
+    "ripple 4e-3, jitter 5 arcsec": TRUTH.updated({"table": {"ripple_ppm": 4000, "jitter_arcsec": 5.0}}),
 }
 
 
 @pytest.mark.parametrize("name", sorted(SYSTEMS))
 def test_clean_logs_raise_no_finding(name):
-    for seed in range(3):
+    for seed in range(4):
         rng = np.random.default_rng([seed, len(name)])
-        spec = RunSpec(rate=float(rng.choice([-1, 1]) * rng.uniform(5, 30)) * units.DEG_PER_S,
+        spec = RunSpec(rate=float(rng.choice([-1, 1]) * rng.uniform(5, 50)) * units.DEG_PER_S,
                        azimuth=float(rng.uniform(0, 2 * np.pi)), duration=float(rng.choice([120.0, 600.0])),
-                       t_start=float(rng.uniform(0, 7200)))
+                       t_start=float(rng.uniform(0, 7200)), tilt=tuple(rng.normal(0.0, 1e-3, 2)))
         log = generate(SYSTEMS[name], spec, np.random.default_rng(seed))
         q = assess(log)
         assert q.findings == () and q.summary() == "ok" and q.log is log, (name, seed, q.summary())
@@ -325,3 +330,11 @@ def test_align_repairs_refuses_and_counts_in_one_batch(clean, tmp_path, capsys):
     assert abs(runs.heading[1] - runs.heading[0]) < res0.heading_std
     with open(tmp_path / "b_glitch.npz", "rb") as fh:
         assert fh.read() == before                 # the input is never modified
+
+
+def test_a_gap_in_the_timestamps_names_its_sample_and_time(clean):
+    log, _ = clean
+    t = log.t.copy()
+    t[K:] += 0.01                                  # five samples lost before sample K
+    with pytest.raises(ValueError, match=rf"gap before sample index {K} \(t_s = 3900\.012000\): interval 0\.012 s"):
+        RawLog(t, log.gyro, log.accel, log.encoder, log.meta)

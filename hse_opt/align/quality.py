@@ -18,7 +18,8 @@ Checks, rules and thresholds (:class:`Thresholds`; the reasons are physical)
    median absolute deviation) is the servo jitter and the encoder's resolution seen in the
    steps (0.8 arcsec for the paper-like stand: 0.5 arcsec jitter, 0.18 arcsec resolution);
    10 sigma has no false alarm in 10^15 Gaussian steps. The floor, 2 arcsec, keeps a
-   noise-free log from flagging rounding; an isolated sample off by less moves the heading
+   noise-free log from flagging rounding (and the threshold is at least three of the steps'
+   quanta, the encoder's resolution); an isolated sample off by less moves the heading
    by < 1e-5 arcsec (0.7 arcsec per rad measured mid-run).
 
    *Repair*: a run of at most ``repair_samples`` (3) consecutive samples whose first and
@@ -34,11 +35,12 @@ Checks, rules and thresholds (:class:`Thresholds`; the reasons are physical)
    heading moves by about ``d`` times the fraction of the run after it.
 2. **Table rate** (windows of ``window_s``, 0.5 s). The rate over each window from the
    (repaired) encoder against the median: a window below ``stall`` (0.5) times it is a
-   stall; a relative deviation above ``rate_ripple`` (5e-3) refuses the log. Reason: the
+   stall; a relative deviation above ``rate_ripple`` (5e-3) plus ``rate_sigmas`` (5) times
+   the windows' own noise (the jitter at their edges, from the differences of neighbouring
+   windows: 1e-4 to 6e-4 for 0.5 to 5 arcsec of jitter at 7 deg/s) refuses the log. Reason: the
    filter assumes the table-fixed errors turn at one rate; a once-per-revolution ripple of
    1e-2 moves a noise-free 10-minute heading by 2.0 arcsec at 5 deg/s and 0.56 arcsec at
-   10 deg/s (4 cycles per revolution: 0.42 and 0.04 arcsec), the paper's stand holds 1e-4;
-   the window's own noise (the jitter over a 2.5 deg window) is 1e-4.
+   10 deg/s (4 cycles per revolution: 0.42 and 0.04 arcsec), the paper's stand holds 1e-4.
 3. **Sensor channels** (windows of ``window_s``). First the norms, which no fit can bend:
    the gyros' turn over the encoder's (median over the windows) must lie within
    ``1 +- gyro_scale`` (5e-3: an RLG's scale factor is known to ppm and a triad's axes to
@@ -57,7 +59,10 @@ Checks, rules and thresholds (:class:`Thresholds`; the reasons are physical)
    carry their remainders) and noise; a window deviating by more than
    ``max(channel_sigmas x the channel's robust 1-sigma, floor)`` (the floors: ``gyro_floor``
    1e-3 arcsec, ``accel_floor`` 1e-7 m/s, one per mille of the paper's pulses, above a
-   noise-free log's model residual) is a fault:
+   noise-free log's model residual; and at least three quanta of the channel, its smallest
+   step between samples: a window sum of a counter that carries its remainder is off by less
+   than one pulse, so quantization alone never reaches it, however its residuals bunch) is
+   a fault:
 
    * all three gyros in one window, in the ratio of their ``beta_j`` and the accelerometers
      not: an encoder jump too small for check 1 (the encoder turned by ``d`` the gyros did
@@ -106,6 +111,9 @@ __all__ = ["Thresholds", "Finding", "Quality", "LogRefused", "assess", "check_me
 #: channel names in RawLog column order (gyro x, y, z then accelerometer x, y, z)
 CHANNELS = ("gyro_x", "gyro_y", "gyro_z", "accel_x", "accel_y", "accel_z")
 _MAD = 1.4826          # robust 1-sigma of a Gaussian from its median absolute deviation
+_QUANTUM_SAMPLES = 20000
+#: thresholds are at least this many quanta of the channel (:func:`_quantum`)
+_QUANTA = 3.0
 
 
 @dataclass(frozen=True)
@@ -123,7 +131,9 @@ class Thresholds:
     window_s : float
         Window of the rate and channel checks, s.
     rate_ripple : float
-        Allowed relative deviation of a window's table rate from the median rate.
+        Allowed relative deviation of a window's table rate from the median rate ...
+    rate_sigmas : float
+        ... plus this many robust 1-sigma of the windows' own noise.
     stall : float
         A window rate below this fraction of the median rate is a stall.
     channel_sigmas : float
@@ -148,6 +158,7 @@ class Thresholds:
     repair_samples: int = 3
     window_s: float = 0.5
     rate_ripple: float = 5e-3
+    rate_sigmas: float = 5.0
     stall: float = 0.5
     channel_sigmas: float = 10.0
     gyro_floor: float = 1e-3 * units.ARCSEC
@@ -282,6 +293,20 @@ def _clusters(idx, gap):
     return [(int(idx[a]), int(idx[b])) for a, b in zip(starts, ends)]
 
 
+def _quantum(x, axis=0):
+    """The smallest nonzero change between consecutive values of ``x`` over its first
+    ``_QUANTUM_SAMPLES`` samples, per column, above 1e-9 of its values (float rounding of
+    whole multiples): one pulse (or one encoder count) of a quantized channel, ~0 for an
+    unquantized one. Window sums of counters that carry their remainders
+    are off by less than one pulse each, so a threshold of three quanta is never reached by
+    quantization alone, however its residuals bunch (a median absolute deviation can be 0)."""
+    x = x[:_QUANTUM_SAMPLES]
+    dd = np.abs(np.diff(x, axis=axis))
+    dd[dd <= 1e-9 * np.abs(x).max(axis=axis)] = np.inf          # rounding of whole multiples
+    q = dd.min(axis=axis)
+    return np.where(np.isfinite(q), q, 0.0)
+
+
 def _step_stats(d):
     """(centre, robust 1-sigma) of the encoder steps ``d`` from every 29th step (the table's
     step and its jitter; a handful of glitches does not move a median)."""
@@ -295,11 +320,11 @@ def _check_encoder(t, enc, gyro, th, findings):
     n = enc.size
     d = np.diff(enc)
     c, s = _step_stats(d)
-    thr = max(th.encoder_sigmas * s, th.encoder_floor)
+    thr = max(th.encoder_sigmas * s, th.encoder_floor, _QUANTA * float(_quantum(d[1:])))
+    if float(d.max()) - c <= thr and c - float(d.min()) <= thr:      # (two reductions, no temporaries)
+        return enc
     dev = d - c
     bad = np.flatnonzero(np.abs(dev) > thr)
-    if bad.size == 0:
-        return enc
     out = enc.copy()
     gnorm = None
     for i1, i2 in _clusters(bad, th.repair_samples):
@@ -392,14 +417,19 @@ def _check_rate(t, enc, L, m, th, findings):
     if med == 0.0:
         return turn
     rel = rate / med - 1.0
+    # the windows' own noise (the jitter at their edges: white, so it shows in the differences
+    # of neighbouring windows, where a ripple over many windows does not) is allowed on top
+    noise = _MAD * float(np.median(np.abs(np.diff(rel)))) / math.sqrt(2.0) if rel.size > 2 else 0.0
+    allowed = th.rate_ripple + th.rate_sigmas * noise
     w = int(np.argmax(np.abs(rel)))
-    if rate[w] / med < th.stall or abs(rel[w]) > th.rate_ripple:
+    if rate[w] / med < th.stall or abs(rel[w]) > allowed:
         k = w * L
         kind = ("the table stalls" if rate[w] / med < th.stall else "the table's rate varies")
         findings.append(Finding("rate", k, float(t[k]), "refused",
                                 f"{kind}: {rate[w] / units.DEG_PER_S:.6g} deg/s over samples {k}-{k + L} against the "
                                 f"median {med / units.DEG_PER_S:.6g} deg/s ({rel[w]:+.3g}; allowed within "
-                                f"{th.rate_ripple:g}, a stall below {th.stall:g} of the rate)"))
+                                f"{allowed:.3g}: {th.rate_ripple:g} plus {th.rate_sigmas:g} times the windows' "
+                                f"own noise, {noise:.2g}; a stall below {th.stall:g} of the rate)"))
     return turn
 
 
@@ -452,14 +482,17 @@ def _check_channels(t, enc, gyro, accel, turn, L, m, th, findings):
                                 "base; a channel clipped or stuck throughout, or a wrong pulse weight)"))
         return gyro, accel, enc
     norms = np.column_stack([ratio / scale, force / np.median(force)])
-    _, _, nbad = _robust_flags(norms, th.channel_sigmas, th.norm_floor)
+    q = np.concatenate([_quantum(gyro[1:]), _quantum(accel[1:])])            # (6,) one pulse
+    size = np.array([np.median(np.abs(turn)) * scale, np.median(force)])
+    nfloor = np.maximum(th.norm_floor, _QUANTA * np.sqrt(3.0) * np.array([q[:3].max(), q[3:].max()]) / size)
+    _, _, nbad = _robust_flags(norms, th.channel_sigmas, nfloor)
     nbad = nbad.any(axis=1)
     Y = X.copy()
     Y[:, :3] -= np.outer(turn, beta)
     mid = enc[L // 2 + L * np.arange(m)]
     tau = np.linspace(-1.0, 1.0, m)
     A = np.column_stack([np.ones(m), np.cos(mid), np.sin(mid), tau, tau * tau])
-    floor = np.array([th.gyro_floor] * 3 + [th.accel_floor] * 3)
+    floor = np.maximum(np.array([th.gyro_floor] * 3 + [th.accel_floor] * 3), _QUANTA * q)
     keep = ~nbad
     R = Y - A @ _fit(A, Y, keep)
     dev, thr, bad = _robust_flags(R, th.channel_sigmas, floor)

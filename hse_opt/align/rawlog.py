@@ -163,8 +163,8 @@ def validate_rawlog(t, gyro, accel, encoder, *, copy=True):
     gap = dt > GAP_FACTOR * med
     if gap.any():
         idx = int(np.argmax(gap)) + 1
-        raise ValueError(f"raw log has a gap before sample index {idx}: interval {dt[idx - 1]:.6g} s, "
-                         f"median {med:.6g} s (allowed <= {GAP_FACTOR} x median)")
+        raise ValueError(f"raw log has a gap before sample index {idx} (t_s = {t[idx]:.6f}): interval "
+                         f"{dt[idx - 1]:.6g} s, median {med:.6g} s (allowed <= {GAP_FACTOR} x median)")
     step = np.diff(encoder)
     if (np.abs(step) > np.pi).any():
         encoder = np.unwrap(encoder)
@@ -172,8 +172,8 @@ def validate_rawlog(t, gyro, accel, encoder, *, copy=True):
     big = np.abs(step) > np.pi / 2
     if big.any():
         idx = int(np.argmax(big)) + 1
-        raise ValueError(f"raw log encoder_rad jumps by {step[idx - 1]:.6g} rad at sample index {idx}: "
-                         "allowed < pi/2 per sample")
+        raise ValueError(f"raw log encoder_rad jumps by {step[idx - 1]:.6g} rad at sample index {idx} "
+                         f"(t_s = {t[idx]:.6f}): allowed < pi/2 per sample")
     return t, gyro, accel, encoder
 
 
