@@ -67,6 +67,12 @@ RANGES = {
     "tilt_y_arcsec": Range(-3600.0, 3600.0, "a tilt fixture's setting within 1 deg (the model is first "
                                             "order in the tilt)"),
     "--budget-h": Range(1e-3, MAX_BUDGET_H, "stand time of a calibration campaign: at most ~6 weeks"),
+    "--arw-dph-rthz": Range(1e-4, 10.0, "the gyros' angle random walk in deg/h/sqrt(Hz): an RLG's is "
+                                        "0.001-0.1, the default system's 0.012; 0 would give the headings no "
+                                        "noise and the design nothing to weigh"),
+    "--floor-arcsec": Range(0.0, 3600.0, "run-to-run heading scatter beyond the gyro noise, arcsec"),
+    **{f"--{what}-s": Range(0.0, 7 * 86400.0, "a time on the stand in s, at most a week")
+       for what in ("warmup", "azimuth-change", "rate-change", "tilt-change", "run-overhead")},
 }
 
 #: pitch/roll columns whose every |value| is below this (and the largest at least

@@ -201,3 +201,81 @@ def test_surveyed_copies_of_some_rows_change_no_answer(tmp_path):
         assert dup["parameters"][name]["std"] == pytest.approx(p["std"], rel=1e-9, abs=1e-12)
     assert dup["dof"] == clean["dof"] and dup["n_runs"] == 15
     assert any("3 of 15 rows are copies" in n for n in dup["notes"])
+
+
+# -- exit codes and words ------------------------------------------------------------------------
+def _one_line_error(code, out, err, command, *must):
+    assert code == 2 and out == "", err
+    assert err.count("\n") == 1 and err.startswith(f"hse-opt {command}: error: "), err
+    for text in ("allowed: ", *must):
+        assert text in err, (text, err)
+
+
+@pytest.mark.parametrize("effects", ["hse", "hse,sync_delay", "hse,warmup", "hse,axis_bias"])
+def test_one_rate_at_one_azimuth_is_bad_data_naming_the_parameters(tmp_path, effects):
+    """Six 40 deg/s runs at azimuth 0 cannot separate the offset from the tilt terms (before:
+    exit 1 'Gauss-Newton did not converge'): exit 2, the parameters named, what would help."""
+    rows = [["run", "rate_dps", "azimuth_deg", "heading_err_arcsec", "latitude_deg", "duration_s", "t_start_s"]]
+    rows += [[str(i), "40", "0", f"{(-1) ** i * 3.5 + i}", "28.07", "600", str(700 * i)] for i in range(1, 7)]
+    code, out, err = cli(["fit", write(tmp_path / "SIX.csv", rows), "--effects", effects])
+    assert code == 2 and out == "" and err.count("\n") == 1 and "did not converge" not in err, err
+    assert "offset" in err and ("cannot be told apart" in err or "cannot fit" in err or "no information" in err)
+
+
+@pytest.mark.parametrize("option, value", [("--arw-dph-rthz", "0"), ("--arw-dph-rthz", "1e308"),
+                                           ("--floor-arcsec", "-1"), ("--warmup-s", "nan"),
+                                           ("--azimuth-change-s", "-5"), ("--run-overhead-s", "inf")])
+def test_design_options_out_of_range_name_the_option(tmp_path, option, value):
+    """--arw-dph-rthz 0 ended 'no plan ... can identify the model: the data carry no information
+    on :' after three numpy warnings; the others named 'stand floor' or 'costs.warmup (s)'."""
+    code, out, err = cli(["design", option, value, "-o", tmp_path / "P.csv"])
+    _one_line_error(code, out, err, "design", f"{option} {float(value):g} is not allowed", f"<= {option.lstrip('-')} <=")
+    assert not (tmp_path / "P.csv").exists()
+
+
+def test_dask_that_is_no_address_names_the_option(tmp_path):
+    plan = write(tmp_path / "P.csv", [["run", "rate_dps", "azimuth_deg", "t_start_s", "duration_s"],
+                                      ["1", "40", "0", "0", "60"]])
+    code, out, err = cli(["simulate", plan, "-o", tmp_path / "S.csv", "--dask", "not an address"])
+    _one_line_error(code, out, err, "simulate", "--dask")
+
+
+@pytest.mark.parametrize("cell, what", [("800", "out of range"), ("1e308", "out of range"), ("", "is empty"),
+                                        ("nan", "not finite")])
+def test_a_field_heading_is_named_as_heading_deg(tmp_path, field_runs, cell, what):
+    """A bad heading_deg in a row without azimuth_deg was reported as azimuth_deg "a stand
+    azimuth" (800, 1e308) or as "heading_err_arcsec is given" (empty)."""
+    with open(field_runs, newline="") as fh:
+        rows = list(csv.reader(fh))
+    rows[3][rows[0].index("heading_deg")] = cell
+    code, out, err = cli(["fit", write(tmp_path / "H.csv", rows)])
+    _one_line_error(code, out, err, "fit", "row 3 (line 4), column 'heading_deg'", what)
+    assert "azimuth_deg <=" not in err and "heading_err_arcsec is given" not in err
+
+
+def test_a_field_position_at_one_rate_is_named(tmp_path, field_runs):
+    """Position A at 20 deg/s only: 'cannot fit 1 free parameters' now names the position and
+    asks for a second rate or sense."""
+    with open(field_runs, newline="") as fh:
+        rows = list(csv.reader(fh))
+    r, p = rows[0].index("rate_dps"), rows[0].index("position")
+    rows = rows[:1] + [row for row in rows[1:] if row[p] == "A" and row[r] == "20"]
+    code, out, err = cli(["fit", write(tmp_path / "ONE.csv", rows)])
+    _one_line_error(code, out, err, "fit", "position 'A' (20 deg/s)", "one bias rate only",
+                    "allowed: two or more rates (or both senses) at a position")
+
+
+def test_a_header_only_raw_log_says_so_without_a_warning(tmp_path):
+    """A CSV raw log with its header only gave '1 values per row, header 8' and numpy's
+    UserWarning."""
+    from hse_opt.align.rawlog import CSV_COLUMNS
+    logs = tmp_path / "logs"
+    logs.mkdir()
+    (logs / "empty.csv").write_text(",".join(CSV_COLUMNS) + "\n")
+    import warnings
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        code, out, err = cli(["align", logs, "-o", tmp_path / "R.csv"])
+    assert code == 2 and "warning" not in err.lower(), err
+    assert "empty.csv: no samples below the header; allowed: " in err.splitlines()[0]
+    assert not (tmp_path / "R.csv").exists()

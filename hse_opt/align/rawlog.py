@@ -272,6 +272,9 @@ def _read_csv(path):
         header = [h.strip() for h in fh.readline().split(",")]
         text = fh.read()
     lines = text.splitlines()
+    if not any(line.strip() for line in lines):  # (np.loadtxt would warn and give one column)
+        raise ValueError(f"no samples below the header; allowed: the header, then one row of {len(header)} "
+                         "values per sample")
     try:
         data = np.loadtxt(lines, delimiter=",", ndmin=2, dtype=float)
     except ValueError:
@@ -289,7 +292,8 @@ def _read_csv(path):
                                      "number") from None
         raise
     if data.shape[1] != len(header):
-        raise ValueError(f"{data.shape[1]} values per row, header {len(header)}")
+        raise ValueError(f"{data.shape[1]} values per row, the header {len(header)}; allowed: one value per "
+                         "column")
     if text and not text.endswith("\n"):
         raise ValueError(f"the file is truncated: its last line (sample index {data.shape[0] - 1}) has no line "
                          "end; allowed: whole lines")

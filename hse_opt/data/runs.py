@@ -7,6 +7,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from ..ranges import RANGES
 from ..units import ARCSEC, DEG
 from .decimals import _heading_err_text, _missing, _to_text
 from .errors import DataError
@@ -244,6 +245,10 @@ class Runs(_Table):
                             column="heading_deg")
         surveyed = np.array([not _missing(v) for v in seqs["azimuth_deg"]], dtype=bool)
         err_missing = np.array([_missing(v) for v in seqs["heading_err_arcsec"]], dtype=bool)
+        for i in np.flatnonzero(~surveyed & np.array([_missing(v) for v in heading], dtype=bool)):
+            raise DataError(src, "is empty in a row without azimuth_deg; allowed: the alignment's own heading "
+                                 "in deg in every row without a stand azimuth (a field position's rows)",
+                            row=int(i) + 1, column="heading_deg")
         for i in np.flatnonzero(~surveyed & ~err_missing):
             raise DataError(src, "is given where azimuth_deg is empty; allowed: heading_err_arcsec only "
                                  "with the stand azimuth it refers to", row=int(i) + 1, column="heading_err_arcsec")
@@ -252,7 +257,19 @@ class Runs(_Table):
         columns["heading_err_arcsec"] = [_heading_err_text(a, h) if ok else 0 if miss else e for a, h, e, ok, miss
                                          in zip(seqs["azimuth_deg"], heading, seqs["heading_err_arcsec"],
                                                 surveyed, err_missing)]
-        runs = super()._parse(columns, src, min_rate_dps, True, header_line)
+        try:
+            runs = super()._parse(columns, src, min_rate_dps, True, header_line)
+        except DataError as e:
+            # a value that stands in for a missing one is named as what the file holds
+            i = None if e.row is None else e.row - 1
+            if i is None or not ((e.column == "azimuth_deg" and not surveyed[i])
+                                 or (e.column == "heading_err_arcsec" and err_missing[i])):
+                raise
+            problem = e.problem.replace("azimuth_deg", "heading_deg").replace("heading_err_arcsec", "heading_deg")
+            if "out of range" in problem:
+                problem = (f"value {heading[i]!r} is out of range; allowed: "
+                           f"{RANGES['heading_deg'].allowed('heading_deg')}")
+            raise DataError(src, problem, row=e.row, line=e.line, column="heading_deg") from None
         for name, x in (("azimuth_deg", runs.azimuth[surveyed]), ("heading_deg", runs.heading)):
             if not allow_small_azimuths and _looks_like_radians(x / DEG):
                 raise DataError(src, "the values look like radians (all within +-2 pi, spread over at least "

@@ -181,8 +181,10 @@ def _fit(runs, model, *, fix, tilt_known, bounds, constraints, prior, robust, hu
     if n_meas - n_pos + r_prior <= k - k_eq:
         field = f" ({n_pos} go to the positions' unknown headings)" if n_pos else ""
         field += f" (the {n} rows hold {n_meas} distinct measurements: the others are copies)" if n_meas < n else ""
+        why = (_single_rate_positions(runs, group, positions) if positions else
+               "allowed: more runs than free parameters, or hold some with --fix NAME=VALUE")
         raise ValueError(f"{runs.source}: {n_meas} runs{field} cannot fit {k - k_eq} free parameters "
-                         f"({', '.join(prob.names)}); need more runs than parameters")
+                         f"({', '.join(prob.names)}); {why}")
     units_free = [q.unit for q, f in zip(mm.params, free) if f]
 
     def advice_for(mask):

@@ -116,6 +116,11 @@ def _stand(args):
     from ...ranges import check_option
     tilt = _pair(args.stand_tilt_arcsec, "--stand-tilt-arcsec")
     check_option("--latitude-deg", args.latitude_deg, "latitude_deg")
+    for option in ("--arw-dph-rthz", "--floor-arcsec", "--warmup-s", "--azimuth-change-s", "--rate-change-s",
+                   "--tilt-change-s", "--run-overhead-s"):
+        value = getattr(args, option[2:].replace("-", "_"), None)
+        if value is not None:
+            check_option(option, value)
     arw = DEFAULT_ARW if args.arw_dph_rthz is None else args.arw_dph_rthz * units.DEG_PER_H
     return Stand(latitude=args.latitude_deg * units.DEG, tilt=tuple(v * units.ARCSEC for v in tilt), arw=arw,
                  floor=args.floor_arcsec * units.ARCSEC)
