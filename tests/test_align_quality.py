@@ -338,3 +338,37 @@ def test_a_gap_in_the_timestamps_names_its_sample_and_time(clean):
     t[K:] += 0.01                                  # five samples lost before sample K
     with pytest.raises(ValueError, match=rf"gap before sample index {K} \(t_s = 3900\.012000\): interval 0\.012 s"):
         RawLog(t, log.gyro, log.accel, log.encoder, log.meta)
+
+
+def test_logs_of_an_independent_generator_raise_no_finding_and_a_glitch_in_one_is_repaired():
+    """Logs nobody here generated (python-ins, a test extra; see tests/test_align_pyins.py):
+    noise-free and with the generator's own white noise and bias random walk, no finding; one
+    encoder sample off by 1 rad, repaired at its sample."""
+    sim = pytest.importorskip("pyins.sim", reason="python-ins (pyins) is a test extra: pip install '.[test]'")
+    from pyins import inertial_sensor
+    from scipy.spatial.transform import Rotation
+
+    t = np.arange(int(round(63.0 / 0.002)) + 1) * 0.002
+    alpha = 40.0 * units.DEG_PER_S * t
+    r = np.array([-0.5772, -0.578, -0.57685020585937])
+    x = np.cross(np.cross(r, [1.0, 0.0, 0.0]), r)
+    C_s_b = np.column_stack([x / np.linalg.norm(x), np.cross(r, x) / np.linalg.norm(np.cross(r, x)),
+                             r / np.linalg.norm(r)]).T                    # rows: b's axes in s
+    C_s_n = (Rotation.from_euler("xyz", [-55 * units.ARCSEC, -120 * units.ARCSEC, 1.2]).as_matrix()
+             @ Rotation.from_euler("z", alpha[:, None]).as_matrix() @ C_s_b)
+    rph = Rotation.from_matrix(C_s_n).as_euler("xyz", degrees=True)
+    _, imu = sim.generate_imu(t, np.array([45.0, 0.0, 0.0]), rph, np.zeros((t.size, 3)), sensor_type="increment")
+    g, a = imu[["gyro_x", "gyro_y", "gyro_z"]], imu[["accel_x", "accel_y", "accel_z"]]
+    logs = [RawLog(t, g.to_numpy(), a.to_numpy(), alpha, {"latitude_deg": 45.0})]
+    for k in range(3):
+        gk = inertial_sensor.Parameters(noise=0.02 * units.DEG_PER_H, bias_walk=1e-9, rng=2 * k).apply(g, "increment")
+        ak = inertial_sensor.Parameters(noise=5 * units.MICRO_G, bias_walk=1e-7, rng=2 * k + 1).apply(a, "increment")
+        logs.append(RawLog(t, gk.to_numpy(), ak.to_numpy(), alpha, {"latitude_deg": 45.0}))
+    for log in logs:
+        assert assess(log).findings == ()
+    log = logs[-1]
+    enc = log.encoder.copy()
+    enc[12_345] += 1.0
+    q = assess(RawLog(t, log.gyro, log.accel, enc, log.meta))
+    f = _only(q, "repaired")
+    assert (f.sample, f.time) == (12_345, t[12_345]) and abs(q.log.encoder[12_345] - alpha[12_345]) < 1e-9

@@ -112,6 +112,7 @@ __all__ = ["Thresholds", "Finding", "Quality", "LogRefused", "assess", "check_me
 CHANNELS = ("gyro_x", "gyro_y", "gyro_z", "accel_x", "accel_y", "accel_z")
 _MAD = 1.4826          # robust 1-sigma of a Gaussian from its median absolute deviation
 _QUANTUM_SAMPLES = 20000
+_QUANTUM_CHANGES = 20
 #: thresholds are at least this many quanta of the channel (:func:`_quantum`)
 _QUANTA = 3.0
 
@@ -297,14 +298,15 @@ def _quantum(x, axis=0):
     """The smallest nonzero change between consecutive values of ``x`` over its first
     ``_QUANTUM_SAMPLES`` samples, per column, above 1e-9 of its values (float rounding of
     whole multiples): one pulse (or one encoder count) of a quantized channel, ~0 for an
-    unquantized one. Window sums of counters that carry their remainders
+    unquantized one, 0 when it changes in ``_QUANTUM_CHANGES`` samples or fewer. Window sums of counters that carry their remainders
     are off by less than one pulse each, so a threshold of three quanta is never reached by
     quantization alone, however its residuals bunch (a median absolute deviation can be 0)."""
     x = x[:_QUANTUM_SAMPLES]
     dd = np.abs(np.diff(x, axis=axis))
-    dd[dd <= 1e-9 * np.abs(x).max(axis=axis)] = np.inf          # rounding of whole multiples
-    q = dd.min(axis=axis)
-    return np.where(np.isfinite(q), q, 0.0)
+    changed = dd > 1e-9 * np.abs(x).mean(axis=axis)            # not rounding of whole multiples
+    dd[~changed] = np.inf
+    # a channel that changes in only a few samples (a glitch in an exact ramp) has no quantum
+    return np.where(changed.sum(axis=axis) > _QUANTUM_CHANGES, dd.min(axis=axis), 0.0)
 
 
 def _step_stats(d):
