@@ -112,8 +112,10 @@ def render_html(sections, title="hse_opt report", summary=None):
     if summary:
         top = '<div class="summary">' + "".join(f"<p>{html.escape(line)}</p>" for line in summary) + "</div>"
     data = {s.title: s.data for s in sections}
-    # a JSON data block is inert (never executed); "</" cannot end it early once escaped
-    payload = json.dumps(data, allow_nan=False, default=float).replace("</", "<\\/")
+    # a JSON data block is inert (never executed); with <, > and & as JSON escapes no user text
+    # can end it early ("</script>") or switch the parser's state ("<!--<script>")
+    payload = (json.dumps(data, allow_nan=False, default=float)
+               .replace("<", "\\u003c").replace(">", "\\u003e").replace("&", "\\u0026"))
     body = "\n".join(s.html(a) for a, s in zip(anchors, sections))
     return (f'<!DOCTYPE html>\n<html lang="en"><head><meta charset="utf-8">'
             f'<meta name="viewport" content="width=device-width, initial-scale=1">'
