@@ -11,10 +11,11 @@ import numpy as np
 import pytest
 
 from hse_opt import units
-from hse_opt.cli import main
+from hse_opt.app.cli import main
 from hse_opt.data import load_runs
-from hse_opt.sim import RunSpec, TruthConfig, generate, load_rawlog, save_rawlog, true_attitude
+from hse_opt.align import save_calibration
 from hse_opt.align.rawlog import check_rawlog
+from hse_opt.sim import RunSpec, TruthConfig, generate, lab_calibration, load_rawlog, save_rawlog, true_attitude
 
 TRUTH = TruthConfig.default()
 RUNS_SPEC = [  # (rate deg/s, stand azimuth deg, position, surveyed)
@@ -52,7 +53,9 @@ def test_pulse_count_csv_reads_back_the_generated_increments(logdir):
 def test_align_writes_one_row_per_log_with_metadata(logdir, tmp_path, capsys):
     d, truths = logdir
     out = tmp_path / "RUNS.csv"
-    assert main(["align", str(d), "-o", str(out), "--jobs", "2", "--no-progress"]) == 0
+    save_calibration(lab_calibration(TRUTH), tmp_path / "CAL.toml")
+    assert main(["align", str(d), "-o", str(out), "--jobs", "2", "--calibration", str(tmp_path / "CAL.toml"),
+                 "--no-progress"]) == 0
     runs = load_runs(out)
     assert runs.run.tolist() == [10, 11, 12, 13]
     assert runs.position.tolist() == ["A", "A", "A", "B"]

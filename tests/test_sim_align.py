@@ -12,7 +12,8 @@ import pytest
 
 from hse_opt.frames import c_b_s, dcm_zyx, earth_rate_n, rot_z, skew
 from hse_opt.align import AlignConfig, align
-from hse_opt.sim.campaign import align_config_from_truth, default_align_config, simulate_alignment, simulate_heading_error
+from hse_opt.sim.campaign import (align_config_from_truth, default_align_config, simulate_alignment,
+                                  simulate_heading_error)
 from hse_opt.sim.imu import generate
 from hse_opt.align.rawlog import RawLog, load_rawlog, save_rawlog
 from hse_opt.sim.truth import RunSpec, TruthConfig

@@ -12,6 +12,10 @@ processor
     :func:`align` -- the alignment processor (coarse TRIAD + Kalman filter + whole-revolution
     smoothing); :class:`AlignConfig` (the lab calibration it applies and its tuning),
     :class:`AlignResult`.
+calibration
+    :class:`LabCalibration` -- the system's lab calibration (``CALIBRATION.toml``: K~_g, the
+    accelerometer matrix, C~_s^b, optional pulse weights, noise and latitude),
+    :func:`load_calibration`, :func:`save_calibration`.
 batch
     :func:`align_logs`, :func:`runs_from_rows` -- many logs in parallel into a RUNS table; a
     bad log is reported and does not stop the others.
@@ -24,11 +28,14 @@ rotations
     uses them too).
 """
 from hse_opt.align.batch import align_logs, runs_from_rows
+from hse_opt.align.calibration import LabCalibration, load_calibration, save_calibration
 from hse_opt.align.noise import NoiseFigures, combine_noise, noise_from_log
-from hse_opt.align.processor import AlignConfig, AlignHistory, AlignResult, align, quantization_arw, triad
+from hse_opt.align.processor import (AlignConfig, AlignHistory, AlignResult, align, latitude_of, quantization_arw,
+                                     triad)
 from hse_opt.align.rawlog import RawLog, check_rawlog, load_rawlog, save_rawlog, validate_rawlog
 
 __all__ = [
-    "AlignConfig", "AlignHistory", "AlignResult", "align", "quantization_arw", "triad", "align_logs",
-    "runs_from_rows", "NoiseFigures", "combine_noise", "noise_from_log", "RawLog", "check_rawlog", "load_rawlog", "save_rawlog", "validate_rawlog",
+    "AlignConfig", "AlignHistory", "AlignResult", "align", "latitude_of", "quantization_arw", "triad",
+    "LabCalibration", "load_calibration", "save_calibration", "align_logs", "runs_from_rows", "NoiseFigures",
+    "combine_noise", "noise_from_log", "RawLog", "check_rawlog", "load_rawlog", "save_rawlog", "validate_rawlog",
 ]

@@ -14,7 +14,7 @@ import numpy as np
 
 from hse_opt import units
 from hse_opt.align.noise import NOISE_COLUMNS, combine_noise, noise_from_log
-from hse_opt.align.processor import align
+from hse_opt.align.processor import align, latitude_of
 from hse_opt.align.mapping import read_mapped
 from hse_opt.align.quality import assess
 from hse_opt.align.rawlog import load_rawlog
@@ -37,11 +37,11 @@ def single_blas_thread():
     return threadpool_limits(limits=1, user_api="blas")
 
 
-def _checked_log(path, mapping=None):
-    """Load ``path`` (through ``mapping`` when given) and run the quality checks: the
-    (repaired) log and its Quality."""
+def _checked_log(path, mapping=None, pulse_weights=None):
+    """Load ``path`` (through ``mapping`` when given; ``pulse_weights`` for a pulse-count log
+    whose sidecar gives none) and run the quality checks: the (repaired) log and its Quality."""
     if mapping is None:
-        quality = assess(load_rawlog(path))
+        quality = assess(load_rawlog(path, pulse_weights=pulse_weights))
     else:
         mapped = read_mapped(path, mapping)
         quality = assess(mapped.log, temperature=mapped.temperature)
@@ -57,15 +57,15 @@ def _error_line(path, exc):
     return text if text.startswith(path) else f"{path}: {text}"
 
 
-def _noise_one(path, config, mapping=None, noise=None):
+def _noise_one(path, config, mapping=None, noise=None, pulse_weights=None):
     """Worker: the noise figures of one raw log; ``(path, figures, error)``."""
     try:
-        return path, noise_from_log(_checked_log(path, mapping)[0]), None
+        return path, noise_from_log(_checked_log(path, mapping, pulse_weights)[0]), None
     except (ValueError, OSError) as exc:
         return path, None, _error_line(path, exc)
 
 
-def _align_one(path, config, mapping=None, noise=None):
+def _align_one(path, config, mapping=None, noise=None, pulse_weights=None):
     """Worker: load, check, characterise the noise of and align one raw log; returns ``(path,
     row, error)``: the RUNS row (column -> value in file units, plus ``run`` and ``position``
     from the metadata when given, and ``noise``: the log's :class:`NoiseFigures`) or the
@@ -73,15 +73,15 @@ def _align_one(path, config, mapping=None, noise=None):
     from hse_opt.data import DEFAULT_MIN_RATE_DPS
 
     try:
-        log, quality = _checked_log(path, mapping)
+        log, quality = _checked_log(path, mapping, pulse_weights)
         noise = noise_from_log(log) if noise is None else noise
         res = align(log, config)
+        lat = latitude_of(log, config)
         if abs(res.rate) < DEFAULT_MIN_RATE_DPS * units.DEG_PER_S:
             raise ValueError(f"the encoder's mean rate is {res.rate / units.DEG_PER_S:.4g} deg/s; allowed: "
                              f"|rate| >= {DEFAULT_MIN_RATE_DPS:g} deg/s (outside the gyros' lock-in zone)")
     except (ValueError, OSError) as exc:
         return path, None, _error_line(path, exc)
-    lat = config.latitude if config.latitude is not None else float(log.meta["latitude_deg"]) * units.DEG
     row = {"rate_dps": res.rate / units.DEG_PER_S,
            "heading_deg": float(np.mod(res.heading, 2 * np.pi)) / units.DEG,
            "latitude_deg": lat / units.DEG, "duration_s": round(len(log) * log.sample_period, 6),
@@ -94,15 +94,15 @@ def _align_one(path, config, mapping=None, noise=None):
     return path, row, None
 
 
-def _chunk(worker, paths, config, mapping, noise):
+def _chunk(worker, paths, config, mapping, noise, pulse_weights=None):
     """Worker: ``worker`` on each path, BLAS on one thread (the workers are parallel)."""
     with single_blas_thread():
-        return [worker(path, config, mapping, noise.get(path)) for path in paths]
+        return [worker(path, config, mapping, noise.get(path), pulse_weights) for path in paths]
 
 
-def _map(worker, paths, config, jobs, progress, client, mapping, noise=None):
-    """``worker(path, config, mapping, noise)`` on every path, in ``jobs`` local processes or
-    on a Dask ``client``'s workers; results by path."""
+def _map(worker, paths, config, jobs, progress, client, mapping, noise=None, pulse_weights=None):
+    """``worker(path, config, mapping, noise, pulse_weights)`` on every path, in ``jobs`` local
+    processes or on a Dask ``client``'s workers; results by path."""
     noise = noise or {}
     done = {}
 
@@ -119,24 +119,26 @@ def _map(worker, paths, config, jobs, progress, client, mapping, noise=None):
     if client is not None:
         from distributed import as_completed as dask_as_completed
         workers = max(1, len(client.scheduler_info().get("workers", {})))
-        futures = [client.submit(_chunk, worker, part, config, mapping, known, pure=False)
+        futures = [client.submit(_chunk, worker, part, config, mapping, known, pulse_weights, pure=False)
                    for part, known in _chunks(workers)]
         for fut in dask_as_completed(futures):
             for item in fut.result():
                 _collect(item)
     elif jobs == 1 or len(paths) <= 1:
         for path in paths:
-            _collect(worker(path, config, mapping, noise.get(path)))
+            _collect(worker(path, config, mapping, noise.get(path), pulse_weights))
     else:
         with ProcessPoolExecutor(max_workers=jobs) as pool:
-            futures = [pool.submit(_chunk, worker, part, config, mapping, known) for part, known in _chunks(jobs)]
+            futures = [pool.submit(_chunk, worker, part, config, mapping, known, pulse_weights)
+                       for part, known in _chunks(jobs)]
             for fut in as_completed(futures):
                 for item in fut.result():
                     _collect(item)
     return done
 
 
-def align_logs(paths, config, jobs=1, progress=None, client=None, *, mapping=None, tune_from_data=False):
+def align_logs(paths, config, jobs=1, progress=None, client=None, *, mapping=None, tune_from_data=False,
+               pulse_weights=None):
     """Align raw logs (:mod:`hse_opt.align.rawlog`), in parallel; a bad log does not stop the others.
 
     Parameters
@@ -144,8 +146,8 @@ def align_logs(paths, config, jobs=1, progress=None, client=None, *, mapping=Non
     paths : sequence of str
         Raw-log files (``.npz``, ``.csv`` in either form).
     config : AlignConfig
-        The processor: the system's lab calibration and noise; ``latitude`` None takes each
-        log's ``latitude_deg``.
+        The processor: the system's lab calibration and noise; its ``latitude`` serves logs
+        without ``latitude_deg`` (:func:`hse_opt.align.latitude_of`).
     jobs : int
         Local worker processes (1: in this process).
     progress : callable, optional
@@ -163,6 +165,9 @@ def align_logs(paths, config, jobs=1, progress=None, client=None, *, mapping=Non
         pooled over the logs (:func:`hse_opt.align.noise.combine_noise`: one system, so one
         noise; a single log's long-cluster points are few), and every log is aligned with
         :meth:`~hse_opt.align.noise.NoiseFigures.tuning` of the pooled figures.
+    pulse_weights : (gyro, accel), optional
+        Pulse weights (rad, m/s; one number or three each) for pulse-count CSV logs whose
+        sidecar gives none (:func:`hse_opt.align.load_rawlog`): the lab calibration's.
 
     Returns
     -------
@@ -188,12 +193,13 @@ def align_logs(paths, config, jobs=1, progress=None, client=None, *, mapping=Non
     noise, report = None, progress
     if tune_from_data:      # two passes: progress counts each log's half in each
         first = _map(_noise_one, paths, config, jobs,
-                     None if report is None else (lambda done, total: report(done // 2, total)), client, mapping)
+                     None if report is None else (lambda done, total: report(done // 2, total)), client, mapping,
+                     pulse_weights=pulse_weights)
         noise = {p: f for p, f, _ in first.values() if f is not None}
         if noise:
             config = dataclasses.replace(config, **combine_noise(noise.values()).tuning())
         progress = None if report is None else (lambda done, total: report((total + done) // 2, total))
-    done = _map(_align_one, paths, config, jobs, progress, client, mapping, noise)
+    done = _map(_align_one, paths, config, jobs, progress, client, mapping, noise, pulse_weights)
     rows, errors = [], []
     for path in paths:
         _, row, err = done[path]

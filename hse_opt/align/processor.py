@@ -55,13 +55,16 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from hse_opt import units
-from hse_opt.align.rotations import dcm_to_zyx, earth_rate_n
+from hse_opt.align.rotations import R_ZB_S_IDEAL, c_b_s, dcm_to_zyx, earth_rate_n
 from hse_opt.align._angles import MAX_DEVIATION, SMALL_DEVIATION, rotate
 from hse_opt.align.rawlog import RawLog
 
-__all__ = ["AlignConfig", "AlignResult", "AlignHistory", "align", "triad", "quantization_arw"]
+__all__ = ["AlignConfig", "AlignResult", "AlignHistory", "align", "triad", "quantization_arw", "latitude_of"]
 
 _CHUNK_TARGET = 32768
+#: a log's latitude_deg and the processor's may differ by this much, deg (0.1 m on the ground;
+#: more is two different sites)
+LATITUDE_TOL_DEG = 1e-6
 
 #: the rows of ``[e_i x] C0`` (i = 0, 1, 2; 9 each) as entries of ``C0.ravel()`` with signs
 _E_INDEX = np.array([0, 0, 0, 6, 7, 8, 3, 4, 5, 6, 7, 8, 0, 0, 0, 0, 1, 2, 3, 4, 5, 0, 1, 2, 0, 0, 0])
@@ -85,13 +88,18 @@ class AlignConfig:
     Attributes
     ----------
     K_g_cal : 3x3 nested tuple
-        Calibrated gyro matrix K~_g, gyro outputs (rad) -> s.
+        Calibrated gyro matrix K~_g, gyro outputs (rad) -> s (default identity: orthogonal
+        gyro axes along s).
     C_s_b_cal : 3x3 nested tuple
-        Calibrated C~_s^b, s -> b.
+        Calibrated C~_s^b, s -> b (default: the paper's ideal mount, every gyro axis at
+        54.74 deg from the rotation axis, ``c_b_s(R_ZB_S_IDEAL).T``).
     A_acc_cal : 3x3 nested tuple
-        Calibrated accelerometer matrix, outputs (m/s) -> s (identity: ideal axes).
+        Calibrated accelerometer matrix, outputs (m/s) -> s (default identity: ideal axes).
+        These three are a lab calibration, :class:`hse_opt.align.LabCalibration`
+        (``CALIBRATION.toml``, :meth:`~hse_opt.align.LabCalibration.align_config`).
     latitude : float or None
-        rad; None takes ``latitude_deg`` from the log's metadata.
+        rad; for logs whose metadata gives no ``latitude_deg`` (the log's wins; the two
+        differing is an error: :func:`latitude_of`).
     arw : float
         Gyro angle random walk assumed by the filter, rad/sqrt(s).
     vrw : float
@@ -112,7 +120,7 @@ class AlignConfig:
     """
 
     K_g_cal: tuple = _mat(np.eye(3))
-    C_s_b_cal: tuple = _mat(np.eye(3))
+    C_s_b_cal: tuple = _mat(c_b_s(R_ZB_S_IDEAL).T)
     A_acc_cal: tuple = _mat(np.eye(3))
     latitude: float | None = None
     arw: float = 0.0120 * units.DEG_PER_H
@@ -577,6 +585,31 @@ def _chain(A, x0):
     return x
 
 
+def latitude_of(log, config):
+    """The latitude a log is aligned at, rad: its metadata's ``latitude_deg`` when given, else
+    ``config.latitude``.
+
+    Raises
+    ------
+    ValueError
+        Neither gives one; the metadata's is not a number within +-89 deg; or both give one and
+        they differ by more than :data:`LATITUDE_TOL_DEG` (the message names both).
+    """
+    meta = log.meta.get("latitude_deg")
+    if meta is None:
+        if config.latitude is None:
+            raise ValueError("no latitude: allowed: latitude_deg in the log's metadata, or a latitude given to "
+                             "the processor (--latitude-deg, the calibration file's site.latitude_deg)")
+        return config.latitude
+    if isinstance(meta, bool) or not isinstance(meta, (int, float)) or not abs(meta) < 89.0:
+        raise ValueError(f"metadata latitude_deg = {meta!r}; allowed: a number of degrees, |latitude| < 89")
+    if config.latitude is not None and abs(config.latitude / units.DEG - meta) > LATITUDE_TOL_DEG:
+        raise ValueError(f"the log's metadata latitude_deg = {meta!r} and the latitude given to the processor, "
+                         f"{config.latitude / units.DEG:.10g} deg (--latitude-deg or the calibration file), "
+                         f"differ; allowed: one latitude (within {LATITUDE_TOL_DEG:g} deg), or only one of them")
+    return float(meta) * units.DEG
+
+
 def align(log, config=None):
     """Align one raw log.
 
@@ -584,7 +617,7 @@ def align(log, config=None):
     ----------
     log : RawLog
     config : AlignConfig, optional
-        Calibration and tuning (default: ideal calibration, default tuning).
+        Calibration and tuning (default: the orthogonal calibration, default tuning).
 
     Returns
     -------
@@ -593,16 +626,13 @@ def align(log, config=None):
     Raises
     ------
     ValueError
-        The table turned less than one revolution, or no latitude is known.
+        The table turned less than one revolution, or no latitude is known, or the log's and
+        the config's differ (:func:`latitude_of`).
     """
     if not isinstance(log, RawLog):
         raise ValueError("align: a RawLog is required (see hse_opt.align.rawlog)")
     config = AlignConfig() if config is None else config
-    lat = config.latitude
-    if lat is None:
-        if "latitude_deg" not in log.meta:
-            raise ValueError("align: no latitude: give AlignConfig.latitude or latitude_deg in the log meta")
-        lat = float(log.meta["latitude_deg"]) * units.DEG
+    lat = latitude_of(log, config)
     blk = _blocks(log, config)
     dth, dv, nb, m, T = blk["dth"], blk["dv"], blk["nb"], blk["m"], blk["block_time"]
     w_n = earth_rate_n(lat)

@@ -255,15 +255,27 @@ def save_rawlog(log, path, *, pulse_weights=None):
                  meta_json=np.array(json.dumps(log.meta, sort_keys=True)))
 
 
-def _weights(meta, key, factor):
-    """A pulse weight from meta: one positive number or three -> (3,) in SI."""
+def _weights(meta, key, factor, given=None):
+    """A pulse weight from meta: one positive number or three -> (3,) in SI; ``given`` (SI,
+    one or three: the lab calibration's) serves when meta has none, and must agree with it
+    (relative 1e-9) when both do."""
     if key not in meta:
-        raise ValueError(f"pulse counts need the pulse weight '{key}' in the .json sidecar (or meta); "
-                         "allowed: one positive number or three")
-    w = np.asarray(meta[key], dtype=float) * factor
+        if given is not None:
+            return np.broadcast_to(np.asarray(given, dtype=float), (3,))
+        raise ValueError(f"pulse counts need the pulse weight '{key}' in the .json sidecar (or meta, or the "
+                         "calibration file); allowed: one positive number or three")
+    try:
+        w = np.asarray(meta[key], dtype=float) * factor
+    except (TypeError, ValueError):
+        w = np.array(np.nan)
     if w.shape not in ((), (3,)) or not np.all(np.isfinite(w) & (w > 0)):
         raise ValueError(f"meta '{key}' = {meta[key]!r}; allowed: one positive number or three")
-    return np.broadcast_to(w, (3,))
+    w = np.broadcast_to(w, (3,))
+    if given is not None and not np.allclose(w, given, rtol=1e-9, atol=0):
+        cal = ", ".join(f"{x:.10g}" for x in np.broadcast_to(np.asarray(given, dtype=float), (3,)) / factor)
+        raise ValueError(f"meta '{key}' = {meta[key]!r} and the calibration file's pulse weight [{cal}] differ; "
+                         "allowed: one pulse weight (or only one of them)")
+    return w
 
 
 def _read_csv(path):
@@ -339,11 +351,13 @@ def _read_npz(path):
     return out
 
 
-def load_rawlog(path, meta=None, *, check=True):
+def load_rawlog(path, meta=None, *, check=True, pulse_weights=None):
     """Read a raw log (``.npz`` or ``.csv``, either CSV form); ``meta`` entries override the
     file's metadata.
 
-    ``check`` also runs :func:`check_rawlog` (dead channels, units).
+    ``check`` also runs :func:`check_rawlog` (dead channels, units). ``pulse_weights =
+    (gyro, accel)`` (rad, m/s; one number or three each; the lab calibration's) convert a
+    pulse-count CSV whose sidecar gives no weights; a sidecar weight that differs is an error.
 
     Raises
     ------
@@ -378,8 +392,9 @@ def load_rawlog(path, meta=None, *, check=True):
                     k, j = np.argwhere(frac)[0]
                     raise ValueError(f"sample index {k}, column {PULSE_COLUMNS[1 + j]}: {counts[k, j]!r} is not a "
                                      "whole number; allowed: pulse counts")
-                gyro = counts[:, :3] * _weights(file_meta, "gyro_pulse_arcsec", units.ARCSEC)
-                accel = counts[:, 3:] * _weights(file_meta, "accel_pulse_mps", 1.0)
+                wg, wa = (None, None) if pulse_weights is None else pulse_weights
+                gyro = counts[:, :3] * _weights(file_meta, "gyro_pulse_arcsec", units.ARCSEC, wg)
+                accel = counts[:, 3:] * _weights(file_meta, "accel_pulse_mps", 1.0, wa)
             else:
                 raise ValueError(f"header {header}; allowed: {list(CSV_COLUMNS)} or {list(PULSE_COLUMNS)} (the "
                                  "encoder as encoder_rad or encoder_deg)")

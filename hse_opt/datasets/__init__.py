@@ -14,7 +14,14 @@ from importlib import resources
 
 from ..data import Runs, load_runs
 
-__all__ = ["paper_table1", "paper_table1_path", "example_campaign"]
+__all__ = ["paper_table1", "paper_table1_path", "example_campaign", "calibration_example_path"]
+
+
+def calibration_example_path():
+    """The path of ``calibration_example.toml`` inside the installed package (a ``pathlib.Path``
+    or a resource path): an example ``CALIBRATION.toml``, the lab calibration of the paper-like
+    default system (``docs/calibration.md``; :func:`hse_opt.align.load_calibration`)."""
+    return resources.files(__name__).joinpath("calibration_example.toml")
 
 
 def paper_table1_path():

@@ -16,18 +16,20 @@ imu
 campaign
     :func:`run_campaign` (Plan -> Runs of :mod:`hse_opt.data`, parallel, Dask),
     :func:`simulate_run`, :func:`simulate_heading_error` (noise-free, one error source at a
-    time), :func:`align_config_from_truth` (the processor of a simulated system). The command ``hse-opt simulate`` is :mod:`hse_opt.app.commands.simulate`.
+    time), :func:`lab_calibration` and :func:`align_config_from_truth` (the lab calibration
+    and the processor of a simulated system). The command ``hse-opt simulate`` is
+    :mod:`hse_opt.app.commands.simulate`.
 """
 from hse_opt.align import (AlignConfig, AlignHistory, AlignResult, RawLog, align, check_rawlog, load_rawlog,
                            save_rawlog, triad, validate_rawlog)
-from hse_opt.sim.campaign import (RunResult, align_config_from_truth, default_align_config, run_campaign,
-                                  simulate_alignment, simulate_heading_error, simulate_run)
+from hse_opt.sim.campaign import (RunResult, align_config_from_truth, default_align_config, lab_calibration,
+                                  run_campaign, simulate_alignment, simulate_heading_error, simulate_run)
 from hse_opt.sim.imu import generate, true_attitude
 from hse_opt.sim.truth import Harmonic, RunSpec, TruthConfig, load_truth, save_truth
 
 __all__ = [
     "AlignConfig", "AlignHistory", "AlignResult", "align", "triad", "RunResult",
-    "align_config_from_truth", "default_align_config", "run_campaign", "simulate_alignment",
+    "align_config_from_truth", "default_align_config", "lab_calibration", "run_campaign", "simulate_alignment",
     "simulate_heading_error", "simulate_run", "generate",
     "true_attitude", "RawLog", "check_rawlog", "load_rawlog", "save_rawlog", "validate_rawlog",
     "Harmonic", "RunSpec", "TruthConfig", "load_truth", "save_truth",

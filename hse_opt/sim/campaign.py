@@ -8,8 +8,8 @@
   (:mod:`hse_opt.align.processor`), a :class:`RunResult`.
 * :func:`simulate_heading_error` -- the noise-free heading error of one configuration,
   the simulator side of the symbolic-vs-numeric comparison.
-* :func:`align_config_from_truth`, :func:`default_align_config` -- the processor's settings
-  for a simulated system.
+* :func:`lab_calibration`, :func:`align_config_from_truth`, :func:`default_align_config` --
+  the lab calibration of a simulated system and the processor's settings for it.
 
 The command line (``hse-opt simulate``) is :mod:`hse_opt.app.commands.simulate`; PLAN.csv and
 RUNS.csv are read and written by :mod:`hse_opt.data` only.
@@ -32,12 +32,12 @@ import numpy as np
 from hse_opt import units
 from hse_opt.align.rotations import wrap_angle
 from hse_opt.data import DataError, Plan, Runs
-from hse_opt.align import AlignConfig, align
+from hse_opt.align import LabCalibration, align
 from hse_opt.align.batch import single_blas_thread
 from hse_opt.sim.imu import generate, true_attitude
 from hse_opt.sim.truth import RunError, RunSpec, TruthConfig, gyro_matrices, validate_run
 
-__all__ = ["RunResult", "simulate_run", "simulate_alignment", "align_config_from_truth",
+__all__ = ["RunResult", "simulate_run", "simulate_alignment", "lab_calibration", "align_config_from_truth",
            "default_align_config", "simulate_heading_error", "run_campaign"]
 
 #: covariate column the simulator adds to RUNS (the run's mean IMU temperature)
@@ -56,16 +56,34 @@ def _tuning_truth(truth):
                                     "pulse_mps": d.accel.pulse}})
 
 
-def align_config_from_truth(truth, **overrides):
-    """The processor of a simulated system (:class:`hse_opt.align.AlignConfig`): its *calibrated*
-    parameters (K~_g, C~_s^b; accelerometers taken as ideal) and its sensors' specified noise
-    as tuning; ``overrides`` replace any field."""
+def lab_calibration(truth):
+    """The lab calibration of a simulated system (what ``CALIBRATION.toml`` would hold for it).
+
+    The lab estimates, not the truth: the calibrated K~_g = (I + Lambda) K_g (Eq. 1) and
+    C~_s^b = (I - [xi x]) C_s^b(r_zb_s_calibrated) (Eq. 2), whose errors eps, xi are what the
+    HSE calibration finds; the accelerometers as ideal (K_a = I: the truth's accelerometer
+    scale factors and misalignments are residuals the lab left); the nominal pulse weights
+    (where the truth quantizes), the sensors' specified noise and the site latitude.
+
+    Returns
+    -------
+    hse_opt.align.LabCalibration
+    """
     mats = gyro_matrices(truth)
-    kw = dict(K_g_cal=mats["K_g_cal"], C_s_b_cal=mats["C_s_b_cal"], A_acc_cal=np.eye(3),
-              latitude=truth.site.latitude, arw=truth.gyro.arw, vrw=truth.accel.vrw,
-              gyro_pulse=truth.gyro.pulse, accel_pulse=truth.accel.pulse)
+    return LabCalibration(K_g=mats["K_g_cal"], K_a=np.eye(3), C_s_b=mats["C_s_b_cal"],
+                          gyro_pulse=truth.gyro.pulse or None, accel_pulse=truth.accel.pulse or None,
+                          arw=truth.gyro.arw, vrw=truth.accel.vrw, latitude=truth.site.latitude,
+                          source="<lab calibration of the simulated system>")
+
+
+def align_config_from_truth(truth, **overrides):
+    """The processor of a simulated system (:class:`hse_opt.align.AlignConfig`): its lab
+    calibration (:func:`lab_calibration`) with the truth's pulse weights (0: none) as tuning,
+    and no latitude of its own (each log's ``latitude_deg``, which :func:`generate` writes);
+    ``overrides`` replace any field."""
+    kw = dict(gyro_pulse=truth.gyro.pulse, accel_pulse=truth.accel.pulse, latitude=None)
     kw.update(overrides)
-    return AlignConfig(**kw)
+    return lab_calibration(truth).align_config(**kw)
 
 
 def default_align_config(truth):

@@ -29,12 +29,17 @@ DESCRIPTION = (
     "columns gyro_arw_dph_rthz (angle random walk, deg/h/sqrt(Hz), as TRUTH.toml's "
     "arw_dph_rthz), gyro_bias_instability_dph, gyro_quantization_arcsec, gyro_rrw_dph_rth, "
     "accel_vrw_ug_rthz, accel_bias_instability_ug and accel_quantization_mps (means over the "
-    "three sensors), and the campaign's pooled figures are printed; without --truth the "
-    "filter is tuned from the logs' pooled figures.")
-INPUTS = ("logs", "truth", "mapping")
+    "three sensors), and the campaign's pooled figures are printed. The lab calibration "
+    "applied is --calibration CAL.toml (docs/calibration.md; `hse-opt simulate "
+    "--write-calibration` writes a simulated system's), or --truth TRUTH.toml (a simulated "
+    "system's), else the orthogonal system with the paper's ideal mount (K_g = K_a = I, every "
+    "gyro axis at 54.74 deg from the rotation axis); unless the calibration file has a [noise] "
+    "section (or --truth is given) the filter is tuned from the logs' pooled figures.")
+INPUTS = ("logs", "truth", "calibration", "mapping")
 OUTPUTS = {"output": FILE}
 EXAMPLE = """examples:
   hse-opt align logs/ -o RUNS.csv --jobs 2
+  hse-opt align logs/ -o RUNS.csv --calibration CALIBRATION.toml
   hse-opt align logs/ -o RUNS.csv --dask tcp://scheduler:8786
   hse-opt align run_01.npz run_02.csv -o RUNS.csv --truth TRUTH.toml --latitude-deg 28.07
   hse-opt align stand_logs/ --mapping counter_stand.toml -o RUNS.csv"""
@@ -46,12 +51,20 @@ _MAPPED_SUFFIXES = (".csv", ".txt", ".dat")
 def add_arguments(parser):
     parser.add_argument("logs", nargs="+", metavar="LOG", help="raw-log files or directories of them")
     parser.add_argument("-o", "--output", metavar="RUNS.csv", required=True, help="results to write")
-    parser.add_argument("--truth", metavar="TRUTH.toml",
-                        help="the system whose lab calibration (K~_g, C~_s^b) and sensor noise the "
-                             "processor applies (default: the paper-like system's calibration, the "
-                             "filter's noise from each log's own Allan analysis)")
+    calib = parser.add_mutually_exclusive_group()
+    calib.add_argument("--calibration", metavar="CAL.toml",
+                       help="the system's lab calibration: [gyro] K_g (gyro outputs -> s), [accel] K_a "
+                            "(accelerometer outputs -> s), [mount] C_s_b (s -> b) or r_zb_s, optionally "
+                            "pulse weights, [noise] (else the filter is tuned from the logs) and [site] "
+                            "latitude_deg (docs/calibration.md; e.g. --calibration CALIBRATION.toml; "
+                            "default: the orthogonal system with the paper's ideal mount)")
+    calib.add_argument("--truth", metavar="TRUTH.toml",
+                       help="a simulated system: its lab calibration (K~_g, C~_s^b) and sensor noise "
+                            "(e.g. --truth TRUTH.toml; hse_opt/datasets/truth_default.toml is the "
+                            "paper-like system)")
     parser.add_argument("--latitude-deg", type=float, metavar="L",
-                        help="latitude for every log (default: each log's latitude_deg metadata)")
+                        help="latitude for logs without latitude_deg metadata (the log's wins; a log whose "
+                             "latitude_deg differs is an error naming both), e.g. --latitude-deg 28.07")
     parser.add_argument("--mapping", metavar="MAP.toml",
                         help="read every log as a test stand's own CSV through this mapping file (column "
                              "names, units, time base, pulse weights, encoder counts per revolution, signs "
@@ -87,22 +100,33 @@ def run(args):
     from tqdm import tqdm
 
     from ... import units
-    from ...data import save_runs
-    from ...sim import TruthConfig
+    from ...align import LabCalibration, load_calibration
     from ...align.batch import align_logs, runs_from_rows
     from ...align.noise import combine_noise
-    from ...sim.campaign import default_align_config
+    from ...align.processor import LATITUDE_TOL_DEG
+    from ...data import save_runs
 
     if args.jobs < 1:
         raise ValueError(f"--jobs {args.jobs}: allowed: an integer >= 1")
     if args.latitude_deg is not None and not abs(args.latitude_deg) < 89.0:
         raise ValueError(f"--latitude-deg {args.latitude_deg:g}: allowed: |latitude| < 89 deg")
-    try:
-        truth = TruthConfig.from_toml(args.truth) if args.truth else TruthConfig.default()
-    except OSError as err:
-        raise ValueError(f"{args.truth}: cannot read the truth: {err.strerror or err}") from None
-    latitude = None if args.latitude_deg is None else float(args.latitude_deg) * units.DEG
-    config = dataclasses.replace(default_align_config(truth), latitude=latitude)
+    if args.truth:
+        from ...sim import TruthConfig
+        from ...sim.campaign import default_align_config
+        try:
+            truth = TruthConfig.from_toml(args.truth)
+        except OSError as err:
+            raise ValueError(f"{args.truth}: cannot read the truth: {err.strerror or err}") from None
+        config, weights, from_data = default_align_config(truth), None, False
+    else:
+        cal = load_calibration(args.calibration) if args.calibration else LabCalibration.orthogonal()
+        config, weights = cal.align_config(), cal.pulse_weights
+        from_data = cal.arw is None and cal.vrw is None    # tuning from data
+    if args.latitude_deg is not None:
+        if config.latitude is not None and abs(config.latitude / units.DEG - args.latitude_deg) > LATITUDE_TOL_DEG:
+            raise ValueError(f"--latitude-deg {args.latitude_deg:g} and site.latitude_deg "
+                             f"{config.latitude / units.DEG:.10g} of {args.calibration} differ; allowed: one latitude")
+        config = dataclasses.replace(config, latitude=float(args.latitude_deg) * units.DEG)
     mapping = None
     if args.mapping:
         from ...align.mapping import load_mapping
@@ -111,7 +135,7 @@ def run(args):
     with dask_client(args.dask) as client, tqdm(total=len(paths), unit="log", desc="align", file=sys.stderr,
                                                 disable=None if args.progress else True) as bar:
         rows, errors = align_logs(paths, config, jobs=args.jobs, client=client, mapping=mapping,
-                                  tune_from_data=args.truth is None,
+                                  tune_from_data=from_data, pulse_weights=weights,
                                   progress=lambda done, total: bar.update(done - bar.n))
     for err in errors:
         message(f"hse-opt align: error: {' '.join(err.split())}")

@@ -16,12 +16,14 @@ DESCRIPTION = (
     "azimuth, labelled P1, P2, ...) keeps its true heading to itself, and RUNS.csv carries the "
     "alignment's own heading_deg and the position instead of azimuth_deg and "
     "heading_err_arcsec (kept for the positions named in --surveyed). --raw-logs DIR also writes "
-    "every run's raw log, for hse-opt align.")
+    "every run's raw log, for hse-opt align; --write-calibration CAL.toml the system's lab "
+    "calibration for it (hse-opt align --calibration CAL.toml).")
 INPUTS = ("plan", "truth")
-OUTPUTS = {"output": FILE, "write_truth": FILE, "raw_logs": ()}  # raw logs: a folder, any names
+# raw logs: a folder, any names
+OUTPUTS = {"output": FILE, "write_truth": FILE, "write_calibration": FILE, "raw_logs": ()}
 EXAMPLE = """examples:
   hse-opt simulate PLAN.csv -o RUNS.csv --seed 1 --jobs 2
-  hse-opt simulate FIELD_PLAN.csv -o RUNS.csv --field --surveyed A --raw-logs logs/
+  hse-opt simulate FIELD_PLAN.csv -o RUNS.csv --field --surveyed A --raw-logs logs/ --write-calibration CAL.toml
   hse-opt simulate PLAN.csv --truth TRUTH.toml -o RUNS.csv --dask tcp://scheduler:8786"""
 
 
@@ -35,6 +37,11 @@ def add_arguments(parser):
     add_dask_argument(parser)
     parser.add_argument("--write-truth", metavar="FILE",
                         help="also write the truth used, every key, to FILE (TOML)")
+    parser.add_argument("--write-calibration", metavar="CAL.toml",
+                        help="also write the simulated system's lab calibration (its calibrated K~_g and "
+                             "C~_s^b, ideal accelerometers, pulse weights, noise, latitude; "
+                             "docs/calibration.md) for hse-opt align --calibration, e.g. "
+                             "--write-calibration CAL.toml")
     parser.add_argument("--field", action="store_true",
                         help="a field campaign: the positions' true headings are hidden from RUNS.csv")
     parser.add_argument("--surveyed", metavar="LABELS", default="",
@@ -76,6 +83,10 @@ def run(args):
     _io("write", "runs", save_runs, args.tx.path("output"), runs)
     if args.write_truth:
         _io("write", "truth", truth.to_toml, args.tx.path("write_truth"))
+    if args.write_calibration:
+        from ...align import save_calibration
+        from ...sim import lab_calibration
+        _io("write", "calibration", save_calibration, args.tx.path("write_calibration"), lab_calibration(truth))
     logs = f"; raw logs in {args.raw_logs}" if args.raw_logs else ""
     message(f"hse-opt simulate: {len(runs)} runs written to {args.output}{logs}")
     return 0
