@@ -179,7 +179,7 @@ def test_pulse_weights_of_the_file_convert_a_pulse_count_log(tmp_path):
     import json
     truth = TruthConfig.default()
     spec = RunSpec(rate=40 * units.DEG_PER_S, azimuth=0.3, duration=20.0)
-    log = generate(truth, spec, np.random.default_rng(4))
+    log = generate(truth, spec, np.random.default_rng(6))
     path = tmp_path / "r.csv"
     save_rawlog(log, path, pulse_weights=(truth.gyro.pulse, truth.accel.pulse))
     meta = json.loads((tmp_path / "r.csv.json").read_text())
