@@ -195,7 +195,7 @@ def align_logs(paths, config, jobs=1, progress=None, client=None, *, mapping=Non
         first = _map(_noise_one, paths, config, jobs,
                      None if report is None else (lambda done, total: report(done // 2, total)), client, mapping,
                      pulse_weights=pulse_weights)
-        noise = {p: f for p, f, _ in first.values() if f is not None}
+        noise = {p: first[p][1] for p in paths if first[p][1] is not None}   # in path order: pooled alike
         if noise:
             config = dataclasses.replace(config, **combine_noise(noise.values()).tuning())
         progress = None if report is None else (lambda done, total: report((total + done) // 2, total))
