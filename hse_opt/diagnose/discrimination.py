@@ -29,9 +29,12 @@ def discriminating_runs(runs, fit_a, fit_b, k=3):
         ``rate_dps, azimuth_deg, t_start_s, duration_s`` (``pitch_arcsec, roll_arcsec`` when the
         tilt is known; covariates by name), ``pred_a_arcsec``, ``pred_b_arcsec``, ``share``
         (the design's fraction of new runs there) and ``separation`` (the difference of the
-        predictions in sigmas of run noise and both fits' prediction uncertainty).
+        predictions in sigmas of run noise and both fits' prediction uncertainty). Empty when
+        the design's convex program has no solution (e.g. a field campaign whose positions'
+        unknown headings leave the lack of fit unbounded on the candidates): no proposal
+        rather than a made-up one; the diagnosis still names the pair.
     """
-    from ..design import LackOfFit, approximate_design
+    from ..design import DesignError, LackOfFit, approximate_design
 
     grid = _candidate_grid(runs, fit_a, fit_b)
     sigma_run = float(np.median(fit_a.sigma))
@@ -50,7 +53,10 @@ def discriminating_runs(runs, fit_a, fit_b, k=3):
 
     A, preds, var = rows(grid)
     A0 = rows(runs)[0]
-    design = approximate_design(A, LackOfFit(), prior=A0.T @ A0)
+    try:
+        design = approximate_design(A, LackOfFit(), prior=A0.T @ A0)
+    except DesignError:
+        return []
     sep = np.abs(preds[0] - preds[1]) / np.sqrt(sigma_run ** 2 + var)
     support = design.support[np.argsort(-design.runs[design.support], kind="stable")]
     out = []
