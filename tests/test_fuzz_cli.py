@@ -222,6 +222,11 @@ def option_case(rng):
         ("demo:--seed", ["demo", "--seed", str(rng.choice(["-1", "x", "1e3"])), "--out", "D"]),
         ("export:-o", ["export", "{FIT}", "-o", str(rng.choice(["{FIT}", "{T1}", "nodir/x", "/dev/null"]))]),
         ("align:logs", ["align", str(rng.choice(["{T1}", "nofile.npz", "{DIR}", "/dev/zero"])), "-o", "R.csv"]),
+        ("calibrate:logs", ["calibrate", str(rng.choice(["{T1}", "nofile.npz", "{DIR}", "/dev/zero"])), "--out",
+                            "CAL", "--no-progress"]),
+        ("calibrate:numbers", ["calibrate", "{DIR}", "--out", str(rng.choice(["CAL", "{T1}", "{DIR}"])),
+                               str(rng.choice(["--time-left-h", "--target-sigma", "--jobs", "--poll-s"])),
+                               str(rng.choice(BAD_NUMBERS))]),
         ("any:-o", [str(rng.choice(["fit", "compensate", "simulate"])), "{IN}", "-o",
                     str(rng.choice(["{IN}", "{HARD}", "{SYM}", "nodir/x.csv", "{DIR}", "/dev/null", "", "x/"]))]),
     ]
@@ -364,7 +369,8 @@ def test_malformed_options(work):
 
 def test_every_command_is_fuzzed():
     """The fuzz covers every registered command (a new command must be added here)."""
-    fuzzed = {"fit", "compensate", "simulate", "design", "diagnose", "demo", "export", "align", "config"}
+    fuzzed = {"fit", "compensate", "simulate", "design", "diagnose", "demo", "export", "align", "config",
+              "calibrate"}
     assert set(COMMANDS) <= fuzzed, set(COMMANDS) - fuzzed
 
 

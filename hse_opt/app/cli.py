@@ -14,7 +14,8 @@ import warnings
 from hse_opt.interrupts import Terminated, check as check_interrupt, handling as handling_signals
 
 #: command modules, in the order ``--help`` lists them
-COMMANDS = ("demo", "design", "simulate", "align", "fit", "compensate", "diagnose", "export", "config")
+COMMANDS = ("demo", "calibrate", "design", "simulate", "align", "fit", "compensate", "diagnose", "export",
+            "config")
 
 
 class _Parser(argparse.ArgumentParser):

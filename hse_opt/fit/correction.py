@@ -76,8 +76,14 @@ def compensation(runs, fit_result, parameters=None):
     if fit_result.tilt_known and runs.pitch is None:
         raise ValueError(f"{runs.source}: the calibration was fitted with known tilt; compensating "
                          "needs each run's pitch_arcsec/roll_arcsec (Eq. 14 uses C23 from leveling)")
+    return compensation_at(mm.inputs_from_runs(runs), fit_result, parameters)
+
+
+def compensation_at(X, fit_result, parameters=None):
+    """:func:`compensation` at run inputs ``X`` (measurement-model order, SI; shape (n_x, n)):
+    the modelled heading error (rad) and its 1-sigma (rad), each shape (n,)."""
+    mm = fit_result.measurement
     use, p = compensation_point(fit_result, parameters)
-    X = mm.inputs_from_runs(runs)
     correction = mm.predict(p, X)
     Jd = mm.jacobian(p, X)[:, use] * mm.scale[use][None, :]
     C = np.asarray(fit_result.covariance)[np.ix_(use, use)]

@@ -5,7 +5,8 @@ A command module declares what it reads and writes::
 
     INPUTS = ("runs", "prior")                    # argparse dests holding input paths
     OUTPUTS = {"output": FILE, "report": REPORT}  # dest -> FILE, or the file names a folder gets
-                                                  # (or a function returning them)
+                                                  # (or a function returning them; a name
+                                                  # ending in "/" is a subfolder, replaced whole)
 
 and :func:`hse_opt.cli.main` opens a :class:`Transaction` around ``run(args)``:
 
@@ -56,6 +57,20 @@ def _same(a, b):
         return os.path.samefile(a, b)
     except OSError:
         return False
+
+
+def _replace_folder(src, dst):
+    """Put folder ``src`` (when it exists) in the place of folder ``dst`` (removed when ``src``
+    does not exist): the old one is renamed aside first, then removed."""
+    from ..data import temp_path
+    old = None
+    if os.path.isdir(dst):
+        old = temp_path(dst)
+        os.rename(dst, old)
+    if os.path.isdir(src):
+        os.rename(src, dst)
+    if old is not None:
+        shutil.rmtree(old, ignore_errors=True)
 
 
 class Transaction:
@@ -127,6 +142,11 @@ class Transaction:
                 written = [os.path.join(target, f) for f in files]
             for w in written:
                 with contextlib.suppress(FileNotFoundError):
+                    if w.endswith("/"):  # a subfolder of a folder output
+                        if not stat.S_ISDIR(os.stat(w).st_mode):
+                            raise ValueError(f"{opt} {path}: {w.rstrip('/')} exists and is not a folder; allowed: "
+                                             "a new path or a folder to replace")
+                        continue
                     if not stat.S_ISREG(os.stat(w).st_mode):
                         raise ValueError(f"{opt} {path}: {w} exists and is not a regular file; allowed: a "
                                          "new path or a regular file to replace")
@@ -174,7 +194,9 @@ class Transaction:
                 else:
                     for name in files:
                         src = os.path.join(tmp, name)
-                        if os.path.exists(src):
+                        if name.endswith("/"):
+                            _replace_folder(src.rstrip("/"), os.path.join(target, name.rstrip("/")))
+                        elif os.path.exists(src):
                             os.replace(src, os.path.join(target, name))
                         else:
                             with contextlib.suppress(FileNotFoundError):
