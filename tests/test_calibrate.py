@@ -227,7 +227,7 @@ def test_watch_reads_each_new_log_once_whole_and_stops_on_ctrl_c(campaigns, tmp_
 
 def test_watch_stops_at_the_target(campaigns, tmp_path):
     env = {**os.environ, "PYTHONPATH": os.pathsep.join(sys.path)}
-    done = subprocess.run([sys.executable, "-m", "hse_opt.cli", "calibrate", str(campaigns["surveyed"]), "--out",
+    done = subprocess.run([sys.executable, "-m", "hse_opt.cli", "calibrate", str(campaigns["field"]), "--out",
                            str(tmp_path / "s"), "--watch", "--poll-s", "0.1", "--target-sigma", "1000"],
                           capture_output=True, text=True, env=env, timeout=180)
     assert done.returncode == 0, done.stderr

@@ -15,9 +15,16 @@
    (:mod:`hse_opt.fit.export_vectors`).
 5. **Plan the rest** of the campaign for the time left, continuing it
    (:func:`hse_opt.design.sequential.next_runs`: the runs so far, their measured tilts and
-   times since power-on, the fit's estimate): ``runs[0]`` is the next alignment.
-6. **Verdict**: ``usable`` when the final model is fitted, the diagnosis finds it adequate
-   and (with ``target_sigma``) the sigma of lambda2 is at most the target; else ``not yet``
+   times since power-on, the fit's estimate, the model extended by the effects that are a
+   systematic risk to lambda2, step 6): ``runs[0]`` is the next alignment.
+6. **Systematic risk**: what the campaign cannot rule out (:func:`hse_opt.aliasing.alias_budget`):
+   each missing catalogue effect at the edge of its plausible range, its power under the
+   diagnosis's own test and the shift it would cause in every parameter; a parameter's
+   ``systematic`` is the largest shift of an effect the runs would not detect that exceeds its
+   statistical sigma. lambda2's total uncertainty is the two in quadrature.
+7. **Verdict**: ``usable`` when the final model is fitted, the diagnosis finds it adequate, no
+   calibrated parameter (those the exported C compensates) carries a systematic risk, and
+   (with ``target_sigma``) the total sigma of lambda2 is at most the target; else ``not yet``
    with every reason in words.
 
 :func:`write_outputs` writes the report and the data into a folder (:data:`OUTPUT_FILES`);
@@ -98,6 +105,9 @@ class SessionResult:
     notes : tuple of str
     seconds : dict
         Wall time of each step, s.
+    budget : hse_opt.aliasing.AliasBudget or None
+        What the campaign cannot rule out: each missing catalogue effect's detectability and
+        the shift it would cause in every parameter (None without a fit).
     """
 
     logs: tuple
@@ -114,6 +124,7 @@ class SessionResult:
     time_left: float
     notes: tuple = ()
     seconds: dict = field(default_factory=dict)
+    budget: object = None
 
     @property
     def fit(self):
@@ -132,8 +143,13 @@ class SessionResult:
         if self.fit is None:
             return {}
         out = {}
+        b = self.budget
         for name, d in self.fit.to_dict()["parameters"].items():
             d = dict(d)
+            if "systematic" not in d and b is not None and name in b.names:
+                i = b.names.index(name)
+                d["systematic"] = float(b.systematic[i])
+                d["systematic_by"] = {e: float(v) for e, v in b.systematic_by[i].items()}
             d.setdefault("systematic", None)
             std, sys_ = d.get("std"), d.get("systematic")
             d["total"] = None if std is None else float(np.hypot(std, sys_ or 0.0))
@@ -275,7 +291,7 @@ def calibrate(logs, *, config=None, effects=(), time_left_h=DEFAULT_TIME_LEFT_H,
         plan of the rest stops once it is predicted.
     progress : callable, optional
         ``progress(step, done, total)``: ``step`` a short name ("align", "fit and diagnose",
-        "export", "plan"); steps without sub-steps report ``(step, 0, 1)`` as they start.
+        "systematic risk", "plan"); steps without sub-steps report ``(step, 0, 1)`` as they start.
     cache : dict, optional
         Aligned logs by path, reused while a log's file is unchanged (and filled): what
         :func:`watch` passes so that each update aligns only the new logs.
@@ -337,33 +353,55 @@ def calibrate(logs, *, config=None, effects=(), time_left_h=DEFAULT_TIME_LEFT_H,
     seconds["fit and diagnose"] = time.perf_counter() - t0
 
     t0 = time.perf_counter()
+    step("systematic risk")
+    budget = None
+    if steps:
+        from ..aliasing import alias_budget
+        budget = alias_budget(steps[-1].fit, runs, tests=steps[-1].n_tests)
+    seconds["systematic risk"] = time.perf_counter() - t0
+
+    t0 = time.perf_counter()
     step("plan")
-    continuation = _plan(runs, steps, model, time_left, target_sigma, costs, notes)
+    continuation = _plan(runs, steps, model, time_left, target_sigma, costs, notes, budget)
     seconds["plan"] = time.perf_counter() - t0
 
     result = SessionResult(tuple(paths), tuple(rows), tuple(errors), runs, _campaign(runs), steps, failure,
-                           continuation, "not yet", (), target_sigma, time_left, tuple(notes), seconds)
+                           continuation, "not yet", (), target_sigma, time_left, tuple(notes), seconds, budget)
     reasons = _reasons(result)
     return SessionResult(**{**result.__dict__, "verdict": "not yet" if reasons else "usable",
                             "reasons": tuple(reasons)})
 
 
-def _plan(runs, steps, model, time_left, target_sigma, costs, notes):
+def _plan(runs, steps, model, time_left, target_sigma, costs, notes, budget=None):
     """The rest of the campaign (:func:`hse_opt.design.sequential.next_runs`) for the final
-    model at its estimate (the nominal values without a fit)."""
+    model at its estimate (the nominal values without a fit), extended by every effect that is
+    a systematic risk to lambda2 (``budget``): the criterion is lambda2's sigma with them
+    estimated too, so the plan prefers the runs that separate lambda2 from them - the runs
+    that rule them out."""
     from ..design.sequential import next_runs
     from ..information import UnidentifiableError
+    from ..model import as_model
     kw = dict(costs=costs, target_sigma=target_sigma)
     if steps:
         f = steps[-1].fit
-        kw.update(values=dict(zip(f.names, f.values)), free=[n for n, fr in zip(f.names, f.free) if fr],
+        risky = _risks_to(budget, TARGET)
+        model = as_model([*f.model.effect_names, *risky])
+        new = [q.name for q in model.measurement(f.tilt_known).params if q.name not in f.names]
+        kw.update(values=dict(zip(f.names, f.values)), free=[n for n, fr in zip(f.names, f.free) if fr] + new,
                   tilt_known=f.tilt_known, sigma=f.sigma)
-        model = f.model
     try:
         return next_runs(runs, model, time_left, **kw)
     except (ValueError, UnidentifiableError, np.linalg.LinAlgError) as err:
         notes.append(f"the rest of the campaign could not be planned: {' '.join(str(err).split())}")
         return None
+
+
+def _risks_to(budget, name):
+    """The effects that are a systematic risk to parameter ``name`` (worst first)."""
+    if budget is None or name not in budget.names:
+        return []
+    by = budget.systematic_by[budget.names.index(name)]
+    return sorted(by, key=lambda e: -by[e])
 
 
 def _reasons(result):
@@ -381,9 +419,20 @@ def _reasons(result):
                        "run the next plan")
         else:
             out.append(f"the runs show an effect the model lacks ({best}) that the refinement did not add")
+    elif d.verdict == "inconclusive":
+        out.append("the diagnosis is inconclusive: the model fits, but effects this campaign cannot detect "
+                   "could move a calibrated parameter by more than its sigma")
     elif d.verdict != "adequate":
         out.append(f"the diagnosis says '{d.verdict}': the residuals follow a pattern no catalogue effect "
                    "explains (see the evidence)")
+    if r.budget is not None:
+        from ..fit.correction import compensated_parameters
+        calibrated = set(compensated_parameters(r.fit))
+        values = r.fit.values
+        for line, name in zip(r.budget.sentences(values), [n for n, by in zip(r.budget.names, r.budget.systematic_by)
+                                                           if by]):
+            if name in calibrated:
+                out.append(f"systematic risk (what this campaign cannot rule out): {line}")
     value, std, sys_, total, unit = r.target()
     if value is None or total is None or not np.isfinite(total):
         out.append(f"{TARGET} is not estimated by these runs")

@@ -128,6 +128,8 @@ class Continuation:
     plan : hse_opt.data.Plan or None
         ``runs`` as a PLAN table (None when empty).
     notes : tuple of str
+    effects : tuple of str
+        The model whose information was counted.
     """
 
     runs: tuple
@@ -138,6 +140,7 @@ class Continuation:
     time_left: float
     plan: Plan | None
     notes: tuple = ()
+    effects: tuple = ()
 
     @property
     def next(self):
@@ -148,7 +151,7 @@ class Continuation:
         return {"target": self.target, "unit": self.unit, "sigma_now": _finite(self.sigma_now),
                 "sigma_end": _finite(self.sigma_end), "time_left_h": self.time_left / units.HOUR,
                 "n_runs": len(self.runs), "next": None if self.next is None else self.next.to_dict(),
-                "notes": list(self.notes)}
+                "effects": list(self.effects), "notes": list(self.notes)}
 
 
 def _finite(x):
@@ -412,7 +415,7 @@ def next_runs(runs, model, time_left, *, values=None, free=None, tilt_known=None
         for j, (i, az, r) in enumerate(zip(sel, azs, rs)):
             last_of_block = j == sel.size - 1
             var_j = v if last_of_block else np.inf
-            chosen.append(NextRun(None if sv_ else label, new and j == 0, sv_, float(np.degrees(az)) % 360.0,
+            chosen.append(NextRun(None if sv_ else label, new and j == 0, sv_, round(float(np.degrees(az)) % 360.0, 6),
                                   float(r / units.DEG_PER_S), duration, float(starts[i]),
                                   float(np.sqrt(var_j)) if np.isfinite(var_j) else np.inf))
         if new:
@@ -435,4 +438,4 @@ def next_runs(runs, model, time_left, *, values=None, free=None, tilt_known=None
             **({"position": [c.position or "stand" for c in chosen]} if field else {})},
             source="<sequential plan>", min_rate_dps=0.0, allow_small_azimuths=True)
     return Continuation(tuple(chosen), target, unit, float(np.sqrt(var_now)), float(np.sqrt(var)),
-                        float(time_left), plan, tuple(notes))
+                        float(time_left), plan, tuple(notes), tuple(model.effect_names))

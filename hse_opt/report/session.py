@@ -30,12 +30,25 @@ def _uncertainty(result):
     if value is None:
         return "lambda2 is not estimated yet."
     text = f"lambda2 = {value:.4g} +- {std:.2g} {unit} (statistical, 1-sigma)"
-    if sys_ is not None:
+    if sys_ == 0:
+        text += ("; no systematic risk: no effect this campaign would miss moves it by more than its "
+                 "sigma")
+    elif sys_ is not None:
         text += (f"; systematic up to {sys_:.2g} {unit} from effects this campaign cannot rule out; "
                  f"total +- {total:.2g} {unit}")
     else:
         text += "; no systematic budget was computed for it"
     return text + "."
+
+
+def _with_risks(result):
+    """How the plan's sigma of lambda2 is meant: which effects it estimates besides the model."""
+    c = result.continuation
+    fitted = () if result.fit is None else result.fit.model.effect_names
+    extra = [e for e in c.effects if e not in fitted]
+    if not extra:
+        return " (statistical)"
+    return f" (statistical, with {', '.join(extra)} - a systematic risk now - estimated too)"
 
 
 def summary_lines(result):
@@ -61,7 +74,7 @@ def summary_lines(result):
         now = f"{c.sigma_now:.3g}" if np.isfinite(c.sigma_now) else "not estimable"
         lines.append(f"Next alignment: {c.next.describe()}. The plan for the "
                      f"{c.time_left / units.HOUR:.3g} h left ({len(c.runs)} alignments, NEXT_PLAN.csv) "
-                     f"takes sigma(lambda2) from {now} to {end} {c.unit} (statistical).")
+                     f"takes sigma(lambda2) from {now} to {end} {c.unit}{_with_risks(r)}.")
     elif c is not None:
         lines.append("Next alignment: " + ("; ".join(c.notes) or "none") + ".")
     return lines
@@ -127,8 +140,9 @@ def next_section(result):
                                                        "(see the notes of Raw logs)."])
     text = (f"Next alignment: {c.next.describe()}. Each following alignment is the one that adds the most "
             f"precision to lambda2 per hour of stand time, counting the runs so far (their measured tilts "
-            f"and times since power-on) at the current estimate; {len(c.runs)} alignments fit the "
-            f"{c.time_left / units.HOUR:.3g} h left (NEXT_PLAN.csv).")
+            f"and times since power-on) at the current estimate, in the model {' + '.join(c.effects)}"
+            f"{_with_risks(result)}; {len(c.runs)} alignments fit the {c.time_left / units.HOUR:.3g} h left "
+            "(NEXT_PLAN.csv).")
     section = plan_section(c.plan, "The next plan", text)
     rows = [[str(i + 1), html.escape(run.describe()), _cell(run.t_start_s / units.HOUR),
              _cell(run.sigma_after if np.isfinite(run.sigma_after) else None)]

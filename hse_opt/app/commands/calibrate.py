@@ -73,7 +73,7 @@ def add_arguments(parser):
 
 
 def _effects(text):
-    from ..model import as_model
+    from ...model import as_model
     names = [e.strip() for e in text.split(",") if e.strip()]
     try:
         as_model(["hse", *names])
@@ -121,7 +121,7 @@ def run(args):
     if args.json:
         print_json(data)
     else:
-        from ..report.session import summary_lines
+        from ...report.session import summary_lines
         lines = summary_lines(result)
         print(f"hse-opt calibrate: {lines[0]}")
         print("\n".join(f"  {ln}" for ln in lines[1:]))

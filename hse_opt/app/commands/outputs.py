@@ -62,7 +62,7 @@ def _same(a, b):
 def _replace_folder(src, dst):
     """Put folder ``src`` (when it exists) in the place of folder ``dst`` (removed when ``src``
     does not exist): the old one is renamed aside first, then removed."""
-    from ..data import temp_path
+    from ...data import temp_path
     old = None
     if os.path.isdir(dst):
         old = temp_path(dst)
