@@ -9,12 +9,14 @@ beside the exported C (:func:`hse_opt.fit.export.export_calibration`):
     order of ``in[]``, ``calibration.json``'s ``inputs``), then ``correction_rad``,
     ``sigma_rad`` and ``status``; one row per vector, every number with 17 significant digits
     (exact round trip of a double). The vectors are the calibration runs' own inputs (up to
-    :data:`N_INSIDE`, spread over the runs: status 0) and, for each checked input, the first
-    run with that input moved far outside the validity range (status: its bit), plus one with
-    the sense of rotation the runs never used where there is one. The expected outputs come
-    from the measurement model the fit used (:func:`hse_opt.fit.correction.compensation_at`:
-    minus the modelled heading error, and its 1-sigma from the covariance), not from the C;
-    the expected status from :class:`hse_opt.fit.export.Validity`, the rule the C implements.
+    :data:`N_INSIDE`, spread over the runs: status 0) and, for each quantity of the validity
+    domain (:mod:`hse_opt.fit.domain`), the first run moved far outside it (``|rate|``, time,
+    duration or a covariate ten times the domain's width beyond it; C23 by the heading where it
+    is farthest from the domain, when one leaves it), each input with a model limit at twice
+    it, and the sense of rotation the runs never used where there is one. The expected outputs come from the measurement model the fit used
+    (:func:`hse_opt.fit.correction.compensation_at`: minus the modelled heading error, and
+    its 1-sigma from the covariance), not from the C; the expected status from
+    :meth:`hse_opt.fit.domain.Domain.status`, the rule the C implements.
 ``test_hse_compensation.c``
     A C99 driver: reads the CSV, calls ``hse_compensation`` on each row and compares; prints
     one line per disagreement and a last line ``N of M test vectors agree``; exits 0 when all
@@ -51,14 +53,8 @@ ABS_TOL_RAD = 1e-6 * units.ARCSEC
 REL_TOL = 1e-8
 VECTORS_NAME = "test_vectors.csv"
 DRIVER_NAME = "test_hse_compensation.c"
-#: how far outside its validity range a checked input is moved: this many times the range's width
+#: how far outside its domain interval a quantity is moved: this many times the interval's width
 _OUTSIDE = 10.0
-
-
-def _validity(fit_result, X):
-    from .export import Validity
-    names = RUN_FIELDS + tuple(fit_result.measurement.covariates)
-    return Validity.from_inputs(X, names, fit_result.tilt_known)
 
 
 def vectors(fit_result, inputs=None):
@@ -81,25 +77,43 @@ def vectors(fit_result, inputs=None):
     """
     from .correction import compensation_at
 
+    from .domain import Domain
+    from ..model.inputs import RunInputs
+
     X0 = np.asarray(fit_result.inputs if inputs is None else inputs, dtype=float)
-    validity = _validity(fit_result, X0)
+    domain = Domain.from_fit(fit_result, X0)
     n = X0.shape[1]
     pick = np.unique(np.linspace(0, n - 1, min(n, N_INSIDE)).round().astype(int))
     cols = [X0[:, i] for i in pick]
     first = X0[:, 0]
-    for k in np.flatnonzero(validity.checked):
+    ix = RunInputs.INDEX
+    for k, nm in enumerate(domain.bounded):
         x = first.copy()
-        width = max(float(validity.upper[k] - validity.lower[k]), 1e-3 * max(abs(float(validity.upper[k])), 1.0))
-        far = float(validity.upper[k]) + _OUTSIDE * width
-        x[k] = np.copysign(far, first[0]) if k == 0 else far    # the rate's range is of |rate|
+        width = max(float(domain.upper[k] - domain.lower[k]), 1e-3 * max(abs(float(domain.upper[k])), 1.0))
+        far = float(domain.upper[k]) + _OUTSIDE * width
+        if nm == "rate":
+            x[0] = np.copysign(far, first[0])                  # the domain is of |rate|
+        elif nm == "c23":   # the heading where C23 = -roll cos + pitch sin is largest, if outside
+            pitch, roll = x[ix["pitch"]], x[ix["roll"]]
+            x[ix["azimuth"]] = np.mod(np.arctan2(pitch, -roll), 2 * np.pi)
+            if np.hypot(pitch, roll) <= domain.upper[k]:
+                x[ix["azimuth"]] += np.pi                       # the smallest, then
+                if -np.hypot(pitch, roll) >= domain.lower[k]:
+                    continue                                    # no heading leaves the domain
+        else:
+            x[domain.names.index(nm)] = far
         cols.append(x)
-    if len(validity.senses) == 1:
+    for nm, limit in domain.limited().items():                  # beyond a model limit
+        x = first.copy()
+        x[ix[nm]] = 2.0 * limit
+        cols.append(x)
+    if len(domain.senses) == 1:
         x = first.copy()
         x[0] = -x[0]
         cols.append(x)
     X = np.array(cols).T
     heading_err, sigma = compensation_at(X, fit_result)
-    return X, -heading_err, sigma, validity.status(X).astype(int)
+    return X, -heading_err, sigma, domain.status(X).astype(int)
 
 
 def _unit_name(unit):
