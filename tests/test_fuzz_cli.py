@@ -188,6 +188,58 @@ def mutate_json(text, rng):
     return "json:" + kind, json.dumps(d).encode()
 
 
+def tamper_json(text, rng):
+    """(class, bytes) of a FIT.json whose numbers were edited so that they disagree (each
+    must be refused: exit 2 naming the field; hse_opt/fit/file.py)."""
+    d = json.loads(text)
+    kind = rng.choice(["p_si", "value", "covariance", "std", "asymmetric", "correlation", "tilt_known",
+                       "free", "input"])
+    i = int(rng.integers(len(d["names"])))
+    name = d["names"][i]
+    if kind == "p_si":
+        d["p_si"][i] = float(rng.choice([1e308, -1e308, 1e3, d["p_si"][i] * 2 + 1e-3]))
+    elif kind == "value":
+        d["parameters"][name]["value"] = float(d["parameters"][name]["value"] + rng.choice([1.0, 1e3, -1e6]))
+    elif kind == "covariance":
+        d["covariance"][i][i] = float(rng.choice([1e308, 4.0 * d["covariance"][i][i] + 1.0]))
+    elif kind == "std":
+        d["parameters"][name]["std"] = float(d["parameters"][name]["std"] * 2 + 1.0)
+    elif kind == "asymmetric":
+        j = (i + 1) % len(d["names"])
+        d["covariance"][i][j] = float(d["covariance"][i][j] + 1.0 + abs(d["covariance"][i][j]))
+    elif kind == "correlation":
+        j = (i + 1) % len(d["names"])
+        d["correlation"][i][j] = d["correlation"][j][i] = 0.5 + 0.4 * float(rng.random())
+    elif kind == "tilt_known":
+        d["tilt_known"] = str(rng.choice(["no", "false", "0"]))
+    elif kind == "free":
+        d["parameters"][name]["free"] = str(rng.choice(["yes", "1"]))
+    else:
+        row = str(rng.choice(["rate", "latitude", "duration"]))
+        d["runs"]["inputs"][row][0] = float(rng.choice([-1e4, 1e308]))  # SI: beyond every physical range
+    return "tamper:" + kind, json.dumps(d).encode()
+
+
+#: hostile column names (hse_opt/names.py refuses them all)
+HOSTILE_NAMES = ["t*/x", "<script>alert(1)</script>", "temp c", "k-1", "a.b", "x" * 65, "\u00e9t\u00e9"]
+
+
+def hostile_header(text, rng):
+    """(class, bytes) of a CSV whose extra column (or an existing one) has a hostile name."""
+    rows = _csv_rows(text)
+    name = str(rng.choice(HOSTILE_NAMES))
+    quoted = '"' + name.replace('"', '""') + '"' if any(c in name for c in ',"') else name
+    if rng.random() < 0.5:
+        rows = [r + [quoted if k == 0 else "1.5"] for k, r in enumerate(rows)]
+    else:
+        rows[0][int(rng.integers(len(rows[0])))] = quoted
+    return "names:header", _csv_text(rows).encode()
+
+
+#: classes whose every case must be refused (exit 2): never an answer from edited numbers or names
+MUST_REFUSE = ("tamper:", "names:")
+
+
 # -- options --------------------------------------------------------------------------------
 BAD_NUMBERS = ["-1", "0", "nan", "inf", "-inf", "1e9", "1e999", "abc", "", "1e-300", "9" * 400]
 
@@ -323,7 +375,8 @@ def _argv_for(kind, name):
 FILE_CLASSES = [("csv-runs", "T1.csv", mutate_csv, 24, 11), ("csv-runs", "SHEET.csv", mutate_csv, 12, 12),
                 ("csv-plan", "PLAN.csv", mutate_csv, 14, 13), ("toml", "TRUTH.toml", mutate_toml, 12, 14),
                 ("toml-project", "PROJECT.toml", mutate_toml, 10, 17),
-                ("json", "FIT.json", mutate_json, 14, 15)]
+                ("json", "FIT.json", mutate_json, 14, 15), ("json", "FIT.json", tamper_json, 10, 18),
+                ("csv-runs", "T1.csv", hostile_header, 6, 19)]
 TALLY = Counter()
 
 
@@ -339,6 +392,7 @@ def test_malformed_files(work, kind, name, mutate, n, seed):
         for argv, outputs in _argv_for(kind, bad)[int(rng.integers(len(_argv_for(kind, bad)))):][:1]:
             code = run_case(work, argv, outputs)
             TALLY[(cls, argv[0], code)] += 1
+            assert code == 2 or not cls.startswith(MUST_REFUSE), f"{cls}: {argv} exit {code}"
             for o in outputs:  # the next case starts without this one's outputs
                 p = work / o
                 if p.is_dir():
