@@ -160,3 +160,33 @@ def test_fit_report_draws_the_papers_fig2_per_position():
         assert abs(slope[1]) < 1e-9
     section = fit_section(f, runs)
     assert any(getattr(b, "caption", "") == FIELD_LINE_CAPTION for b in section.blocks)
+
+
+@pytest.mark.parametrize("surveyed_b", [False, True])
+def test_compensate_names_what_its_numbers_are_on_a_field_campaign(tmp_path, capsys, surveyed_b):
+    """Without a reference the compensated numbers are each position's scatter about its own
+    mean, never a 'heading error' (issue 24 item 6); in a mixed campaign the surveyed runs'
+    heading error is summarised over those runs alone, as a hand computation from the file."""
+    import json
+
+    from hse_opt.cli import main
+    from hse_opt.data import load_runs, save_runs
+    runs = _campaign(np.random.default_rng(5), surveyed_b=surveyed_b)
+    save_runs(runs, tmp_path / "RUNS.csv")
+    assert main(["fit", str(tmp_path / "RUNS.csv"), "-o", str(tmp_path / "FIT.json")]) == 0
+    capsys.readouterr()
+    argv = ["compensate", str(tmp_path / "RUNS.csv"), "--fit", str(tmp_path / "FIT.json"), "-o"]
+    assert main([*argv, str(tmp_path / "C.csv")]) == 0
+    text = capsys.readouterr().out
+    assert "scatter about each position's mean" in text
+    assert ("heading error" in text.replace("heading errors are unknown", "")) == surveyed_b, text
+    assert main([*argv, str(tmp_path / "C2.csv"), "--json"]) == 0
+    got = json.loads(capsys.readouterr().out)
+    assert "unsurveyed" in got and ("surveyed" in got) == surveyed_b
+    if surveyed_b:
+        back = load_runs(tmp_path / "C.csv")
+        b = back.surveyed
+        err_as = back.heading_err[b] / units.ARCSEC
+        assert got["surveyed"]["before"]["rms_arcsec"] == pytest.approx(np.sqrt(np.mean(err_as ** 2)), rel=1e-9)
+        comp = np.asarray(back.covariates["heading_err_comp_arcsec"], float)[b]
+        assert got["surveyed"]["after"]["rms_arcsec"] == pytest.approx(np.sqrt(np.mean(comp ** 2)), rel=1e-9)

@@ -61,22 +61,38 @@ def run(args):
     group, positions = runs.reference_groups()
     for k in range(len(positions)):   # an unsurveyed position: its scatter about its own mean
         after[group == k] -= after[group == k].mean()
+    # what the numbers are: a heading error needs a reference; without one, only each
+    # position's scatter about its own (unknown) mean heading is known
+    surveyed = np.ones(len(runs), bool) if runs.surveyed is None else np.asarray(runs.surveyed)
+    parts = {}
+    if surveyed.any():
+        parts["surveyed"] = {"n_runs": int(surveyed.sum()), "measure": "heading error (against the stand azimuth)",
+                             "before": _stats(before[surveyed]), "after": _stats(after[surveyed])}
+    if not surveyed.all():
+        parts["unsurveyed"] = {"n_runs": int((~surveyed).sum()), "positions": list(positions),
+                               "measure": "heading scatter about each position's mean heading (no reference: "
+                                          "each position's own heading error is unknown)",
+                               "before": _stats(before[~surveyed]), "after": _stats(after[~surveyed])}
     summary = {"n_runs": len(runs), "fit": args.fit, "output": args.output,
                "parameters": list(compensated_parameters(calibration)),
-               "before": _stats(before), "after": _stats(after),
+               "before": _stats(before), "after": _stats(after), **parts,
                "comp_std_mean_arcsec": float(np.mean(out.covariates[COMPENSATION_STD_COLUMN])),
                "outside_domain": [int(runs.run[i]) for i in outside]}
     if args.json:
         print_json(summary)
     else:
-        b, a = summary["before"], summary["after"]
         print(f"hse-opt compensate: {args.runs}: {len(runs)} runs with {args.fit} "
               f"({', '.join(summary['parameters'])})")
-        print(f"  heading error RMS {b['rms_arcsec']:.4g} -> {a['rms_arcsec']:.4g} arcsec, "
-              f"peak-to-peak {b['ptp_arcsec']:.4g} -> {a['ptp_arcsec']:.4g} arcsec")
+        for key, what in (("surveyed", "heading error"), ("unsurveyed", "heading scatter about each position's mean")):
+            if key not in parts:
+                continue
+            b, a = parts[key]["before"], parts[key]["after"]
+            where = "" if len(parts) == 1 else f" ({parts[key]['n_runs']} {key} runs)"
+            print(f"  {what}{where}: RMS {b['rms_arcsec']:.4g} -> {a['rms_arcsec']:.4g} arcsec, "
+                  f"peak-to-peak {b['ptp_arcsec']:.4g} -> {a['ptp_arcsec']:.4g} arcsec")
         print(f"  compensation 1-sigma (calibration uncertainty): mean "
               f"{summary['comp_std_mean_arcsec']:.3g} arcsec")
         if positions:
-            print(f"  positions without a heading reference ({', '.join(positions)}): their heading "
-                  "errors about each position's mean heading, before and after")
+            print(f"  positions without a heading reference ({', '.join(positions)}): their true heading "
+                  "errors are unknown; the scatter shows how consistent each position's headings became")
     return 0
