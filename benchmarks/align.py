@@ -1,7 +1,9 @@
 """``hse-opt align`` benchmark (issue 13, item 4): prints its figures.
 
 1. The alignment of one 10-minute 500 Hz raw log (the paper-like default system, 40 deg/s),
-   reading excluded (target <= 20 ms), and the reading of its ``.npz`` file.
+   reading excluded (target <= 20 ms); its quality checks (``hse_opt.align.quality.assess``)
+   and Allan analysis (``hse_opt.align.noise.noise_from_log``), which ``hse-opt align`` adds
+   (issue 25: together <= 50 % of the alignment); the reading of its ``.npz`` file.
 2. ``hse-opt align DIR -o RUNS.csv --jobs N`` on a directory of 100 such logs, end to end as
    a user runs it (a fresh process: start-up, reading, checks, alignment, RUNS.csv), in logs
    per second (target >= 40 with ``--jobs 2`` on the project's 2-core machine). The
@@ -21,6 +23,8 @@ import time
 
 import numpy as np
 
+from hse_opt.align.noise import noise_from_log
+from hse_opt.align.quality import assess
 from hse_opt.sim import (AlignConfig, RunSpec, TruthConfig, align, align_config_from_truth, generate, load_rawlog,
                          save_rawlog)
 from hse_opt.units import DEG_PER_S
@@ -32,11 +36,20 @@ def one_log(repeats, path):
                    np.random.default_rng(0))
     cfg = align_config_from_truth(truth)
     align(log, cfg)                                   # warm-up
-    ta = []
-    for _ in range(repeats):
+    assess(log)
+    noise_from_log(log)
+    ta, tq, tn = [], [], []
+    for _ in range(repeats):                          # interleaved: a busy machine slows all three alike
         t0 = time.perf_counter()
         align(log, cfg)
-        ta.append(time.perf_counter() - t0)
+        t1 = time.perf_counter()
+        assess(log)
+        t2 = time.perf_counter()
+        noise_from_log(log)
+        t3 = time.perf_counter()
+        ta.append(t1 - t0)
+        tq.append(t2 - t1)
+        tn.append(t3 - t2)
     save_rawlog(log, path)
     load_rawlog(path)
     tr = []
@@ -47,6 +60,11 @@ def one_log(repeats, path):
     print(f"one 10-minute 500 Hz log ({len(log)} samples, {repeats} repeats; median [min]):")
     print(f"  align (reading excluded) : {1e3 * statistics.median(ta):6.1f} ms  [{1e3 * min(ta):.1f}]  "
           "(target <= 20 ms)")
+    added = (statistics.median(tq) + statistics.median(tn)) / statistics.median(ta)
+    added_min = (min(tq) + min(tn)) / min(ta)
+    print(f"  quality checks           : {1e3 * statistics.median(tq):6.1f} ms  [{1e3 * min(tq):.1f}]")
+    print(f"  Allan analysis (noise)   : {1e3 * statistics.median(tn):6.1f} ms  [{1e3 * min(tn):.1f}]")
+    print(f"  checks + Allan / align   : {100 * added:6.0f} %  [{100 * added_min:.0f}]  (target <= 50 %)")
     print(f"  read .npz + checks       : {1e3 * statistics.median(tr):6.1f} ms  [{1e3 * min(tr):.1f}]")
 
 

@@ -30,7 +30,8 @@ Steps
    long cluster times: the bias's warm-up transient and temperature drift,
    table wobble at harmonics of the turn.
 3. Overlapping Allan deviation, vectorised numpy (:func:`allan_deviation`). Clusters of ``m``
-   blocks on a half-octave grid (``m = round(2^(j/2))``) up to half the record: for each the
+   blocks on an octave grid (``m = 2^j``; :func:`allan_deviation` alone defaults to half
+   octaves) up to half the record: for each the
    second difference of the cumulative sum ``theta`` of the residual,
    ``sigma^2(tau) = <(theta_{k+2m} - 2 theta_{k+m} + theta_k)^2> / (2 tau^2)``, ``tau = m
    tau0``, averaged over start points ``k`` taken every ``s = max(1, (n + 1 - 2m) //
@@ -46,7 +47,14 @@ Steps
    estimate's own variance (relative standard deviation ``sqrt(2 / (K - 1))`` of a
    chi-square with ``K - 1`` degrees of freedom, ``K`` the independent clusters; iterated
    three times with the fitted model in the weights, so that a low draw does not weigh
-   more). The terms (rate units; angle for a gyro, velocity for an accelerometer):
+   more). Where that fit misses its points by far more than their scatter (weighted
+   residuals above :data:`MISFIT` times their degrees of freedom) the model itself is off,
+   and the channel is refitted with the model's own error, :data:`MODEL_ERROR` (10 %) of
+   each variance, added in quadrature: the four terms idealise (a pulse counter that no
+   noise dithers - an accelerometer on a static base - has a quantization error that is not
+   white, and its shortest clusters sit up to 35 % below ``sqrt(3) Q / tau``; flicker bends),
+   and the few shortest points, each worth tens of thousands of clusters, would otherwise
+   decide the whole fit (simulated accelerometers: VRW 17 % high; refitted, 3 %). The terms (rate units; angle for a gyro, velocity for an accelerometer):
 
    ==================  =====  ===================================================
    term                slope  from the coefficient
@@ -86,9 +94,11 @@ from dataclasses import dataclass
 import numpy as np
 
 from hse_opt import units
+from hse_opt.align._angles import rotate
 
 __all__ = ["NoiseFigures", "noise_from_log", "combine_noise", "allan_deviation", "fit_allan",
-           "deterministic_residual", "Residual", "CHANNELS", "TERMS", "NOISE_COLUMNS", "BLOCK_PERIOD", "MAX_TERMS"]
+           "deterministic_residual", "Residual", "CHANNELS", "TERMS", "NOISE_COLUMNS", "BLOCK_PERIOD", "MAX_TERMS",
+           "MODEL_ERROR", "MISFIT"]
 
 #: the six channels, in this order in every (6, ...) array
 CHANNELS = ("gyro_x", "gyro_y", "gyro_z", "accel_x", "accel_y", "accel_z")
@@ -98,6 +108,12 @@ TERMS = ("quantization", "random_walk", "bias_instability", "rate_random_walk")
 BLOCK_PERIOD = 0.032
 #: at most about this many (at most twice) start points per cluster time
 MAX_TERMS = 2048
+#: relative 1-sigma of the four-term model itself, added in quadrature to each Allan
+#: variance's own in the fit's weights (module docstring, step 4)
+MODEL_ERROR = 0.1
+#: a fit whose weighted residuals exceed this many times their degrees of freedom is refitted
+#: with :data:`MODEL_ERROR` in its weights
+MISFIT = 10.0
 #: fewest blocks a log must have (a curve of at least 10 cluster times)
 MIN_BLOCKS = 32
 _POWERS = np.arange(-2, 2)
@@ -228,13 +244,54 @@ def _block_sums(x, stop, nb, block):
     return np.einsum("ijc->ci", x[1:stop].reshape(nb, block, 3))
 
 
-def _regressors(a0, a1, t0, t1, rate):
-    """The four regressors (module docstring, step 2) of the spans ``(t0, t1]`` with encoder
-    angles ``a0``, ``a1`` (rad), shape (spans, 4)."""
-    da, dt = a1 - a0, t1 - t0
-    am = 0.5 * (a0 + a1)
-    w = dt * np.sinc(da / (2.0 * np.pi))
-    return np.column_stack([dt, np.cos(am) * w, np.sin(am) * w, da - rate * dt])
+#: largest angle the series of :func:`_cos_sin_small` takes, rad (error |d|^7 / 5040 < 3e-9)
+_SERIES_MAX = 0.2
+#: entries of the short phase table of :func:`_cos_sin`
+_TABLE = 64
+
+
+def _cos_sin_small(d):
+    """``(cos d, sin d)`` by their series to d^6 when every ``|d| <= _SERIES_MAX``, else numpy's."""
+    if not np.abs(d).max(initial=0.0) <= _SERIES_MAX:      # (False for NaN too)
+        return np.cos(d), np.sin(d)
+    q = d * d
+    return 1.0 - q * (0.5 - q * (1.0 / 24.0 - q / 720.0)), d * (1.0 - q * (1.0 / 6.0 - q / 120.0))
+
+
+def _cos_sin(a):
+    """``(cos a, sin a)`` of angles (n,) that grow nearly linearly with their index (the
+    encoder at the block edges): the linear phase from two short tables of ``exp(i phase)``
+    (``_TABLE`` steps and every ``_TABLE``-th step; one complex outer product), the deviation
+    from it by series and the angle-addition formulas; numpy's cos and sin where the
+    deviation exceeds ``_SERIES_MAX`` (a stall, a table at rest). A tenth of numpy's cost."""
+    n = a.shape[0]
+    step = (a[-1] - a[0]) / max(n - 1, 1)
+    d = a - (a[0] + step * np.arange(n))
+    if not np.abs(d).max() <= _SERIES_MAX:
+        return np.cos(a), np.sin(a)
+    low = np.exp(1j * step * np.arange(_TABLE))
+    high = np.exp(1j * (a[0] + _TABLE * step * np.arange(-(-n // _TABLE))))
+    phase = np.multiply.outer(high, low).ravel()[:n]
+    cd, sd = _cos_sin_small(d)
+    c, s = rotate(phase.real, phase.imag, cd, sd, np.empty((2, n)), np.empty(n))
+    return c, s
+
+
+def _regressors(ce, se, da, dt, rate):
+    """The four regressors (module docstring, step 2) of spans with ``(cos, sin)`` of their
+    start angle ``ce``, ``se``, encoder turn ``da`` (rad) and length ``dt`` (s), shape
+    (4, spans): the cos/sin terms at the midpoint angle (angle addition with ``da / 2``)
+    times ``sinc(da / 2) dt``."""
+    X = np.empty((4,) + da.shape)
+    h = 0.5 * da
+    ch, sh = _cos_sin_small(h)
+    rotate(ce, se, ch, sh, X[1:3], X[3])
+    w = dt * np.divide(sh, h, out=np.ones_like(h), where=h != 0.0)
+    X[1:3] *= w
+    X[0] = dt
+    np.multiply(dt, -rate, out=X[3])
+    X[3] += da
+    return X
 
 
 @dataclass(frozen=True, eq=False)
@@ -254,6 +311,8 @@ class Residual:
         Omega dt`` (rad or m/s per s, per s, per s, per rad).
     rate : float
         Omega, the encoder's mean rate, rad/s.
+    edge_cos, edge_sin : numpy.ndarray, shape (nb + 1,)
+        cos and sin of the encoder angle at the block edges (samples 0, B, 2B, ...).
     """
 
     blocks: np.ndarray
@@ -261,11 +320,8 @@ class Residual:
     block: int
     coefficients: np.ndarray
     rate: float
-
-    def model(self, a0, a1, t0, t1):
-        """The fitted deterministic part over spans ``(t0, t1]`` (encoder angles ``a0``,
-        ``a1``), shape (6, spans)."""
-        return (_regressors(a0, a1, t0, t1, self.rate) @ self.coefficients).T
+    edge_cos: np.ndarray
+    edge_sin: np.ndarray
 
 
 def deterministic_residual(log, *, block_period=BLOCK_PERIOD):
@@ -300,43 +356,46 @@ def deterministic_residual(log, *, block_period=BLOCK_PERIOD):
     y = np.concatenate([_block_sums(log.gyro, stop, nb, block), _block_sums(log.accel, stop, nb, block)])
     a, te = enc[:stop:block], t[:stop:block]
     rate = float((a[-1] - a[0]) / (te[-1] - te[0]))
-    X = _regressors(a[:-1], a[1:], te[:-1], te[1:], rate)
-    norm = np.sqrt(np.einsum("ij,ij->j", X, X))
+    ce, se = _cos_sin(a)
+    X = _regressors(ce[:-1], se[:-1], np.diff(a), np.diff(te), rate)        # (4, nb)
+    # numpy's own loops, not BLAS: a sum over the record in one fixed order, whatever the
+    # threads (a batch gives the same bytes in one process, in workers or on a cluster)
+    G, H = np.einsum("ik,jk->ij", X, X), np.einsum("ik,jk->ij", X, y)
+    norm = np.sqrt(np.diagonal(G)).copy()
     norm[norm == 0] = 1.0
-    Xs = X / norm
-    G, H = Xs.T @ Xs, Xs.T @ y.T
-    ev, V = np.linalg.eigh(G)
+    ev, V = np.linalg.eigh(G / np.outer(norm, norm))                    # scaled columns
     keep = ev > 1e-12 * ev[-1]
-    coef = (V[:, keep] / ev[keep]) @ (V[:, keep].T @ H)
-    residual = y - (Xs @ coef).T
+    coef = ((V[:, keep] / ev[keep]) @ (V[:, keep].T @ (H / norm[:, None]))) / norm[:, None]
+    residual = y - coef.T @ X
     return Residual(blocks=residual, tau0=float((te[-1] - te[0]) / nb), block=block,
-                    coefficients=coef / norm[:, None], rate=rate)
+                    coefficients=coef, rate=rate, edge_cos=ce, edge_sin=se)
 
 
 def _short_allan(log, residual, sizes, max_terms):
     """Allan deviation at clusters shorter than a block (``sizes`` in samples), from the raw
-    increments at up to about ``max_terms`` start points each, the fitted deterministic part
-    taken over each cluster's own span (midpoint rule: over at most a block the table turns
-    a few degrees, and the rule's relative error ``d alpha^2 / 24`` is below 1e-4). Returns
-    ``(tau, adev (6, k), clusters)``."""
+    increments at up to about ``max_terms`` start points each (block edges, evenly spread),
+    the fitted deterministic part taken over each cluster's own span (midpoint rule: over at
+    most a block the table turns a few degrees, and the rule's relative error ``d alpha^2 /
+    24`` is below 1e-4). Returns ``(tau, adev (6, k), clusters)``."""
     t, enc = np.asarray(log.t, dtype=float), np.asarray(log.encoder, dtype=float)
     n = t.shape[0] - 1                                            # increments: rows 1..n
     dt = (t[-1] - t[0]) / n
     raw = (np.asarray(log.gyro).T, np.asarray(log.accel).T)       # (3, n + 1) each
-    coef = residual.coefficients.T                                # (6, 4)
+    coef, block = residual.coefficients.T, residual.block         # (6, 4)
     adev, clusters = np.empty((6, len(sizes))), np.empty(len(sizes))
     for i, m in enumerate(sizes):
-        span = n - 2 * m + 1
-        step = max(1, span // max_terms)
-        e = np.arange(0, span, step)
+        edges = (n - 2 * m) // block + 1                          # block edges a cluster pair fits after
+        b = np.arange(0, edges, max(1, edges // max_terms))
+        e = b * block
         rows = e[:, None] + 1 + np.arange(2 * m)                # (cnt, 2m)
         w = np.repeat([-1.0, 1.0], m)
         d = np.concatenate([np.take(x, rows, axis=1).reshape(-1, 2 * m) @ w for x in raw]).reshape(6, -1)
         a0, a1, a2 = enc[e], enc[e + m], enc[e + 2 * m]
-        t0, t1, t2 = t[e], t[e + m], t[e + 2 * m]
-        h1, h2 = t1 - t0, t2 - t1
-        m1, m2 = 0.5 * (a0 + a1), 0.5 * (a1 + a2)
-        dX = np.stack([h2 - h1, np.cos(m2) * h2 - np.cos(m1) * h1, np.sin(m2) * h2 - np.sin(m1) * h1,
+        h1, h2 = t[e + m] - t[e], t[e + 2 * m] - t[e + m]
+        ce, se = residual.edge_cos[b], residual.edge_sin[b]
+        (c1, s1), (c2, s2) = _cos_sin_small(0.5 * (a1 - a0)), _cos_sin_small(0.5 * (a1 + a2) - a0)
+        dX = np.stack([h2 - h1, (ce * c2 - se * s2) * h2 - (ce * c1 - se * s1) * h1,
+                       (se * c2 + ce * s2) * h2 - (se * c1 + ce * s1) * h1,
                        (a2 - a1) - (a1 - a0) - residual.rate * (h2 - h1)])
         d -= coef @ dX
         adev[:, i] = np.sqrt(np.einsum("ij,ij->i", d, d) / (2.0 * e.size)) / (m * dt)
@@ -415,6 +474,18 @@ def fit_allan(tau, adev, clusters, *, iterations=3):
     tau = np.asarray(tau, dtype=float)
     avar = np.atleast_2d(np.asarray(adev, dtype=float)) ** 2
     rel = np.sqrt(2.0 / np.maximum(np.asarray(clusters, dtype=float) - 1.0, 1.0))
+    coef, std, chi2 = _weighted_fit(tau, avar, rel, iterations)
+    misfit = chi2 > MISFIT
+    if misfit.any():
+        coef_m, std_m, _ = _weighted_fit(tau, avar[misfit], np.sqrt(rel ** 2 + MODEL_ERROR ** 2), iterations)
+        coef[misfit], std[misfit] = coef_m, std_m
+    return coef, std
+
+
+def _weighted_fit(tau, avar, rel, iterations):
+    """The non-negative weighted least squares of :func:`fit_allan` with relative 1-sigma
+    ``rel`` (k,) of each variance; returns ``(coef, std, chi2)``, ``chi2`` (c,) the weighted
+    residual sum of squares per degree of freedom."""
     T = tau[:, None] ** _POWERS[None, :]                     # (k, 4)
     mask = _SUBSETS                                           # (15, 4)
     both = mask[:, :, None] & mask[:, None, :]                # (15, 4, 4)
@@ -444,7 +515,8 @@ def fit_allan(tau, adev, clusters, *, iterations=3):
     cov = np.linalg.inv(Gm[np.arange(Gm.shape[0]), best])
     std = np.sqrt(np.maximum(np.diagonal(cov, axis1=1, axis2=2), 0.0)) / scale
     std = np.where(mask[best] & ~none[:, None], std, np.nan)
-    return coef, std
+    chi2 = np.sum(((avar - model) / (np.maximum(model, 1e-300) * rel)) ** 2, axis=1) / max(tau.size - 4, 1)
+    return coef, std, chi2
 
 
 def noise_from_log(log, *, block_period=BLOCK_PERIOD, max_terms=MAX_TERMS):
@@ -470,7 +542,8 @@ def noise_from_log(log, *, block_period=BLOCK_PERIOD, max_terms=MAX_TERMS):
     """
     res = deterministic_residual(log, block_period=block_period)
     short = [m for m in cluster_sizes(res.block, steps_per_octave=1).tolist() if m < res.block]
-    tau, adev, clusters = allan_deviation(res.blocks, res.tau0, max_terms=max_terms)
+    tau, adev, clusters = allan_deviation(res.blocks, res.tau0, max_terms=max_terms,
+                                          sizes=cluster_sizes(res.blocks.shape[1], steps_per_octave=1))
     if short:
         tau_s, adev_s, clusters_s = _short_allan(log, res, short, max_terms)
         tau, adev = np.concatenate([tau_s, tau]), np.concatenate([adev_s, adev], axis=1)
