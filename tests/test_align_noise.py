@@ -307,3 +307,34 @@ def _default_sigma(truth, d, tmp_path):
     assert main(["align", str(d), "-o", str(tmp_path / "dflt.csv"), "--no-progress",
                  "--truth", str(tmp_path / "DEFAULT.toml")]) == 0
     return load_runs(tmp_path / "dflt.csv").heading_std
+
+
+def test_align_report_plots_the_allan_curves_with_the_fitted_slopes(sim_logs, tmp_path):
+    import json
+    import re
+
+    from hse_opt.cli import main
+    from hse_opt.data import load_runs
+    from hse_opt.report import plot_allan
+    truth, d, _ = sim_logs
+    assert main(["align", str(d), "-o", str(tmp_path / "RUNS.csv"), "--no-progress", "--report",
+                 str(tmp_path / "rep")]) == 0
+    page = (tmp_path / "rep" / "report.html").read_text()
+    data = json.loads(re.search(r'id="hse-opt-data">(.*?)</script>', page, re.S).group(1))
+    section = data["Sensor noise (Allan deviation, IEEE Std 952)"]
+    runs = load_runs(tmp_path / "RUNS.csv")
+    # the page's per-log figures are the RUNS.csv columns; the pooled ARW is the truth's
+    for i, name in enumerate(sorted(section["logs"])):
+        assert section["logs"][name]["gyro_arw_dph_rthz"] == pytest.approx(runs.covariates["gyro_arw_dph_rthz"][i])
+    assert section["pooled"]["gyro_arw_dph_rthz"] == pytest.approx(0.05, rel=0.1)
+    assert page.count("data:image/svg+xml;base64,") == 1
+    # each dashed line is one fitted term alone: its log-log slope is the term's
+    figs = [noise_from_log(_sim_log(truth, seed)) for seed in (1, 2)]
+    fig = plot_allan(figs, combine_noise(figs))
+    slopes = set()
+    for ax in fig.axes:
+        for line in ax.get_lines():
+            if line.get_linestyle() == "--":
+                x, y = np.log(line.get_xdata()), np.log(line.get_ydata())
+                slopes.add(round(float((y[-1] - y[0]) / (x[-1] - x[0])), 6))
+    assert {-1.0, -0.5} <= slopes <= {-1.0, -0.5, 0.0, 0.5}

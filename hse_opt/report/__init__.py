@@ -25,6 +25,9 @@ Sections
 :func:`diagnosis_section`
     verdict and goodness of fit, the ranking of candidate effects, residual structure
     against each factor and in words, ambiguities, influential runs and outliers.
+:func:`noise_section`
+    the sensors' noise from the raw logs (``hse-opt align --report``): Allan deviation curves
+    with the fitted IEEE 952 terms as slope lines, the figures per log and pooled.
 :func:`design_section`, :func:`evaluation_section`
     a plan's runs over time (rate, azimuth, tilt) and its predicted sigmas against the
     paper's plan.
@@ -40,7 +43,8 @@ The package: :mod:`~hse_opt.report.page` (:class:`Section`, :class:`Figure`, the
 :mod:`~hse_opt.report.rules` (factors, groups, tilt setups), :mod:`~hse_opt.report.curves`
 (the model on made-up runs, the calibration line's slope), the plots and sections of a fit
 (:mod:`~hse_opt.report.fit_plots`, :mod:`~hse_opt.report.fit_sections`), a diagnosis
-(:mod:`~hse_opt.report.diagnosis`) and a plan (:mod:`~hse_opt.report.plan`); every public
+(:mod:`~hse_opt.report.diagnosis`), a plan (:mod:`~hse_opt.report.plan`) and the sensors'
+noise (:mod:`~hse_opt.report.noise`); every public
 name is re-exported here.
 """
 from __future__ import annotations
@@ -50,6 +54,7 @@ from .diagnosis import diagnosis_section, plot_candidates, plot_factor_tests
 from .fit_plots import (FIELD_LINE_CAPTION, plot_azimuth, plot_before_after, plot_calibration_line,
                         plot_field_line, plot_residuals)
 from .fit_sections import comparison_section, fit_section
+from .noise import noise_section, plot_allan
 from .page import REPORT_NAME, Figure, Section, render_html, text_section, write_report
 from .plan import design_section, evaluation_section, plan_section, plot_plan, plot_sigmas
 from .rules import SETUP_TOL, factors, tilt_setups
@@ -59,4 +64,5 @@ __all__ = ["Section", "Figure", "REPORT_NAME", "SETUP_TOL",
            "evaluation_section", "plan_section", "text_section", "render_html", "write_report",
            "plot_calibration_line", "plot_azimuth", "plot_residuals", "plot_before_after",
            "plot_candidates", "plot_factor_tests", "plot_plan", "plot_sigmas", "plot_field_line",
-           "FIELD_LINE_CAPTION", "factors", "tilt_setups", "slope_parts", "slope_caption"]
+           "FIELD_LINE_CAPTION", "factors", "tilt_setups", "slope_parts", "slope_caption", "noise_section",
+           "plot_allan"]

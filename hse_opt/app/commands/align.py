@@ -2,8 +2,8 @@
 import os
 import sys
 
-from . import add_dask_argument, dask_client, message
-from .outputs import FILE
+from . import add_dask_argument, add_report_argument, dask_client, message, write_report
+from .outputs import FILE, REPORT
 
 NAME = "align"
 HELP = "align raw logs (gyro/accelerometer/encoder records) into RUNS.csv, one row per log"
@@ -36,13 +36,14 @@ DESCRIPTION = (
     "gyro axis at 54.74 deg from the rotation axis); unless the calibration file has a [noise] "
     "section (or --truth is given) the filter is tuned from the logs' pooled figures.")
 INPUTS = ("logs", "truth", "calibration", "mapping")
-OUTPUTS = {"output": FILE}
+OUTPUTS = {"output": FILE, "report": REPORT}
 EXAMPLE = """examples:
   hse-opt align logs/ -o RUNS.csv --jobs 2
   hse-opt align logs/ -o RUNS.csv --calibration CALIBRATION.toml
   hse-opt align logs/ -o RUNS.csv --dask tcp://scheduler:8786
   hse-opt align run_01.npz run_02.csv -o RUNS.csv --truth TRUTH.toml --latitude-deg 28.07
-  hse-opt align stand_logs/ --mapping counter_stand.toml -o RUNS.csv"""
+  hse-opt align stand_logs/ --mapping counter_stand.toml -o RUNS.csv
+  hse-opt align logs/ -o RUNS.csv --report align_report   (HTML: the Allan curves, align_report/report.html)"""
 
 _SUFFIXES = (".npz", ".csv")
 _MAPPED_SUFFIXES = (".csv", ".txt", ".dat")
@@ -73,6 +74,7 @@ def add_arguments(parser):
                              ".txt and .dat files")
     parser.add_argument("--jobs", type=int, default=1, help="local worker processes (default 1)")
     add_dask_argument(parser)
+    add_report_argument(parser)
     parser.add_argument("--no-progress", dest="progress", action="store_false",
                         help="no progress bar on stderr")
 
@@ -152,6 +154,11 @@ def run(args):
     pooled = combine_noise(r["noise"] for r in rows)
     message(f"hse-opt align: noise (Allan, IEEE 952) over {pooled.n_logs} log{'s' if pooled.n_logs != 1 else ''}: "
             f"{pooled.summary()}")
+    if args.report:
+        from ...report import noise_section
+        write_report(args, [noise_section([r["noise"] for r in rows], pooled,
+                                          names=[os.path.basename(r["log"]) for r in rows])],
+                     f"hse-opt align: {len(rows)} log{'s' if len(rows) != 1 else ''}")
     bad = f"; {len(errors)} bad log{'s' if len(errors) != 1 else ''} (above) left out" if errors else ""
     message(f"hse-opt align: {len(runs)} of {len(paths)} logs aligned, written to {args.output}{bad}")
     return 2 if errors else 0
