@@ -96,6 +96,11 @@ class EffectRisk:
         The test's degrees of freedom (q, dof).
     level : float
         The test's level.
+    worst : numpy.ndarray, shape (n_p, q)
+        Per fitted parameter, the effect's values (display units) behind its ``shift``.
+    alias : numpy.ndarray, shape (n_p, q)
+        The alias matrix ``B``: shift of every fitted parameter per display unit of each of the
+        effect's parameters (0 rows for fixed parameters).
     """
 
     effect: str
@@ -110,6 +115,8 @@ class EffectRisk:
     full_shift: np.ndarray = None
     dof: tuple = ()
     level: float = 0.0
+    worst: np.ndarray = None
+    alias: np.ndarray = None
 
     @property
     def detectable(self):
@@ -200,9 +207,9 @@ class AliasBudget:
         for i, (name, unit, sd, by) in enumerate(zip(self.names, self.units, self.std, self.systematic_by)):
             if not by:
                 continue
-            head = f"{name} = {values[i]:.4g} +- {sd:.2g} {unit} statistical" if values is not None \
-                else f"{name} (+- {sd:.2g} {unit} statistical)"
-            parts = [f"{e}, {self.effect(e).threshold_text()}, could move it by up to {s:.2g} {unit}"
+            head = f"{name} = {values[i]:.4g} +- {sd:.3g} {unit} statistical" if values is not None \
+                else f"{name} (+- {sd:.3g} {unit} statistical)"
+            parts = [f"{e}, {self.effect(e).threshold_text()}, could move it by up to {s:.3g} {unit}"
                      for e, s in sorted(by.items(), key=lambda kv: -kv[1])]
             out.append(f"{head}; " + "; ".join(parts))
         return out
@@ -271,7 +278,8 @@ class _Campaign:
 
 
 def _assess(camp, A_E, V, dof_fit, level, alias=None):
-    """(power at the edge, threshold fraction, undetectable shifts (k,), edge shifts (k,), q).
+    """(power at the edge, threshold fraction, undetectable shifts (k,), edge shifts (k,), q,
+    the effect's values behind each undetectable shift (k, q)).
 
     ``A_E`` (n, q) weighted effect columns, ``V`` (q, m) the sizes to assess (the plausible
     box's vertices, :func:`_vertices`), ``dof_fit`` the fit's residual degrees of freedom,
@@ -283,11 +291,13 @@ def _assess(camp, A_E, V, dof_fit, level, alias=None):
         reach = np.where(lam > 0, np.sqrt(lam80 / np.where(lam > 0, lam, 1.0)), math.inf)
     scale = np.minimum(1.0, reach)  # each vertex scaled to the largest size the test misses
     least = int(np.argmin(power))
-    shift = full = None
+    shift = full = worst = None
     if alias is not None:
         BV = np.abs(alias(A_E) @ V)
-        shift, full = (BV * scale[None, :]).max(axis=1), BV.max(axis=1)
-    return float(power[least]), float(reach[least]), shift, full, q
+        scaled = BV * scale[None, :]
+        shift, full = scaled.max(axis=1), BV.max(axis=1)
+        worst = (V * scale[None, :])[:, np.argmax(scaled, axis=1)].T
+    return float(power[least]), float(reach[least]), shift, full, q, worst
 
 
 def alias_budget(fit_result, runs, effects=None, *, alpha=ALPHA, level=None, tests=None, jit=None):
@@ -374,11 +384,11 @@ def alias_budget(fit_result, runs, effects=None, *, alpha=ALPHA, level=None, tes
                 continue
             idx = [mm.parameter_index(q.name) for q in params]
             edge = tuple(max(abs(RANGES[q.name][0]), abs(RANGES[q.name][1])) for q in params)
-            power, thr, shift, full, q = _assess(camp, A_all[:, idx], _vertices(edge), int(f.dof), level,
-                                                  alias)
+            power, thr, shift, full, q, worst = _assess(camp, A_all[:, idx], _vertices(edge), int(f.dof),
+                                                         level, alias)
             out.append(EffectRisk(eff.name, tuple(q_.name for q_ in params), edge,
                                   tuple(q_.unit for q_ in params), True, "", power, thr, shift, full,
-                                  (q, int(f.dof) - q), level))
+                                  (q, int(f.dof) - q), level, worst, alias(A_all[:, idx])))
     out = [r if r.assessed else _blank(r, n_p, level) for r in out]
     out.sort(key=lambda r: (not r.assessed, wanted.index(r.effect)))
     systematic = zeros.copy()
@@ -480,8 +490,56 @@ def effect_power(model, X, effect, size=1.0, *, sigma, p=None, tilt_known=True, 
         V = _vertices(float(size) * edge)
     k = camp.Q.shape[1]
     dof_fit = n - k if dof is None else int(dof)
-    power, _, _, _, _ = _assess(camp, A_all[:, idx], V, dof_fit, level)
+    power = _assess(camp, A_all[:, idx], V, dof_fit, level)[0]
     return power
+
+
+def resolving_runs(fit_result, runs, risk, k=3):
+    """Runs that would resolve a systematic risk: those that best observe the combination this
+    campaign leaves unobserved -- the effect at the undetected size behind its largest shift
+    (relative to the parameter's sigma) together with the fitted parameters moved by its alias,
+    which changes no heading of these runs (:func:`hse_opt.information.separating_runs` over
+    both senses at the smallest and largest |rate|, azimuths every 45 deg, start times and,
+    for a level stand, a tilt).
+
+    Parameters
+    ----------
+    fit_result : FitResult
+    runs : hse_opt.data.Runs
+    risk : EffectRisk
+        An assessed effect of :func:`alias_budget` of this fit.
+    k : int
+        At most this many runs, best first.
+
+    Returns
+    -------
+    list of dict
+        As :func:`~hse_opt.information.separating_runs` (``rate_dps``, ``azimuth_deg``,
+        ``t_start_s``, ``pitch_arcsec``, ``roll_arcsec``, ``signal``, ``text``).
+    """
+    from .information import separating_runs
+
+    f = fit_result
+    std = np.asarray(f.std, float)
+    ratio = np.where(std > 0, risk.shift / np.where(std > 0, std, 1.0), 0.0)
+    i = int(np.argmax(ratio))
+    v = risk.worst[i]
+    mm = Model(f.model.effects + (make_effect(risk.effect),), f.model.geometry).measurement(f.tilt_known)
+    p = mm.nominal.copy()
+    for n, val in zip(f.names, f.p):
+        p[mm.parameter_index(n)] = val
+    fit_free = {n for n, fr in zip(f.names, f.free) if fr}
+    free = np.array([n in fit_free or n in risk.parameters for n in mm.names])
+    direction = np.zeros(len(mm.names))
+    shift = risk.alias @ v
+    for j, n in enumerate(mm.names):
+        if n in fit_free:
+            direction[j] = -shift[f.names.index(n)]
+        elif n in risk.parameters:
+            direction[j] = v[risk.parameters.index(n)]
+    X = mm.inputs_from_runs(runs)
+    return separating_runs(lambda Xc: mm.jacobian(p, Xc)[:, free], X, direction[free], mm.scale[free], k=k,
+                           tilt_known=f.tilt_known)
 
 
 def describe(budget, values=None):
@@ -498,4 +556,4 @@ def describe(budget, values=None):
 
 
 __all__ = ["ALPHA", "AliasBudget", "DEFAULT_TESTS", "EffectRisk", "POWER_LIMIT", "alias_budget", "describe",
-           "effect_power"]
+           "effect_power", "resolving_runs"]

@@ -7,8 +7,8 @@ its twin's TRUTH keys (:mod:`hse_opt.validation.twins`); and a campaign with not
 not a function of time since power-on), +-20/40/60 deg/s, 8 azimuths, the stand's tilt plus a
 0.5-deg tilt fixture per day; 64 runs of 300 s, sampled at 100 Hz instead of the paper's
 500 Hz (a third of the CPU; the effects' heading signatures agree to 0.003 arcsec and the
-noise to 1 %). ``refine`` diagnoses the paper's model and adds the suggested effects until the
-verdict is adequate.
+noise to 1 %). ``refine`` diagnoses the paper's model and adds the suggested effects until no test
+rejects.
 
 Noise level: the noise actually in the campaign - the campaign minus its noise-free twin, an
 independent reference the diagnosis never sees. The simulator draws the same noise whatever
@@ -34,7 +34,8 @@ campaign, so that a correct diagnosis fails the study's verdicts with probabilit
 Criteria, in every campaign: the paper's model is flagged missing-effect, the hidden effect
 ranks first, nothing is ambiguous and the RMS exceeds 1.2 x level (for the no-effect campaign:
 adequate at once); after refining, exactly the hidden effects were added, the RMS is within
-1.2 x level and the verdict is adequate.
+1.2 x level and no test rejects (the verdict adequate, or inconclusive when another effect
+these runs would miss could still move a parameter: hse_opt.aliasing).
 
 Seeds: the CI seed (6, the issue's number) was fixed before any trial. ``--seeds N`` runs
 seeds 6 .. 5 + N and prints the pass count: 12/12 seeds passed (``--seeds 12``, 190 s CPU).
@@ -122,7 +123,7 @@ def study(seed, alpha):
               f"{', '.join(added) or 'none'}")
         found = (not wanted or (first.verdict == "missing-effect" and top in wanted and first.ambiguous == ()
                                 and before > 1.2))
-        if not (found and set(added) == wanted and after <= 1.2 and last.verdict == "adequate"):
+        if not (found and set(added) == wanted and after <= 1.2 and last.fits):
             failed.append(hidden)
     return failed
 
@@ -142,7 +143,7 @@ def main(argv=None):
         if f:
             print(f"  seed {seed}: failed {', '.join(f)}")
     assert len(passed) == args.seeds, f"not found, added and brought to the noise: {failures}"
-    print("OK: every hidden effect found first, added, RMS within 20 % of the noise, verdict adequate")
+    print("OK: every hidden effect found first, added, RMS within 20 % of the noise, no test rejecting")
 
 
 if __name__ == "__main__":

@@ -93,7 +93,8 @@ def test_table1_identical_replicates_no_infinite_f_and_no_false_alarm(tmp_path):
     # 4 settings, 3 parameters: no test is possible (before: F = inf and missing-effect)
     stats = [t["statistic"] for t in d["factors"]] + [c["statistic"] for c in d["candidates"]]
     assert all(s is None or math.isfinite(s) for s in stats)
-    assert d["verdict"] == "adequate" and d["n_tests"] == 0
+    # nothing can be tested, so nothing is ruled out: inconclusive, never adequate
+    assert d["verdict"] == "inconclusive" and d["n_tests"] == 0
     assert any("4 measurements once, not the 12 rows" in n for n in d["notes"])
     assert any("no test is possible" in n for n in d["notes"])
 

@@ -24,7 +24,8 @@ def test_fit_json_and_compensate(tmp_path, capsys):
             "rms_arcsec"} <= set(d)
     assert d["effects"] == ["hse"] and d["n_runs"] == 12 and d["dof"] == 9
     assert d["parameters"]["lambda2*tilt_const"] == {"value": 0.0, "std": 0.0, "unit": "arcsec*mrad",
-                                                     "free": False, "lower": 0.0, "upper": 0.0}
+                                                     "free": False, "lower": 0.0, "upper": 0.0,
+                                                     "systematic": 0.0, "systematic_by": {}}
     # the fitted sinusoid against numpy's least squares on [1, cos, sin] of the azimuth:
     # at 40 deg/s one arcsec*mrad of lambda2*C23 is -lambda1 / (3 w_ie cos L) of heading
     runs = load_runs(TABLE1)
@@ -35,6 +36,19 @@ def test_fit_json_and_compensate(tmp_path, capsys):
     p = d["parameters"]
     assert p["lambda2*tilt_cos"]["value"] * k_arcsec == pytest.approx(coef[1], rel=1e-3)
     assert p["lambda2*tilt_sin"]["value"] * k_arcsec == pytest.approx(coef[2], rel=1e-3)
+    # the README's amplitude of the heading-sensitive sinusoid (3.3 +- 1.1 arcsec*mrad of lambda2 * C23):
+    # hypot of numpy's two coefficients, its sigma from numpy's covariance by the delta method
+    amp = np.hypot(coef[1], coef[2]) / abs(k_arcsec)
+    cov = np.linalg.inv(A.T @ A)[1:, 1:] / k_arcsec ** 2
+    g = coef[1:] / np.hypot(coef[1], coef[2])
+    a = d["tilt_amplitudes"]["lambda2"]
+    assert a["value"] == pytest.approx(amp, rel=1e-3) and round(a["value"], 1) == 3.3
+    assert a["unit"] == "arcsec*mrad" and round(a["std"], 1) == 1.1
+    s2 = d["parameters"]["lambda2*tilt_cos"]["std"] ** 2 / (cov[0, 0])       # the fit's sigma^2
+    assert a["std"] == pytest.approx(np.sqrt(s2 * g @ cov @ g), rel=1e-3)
+    assert main(["fit", TABLE1, "--fix", FIX]) == 0           # and in words, as the README quotes it
+    assert (f"heading-sensitive sinusoid lambda2 * C23 (tilt unknown): amplitude {a['value']:.3g} +- 1.1 "
+            "arcsec*mrad") in capsys.readouterr().out
     assert "wrote" in err
     out_csv = tmp_path / "OUT.csv"
     assert main(["compensate", TABLE1, "--fit", str(fit_path), "-o", str(out_csv), "--json"]) == 0
@@ -60,6 +74,7 @@ def test_readable_report_and_bounds(capsys):
 def test_fit_summary_is_the_commands_report(capsys):
     """The command prints its title and ``FitResult.summary()``; every parameter line shows the
     value and 1-sigma the JSON output carries (a separate serialisation of the same fit)."""
+    from hse_opt.aliasing import alias_budget
     from hse_opt.fit import fit
 
     argv = ["fit", TABLE1, "--fix", FIX, "--robust"]
@@ -67,7 +82,9 @@ def test_fit_summary_is_the_commands_report(capsys):
     out = capsys.readouterr().out.splitlines()
     assert main(argv + ["--json"]) == 0
     d = json.loads(capsys.readouterr().out)
-    result = fit(load_runs(TABLE1), fix={"lambda2*tilt_const": 0.0}, robust=True)
+    runs = load_runs(TABLE1)
+    result = fit(runs, fix={"lambda2*tilt_const": 0.0}, robust=True)
+    result = result.with_budget(alias_budget(result, runs))
     lines = result.summary()
     assert out == [f"hse-opt fit: {TABLE1}: {lines[0]}", *lines[1:]]
     rows = {line.split()[0]: line.split()[1:] for line in lines[4:8]}

@@ -126,9 +126,10 @@ def test_every_table_column_is_labelled_and_the_title_names_the_input(tmp_path):
         assert heads and all(h and all(cell.strip() for cell in h) for h in heads), heads
     # the Table 1 parameter table: a labelled state column, no sigma cell repeating "fixed"
     text = (tmp_path / "fit" / "report.html").read_text()
-    assert _headers(text)[0] == ["parameter", "value", "1-sigma", "unit", "state", "meaning"]
+    # (the fit command assesses the systematic: a column beside the 1-sigma)
+    assert _headers(text)[0] == ["parameter", "value", "1-sigma", "systematic", "unit", "state", "meaning"]
     row = re.findall(r"<td>(.*?)</td>", re.search(r'data-key="param:lambda2\*tilt_const">(.*?)</tr>', text).group(1))
-    assert row[2] != "fixed" and row[4] == "fixed"
+    assert row[2] != "fixed" and row[5] == "fixed"
     # a comparison of two fits: labelled too
     y = _runs()
     text = report.comparison_section(fit(y), fit(y, "hse,sync_delay"), y).html("s1")

@@ -10,7 +10,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from .. import units
-from .plausibility import judge
+from .plausibility import judge, moves
 from ..factors import is_derived
 from ..fit import FitResult, fit_profiled
 from ..information import UnidentifiableError, check_identifiable, weighted_jacobian
@@ -59,8 +59,11 @@ class Candidate:
     ambiguous_with : tuple of str
         Candidates that explain the data equally well (see :class:`Diagnosis`).
     plausibility : tuple of str
-        The refit's magnitudes beyond their physical range, and base parameters it moves by more
-        than 3 sigma (:mod:`.plausibility`); empty when plausible.
+        The refit's magnitudes beyond their physical range (:mod:`.plausibility`); empty when
+        plausible.
+    moves : tuple of str
+        Base parameters the refit moves by more than 3 of their sigmas: the effect's alias,
+        expected when it is real (:func:`.plausibility.moves`); no judgement.
     """
 
     effect: str
@@ -80,6 +83,7 @@ class Candidate:
     significant: bool = False
     ambiguous_with: tuple = ()
     plausibility: tuple = ()
+    moves: tuple = ()
 
     @property
     def rms_after_arcsec(self):
@@ -92,7 +96,7 @@ class Candidate:
                 "chi2_red_after": num(self.chi2_red_after), "significant": self.significant,
                 "testable": self.testable, "reason": self.reason, "parameters": list(self.parameters),
                 "held": list(self.held), "ambiguous_with": list(self.ambiguous_with),
-                "plausibility": list(self.plausibility),
+                "plausibility": list(self.plausibility), "moves": list(self.moves),
                 "description": self.description}
 
 
@@ -205,7 +209,7 @@ def _candidate(null, f0, runs, name, fix, refit):
             delta_bic = null.scale.bic(f1.residuals, f1.dof) - null.scale.bic(f0.residuals, f0.dof)
             cand = dataclasses.replace(cand, delta_bic=float(delta_bic), rms_after=float(
                 np.sqrt(np.mean(f1.residuals ** 2))), chi2_red_after=null.scale.chi2_red(f1.residuals, f1.dof),
-                fit=f1, plausibility=judge(f1, f0))
+                fit=f1, plausibility=judge(f1), moves=moves(f1, f0))
             nonlinear = [i for i in new if mm1.names[i] in mm1.nonlinear]
             if nonlinear:  # its signature at the fitted nonlinear values, for the comparisons
                 p_nl = p1.copy()

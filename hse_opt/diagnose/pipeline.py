@@ -8,10 +8,12 @@ import dataclasses
 import numpy as np
 from scipy import stats
 
+from ..aliasing import alias_budget, resolving_runs
 from ..fit import FitResult, fit_profiled
 from ..fit.checks import zero_scatter
 from ..model import as_model
-from .candidates import ambiguity, candidate_names, covariate_columns, rank, test_candidates
+from .candidates import (AMBIGUOUS_DELTA_BIC, ambiguity, candidate_names, covariate_columns, rank,
+                         test_candidates)
 from .discrimination import discriminating_runs
 from .factors import factor_tests
 from .result import Diagnosis
@@ -131,6 +133,14 @@ def diagnose(runs, model=None, *, fix=None, tilt_known=None, alpha=ALPHA, candid
                           for r in discriminating_runs(runs, by[ambiguous[0]].fit, by[b].fit, k=2))
     structure = sparse_structure(null, library, bases, alpha, level=level, run=f0.run)
     verdict = "missing-effect" if rejected else "adequate"
+    # what these runs cannot rule out: every catalogue effect not in the model, at the edge of its
+    # plausible range, under this diagnosis's own test and level (hse_opt.aliasing)
+    budget = alias_budget(f0, runs, level=level, alpha=alpha)
+    f0 = f0.with_budget(budget)
+    resolving = ()
+    if verdict == "adequate":
+        verdict, more, resolving = _inconclusive(f0, runs, budget, cands, alpha, level, chi2_test)
+        notes += more
     if rejected and structure and _unexplained(structure[0], cands, bases, null):
         verdict = "unexplained structure"
         notes.append(f"unexplained structure: the strongest structure in the residuals ({structure[0].function}) "
@@ -144,8 +154,45 @@ def diagnose(runs, model=None, *, fix=None, tilt_known=None, alpha=ALPHA, candid
         influential=influential, chi2_test=chi2_test, lack_of_fit=lof, factors=factor_results,
         candidates=tuple(cands), structure=tuple(structure), ambiguous=tuple(ambiguous),
         proposals=proposals, verdict=verdict, n_tests=m,
-        notes=tuple(notes), likelihood=null.scale.text)
+        notes=tuple(notes), likelihood=null.scale.text, budget=budget, resolving=resolving)
 
+
+
+def _inconclusive(f0, runs, budget, cands, alpha, level, chi2_test):
+    """``('inconclusive', notes, resolving runs)`` when the model fits but these runs cannot rule
+    out what would move it: a systematic risk (an effect the test would miss that moves a
+    fitted parameter by more than its sigma), or a candidate the BIC strongly favours (Delta-BIC
+    below -:data:`~.candidates.AMBIGUOUS_DELTA_BIC`) whose test does not reject at the
+    family-wise level; else ``('adequate', notes, ())``. The notes also say why a chi-square
+    test that rejects alone at ``alpha`` leaves the verdict adequate (it is one test of the
+    family)."""
+    notes, resolving = [], []
+    if chi2_test is not None and level <= chi2_test.p_value < alpha:
+        notes.append(f"the chi-square test alone rejects at {alpha:g} (p = {chi2_test.p_value:.3g}; hse-opt fit "
+                     f"prints this p), but not at the family-wise level {level:.3g} = {alpha:g} / {round(alpha / level)} "
+                     "tests (Bonferroni) the verdict uses: the scatter is somewhat above the runs' own sigmas")
+    strong = [c for c in cands if c.testable and not c.significant and c.delta_bic is not None
+              and c.delta_bic <= -AMBIGUOUS_DELTA_BIC]
+    for c in strong:
+        notes.append(f"inconclusive: {c.effect} lowers the BIC by {-c.delta_bic:.3g} (strong evidence for it) but its "
+                     f"score test (p = {c.p_value:.3g}) does not reject at the family-wise level {level:.3g}: "
+                     "more runs would decide; fit with it to see what it changes")
+    free = np.asarray(f0.free, bool)
+    at_risk = [i for i in np.flatnonzero(free) if f0.systematic[i] > 0]
+    effects = []
+    for i in at_risk:
+        effects += [e for e in f0.systematic_by[i] if e not in effects]
+    for e in effects:
+        risk = budget.effect(e)
+        hit = [f"{f0.names[i]} by up to {f0.systematic_by[i][e]:.3g} {f0.units[i]} (its sigma {f0.std[i]:.3g})"
+               for i in at_risk if e in f0.systematic_by[i]]
+        runs_e = resolving_runs(f0, runs, risk)
+        useful = [r for r in runs_e if r["signal"] > 1e-6]
+        resolving += [dict(r, effect=e) for r in useful]
+        plan = (f"runs that would resolve it: {'; '.join(r['text'] for r in useful)}" if useful
+                else "no run varying rate, sense, azimuth, start time or tilt would resolve it")
+        notes.append(f"inconclusive: {e}, {risk.threshold_text()}, could move {', '.join(hit)}; {plan}")
+    return ("inconclusive" if effects or strong else "adequate"), notes, tuple(resolving)
 
 
 def _unexplained(term, cands, bases, null):

@@ -10,20 +10,28 @@ from ..model.plausible import RANGES
 
 
 def judge(fit_result, base=None):
-    """Sentences on ``fit_result``'s parameters beyond their plausible range, and on the
-    base model's parameters that the candidate moves by more than 3 sigma (``base``: the base
-    model's FitResult). Empty when every magnitude is plausible."""
+    """Sentences on ``fit_result``'s parameters beyond their plausible range; empty when every
+    magnitude is plausible. (``base`` is accepted for callers of the former signature: how a
+    candidate moves the base model's parameters is no judgement, :func:`moves`.)"""
     out = []
     for name, value, std, unit in zip(fit_result.names, fit_result.values, fit_result.std, fit_result.units):
         lo, hi = RANGES.get(_key(name), (-math.inf, math.inf))
         if not lo <= value <= hi:
             out.append(f"{name} = {value:.3g} {unit} is outside its plausible range [{lo:g}, {hi:g}] {unit}")
-    if base is not None:
-        for name, v0, s0 in zip(base.names, base.values, base.std):
-            if name in fit_result.names and s0 > 0:
-                v1 = fit_result.value(name)[0]
-                if abs(v1 - v0) > 3 * s0:
-                    out.append(f"moves {name} from {v0:.3g} to {v1:.3g} ({abs(v1 - v0) / s0:.1f} sigma)")
+    return tuple(out)
+
+
+def moves(fit_result, base):
+    """Sentences on the base model's parameters that adding the candidate moves by more than 3
+    of their sigmas. No judgement: a real effect missing from the base model shifts its
+    parameters by exactly its alias (:mod:`hse_opt.aliasing`: ``B delta``), so a large move is
+    what a correct addition does when the base fit was biased by the effect's absence."""
+    out = []
+    for name, v0, s0 in zip(base.names, base.values, base.std):
+        if name in fit_result.names and s0 > 0:
+            v1 = fit_result.value(name)[0]
+            if abs(v1 - v0) > 3 * s0:
+                out.append(f"{name} {v0:.3g} -> {v1:.3g} ({abs(v1 - v0) / s0:.1f} sigma of the base fit)")
     return tuple(out)
 
 

@@ -50,9 +50,13 @@ class Diagnosis:
     proposals : tuple of dict
         Runs that would tell the ambiguous candidates apart, best first.
     verdict : str
-        ``adequate``; ``missing-effect``; or ``unexplained structure`` when the strongest
+        ``adequate``; ``missing-effect``; ``unexplained structure`` when the strongest
         structure in the residuals (a level shift, an outlier, a function no catalogue effect
-        matches) explains more than any significant candidate.
+        matches) explains more than any significant candidate; or ``inconclusive`` when no test
+        rejects but these runs cannot rule out what would move the calibration: an effect the
+        test would miss (power < 0.8) that moves a fitted parameter by more than its sigma
+        (:mod:`hse_opt.aliasing`), or a candidate the BIC strongly favours whose test does not
+        reject at the family-wise level (the notes say which, and the runs that would resolve it).
     n_tests : int
         Size of the test family behind the verdict.
     notes : tuple of str
@@ -81,6 +85,11 @@ class Diagnosis:
     notes: tuple = field(default_factory=tuple)
     #: the likelihood every candidate's refit is compared on (:class:`.statistics.LikelihoodScale`)
     likelihood: str = ""
+    #: what these runs cannot rule out (:class:`hse_opt.aliasing.AliasBudget` of ``fit``)
+    budget: object = None
+    #: runs that would resolve the systematic risks (dicts of
+    #: :func:`hse_opt.aliasing.resolving_runs`, with the ``effect`` each resolves)
+    resolving: tuple = ()
 
     # -- views -------------------------------------------------------------------------------
     @property
@@ -111,6 +120,12 @@ class Diagnosis:
     @property
     def lack_of_fit_p(self):
         return None if self.lack_of_fit is None else self.lack_of_fit.p_value
+
+    @property
+    def fits(self):
+        """Whether no test of the family rejects the model (verdict ``adequate`` or
+        ``inconclusive``: the second says what these runs cannot rule out)."""
+        return self.verdict in ("adequate", "inconclusive")
 
     @property
     def best(self):
@@ -168,6 +183,9 @@ class Diagnosis:
             "fit": self.fit.to_dict(),
             "notes": list(self.notes),
             "likelihood_scale": self.likelihood,
+            "confounded": [g.to_dict() for g in self.fit.confounded],
+            "alias_budget": None if self.budget is None else self.budget.to_dict(),
+            "resolving": [dict(r) for r in self.resolving],
         }
 
     def plot_data(self):
@@ -217,6 +235,9 @@ class Diagnosis:
                 out.append(f"  {'':<26} {c.reason}")
             if c.plausibility and (c.significant or c.ambiguous_with):
                 out.append(f"  {'':<26} implausible: {'; '.join(c.plausibility)}")
+            if c.moves and (c.significant or c.ambiguous_with):
+                out.append(f"  {'':<26} adding it moves {'; '.join(c.moves)}: its alias, expected "
+                           "if the effect is real")
             if c.held:
                 out.append(f"  {'':<26} held at nominal (no heading signature here): {', '.join(c.held)}")
         out.append("  (* significant at the family-wise level; RMS in arcsec)")

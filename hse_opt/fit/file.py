@@ -27,6 +27,7 @@ import numpy as np
 
 from .. import units
 from .result import Constraint, FitResult
+from ..information import ConfoundedGroup
 from ..model.composition import Model
 from ..model.effects import effect as make_effect
 from ..model.measurement import RUN_FIELDS
@@ -66,6 +67,32 @@ def _fit_json(fit_result):
         out["runs"]["inputs"] = {name: row.tolist() for name, row in
                                  zip(RUN_FIELDS + tuple(mm.covariates), fit_result.inputs)}
     return out
+
+
+def _group(g):
+    """A :class:`~hse_opt.information.ConfoundedGroup` from its FIT.json form (no direction)."""
+    names = tuple(str(n) for n in g["parameters"])
+    inflation = tuple(float(x) for x in g["inflation"])
+    if len(inflation) != len(names) or not all(math.isfinite(x) and x >= 1.0 for x in inflation):
+        raise ValueError(f"\"confounded\" group {list(names)} has inflations {list(inflation)}; allowed: one "
+                         "finite number >= 1 per parameter")
+    return ConfoundedGroup(names, inflation, float(g["max_abs_correlation"]), None, str(g.get("advice", "")))
+
+
+def _systematic(par, names, std):
+    """``systematic`` and ``systematic_by`` from the parameters' entries (absent in files
+    written before the alias budget: not assessed)."""
+    values = [par[nm].get("systematic") for nm in names]
+    if all(v is None for v in values):
+        return {}
+    sys = np.array([0.0 if v is None else v for v in values], dtype=float)
+    by = tuple({str(e): float(x) for e, x in (par[nm].get("systematic_by") or {}).items()} for nm in names)
+    bad = [nm for nm, v, b in zip(names, sys, by) if not (math.isfinite(v) and v >= 0)
+           or any(not (math.isfinite(x) and 0 <= x <= v) for x in b.values())]
+    if bad:
+        raise ValueError(f"\"parameters\" {', '.join(bad)}: systematic must be a finite number >= 0, at least "
+                         "each of its systematic_by shifts")
+    return {"systematic": sys, "systematic_by": by}
 
 
 def save_fit(fit_result, path):
@@ -154,7 +181,9 @@ def load_fit(path, model=None):
             active=tuple(str(c) for c, cd in zip(constraints, d.get("constraints", [])) if cd.get("active")),
             weights=np.array(runs["weight"], dtype=float), chi2_prior=float(d.get("chi2_prior", 0.0)),
             inputs=(np.array([runs["inputs"][k] for k in RUN_FIELDS + tuple(mm.covariates)], dtype=float)
-                    if "inputs" in runs else None))
+                    if "inputs" in runs else None),
+            confounded=tuple(_group(g) for g in d.get("confounded", [])),
+            **_systematic(par, names, get("std")))
     except (KeyError, TypeError, IndexError, OverflowError, AttributeError) as err:
         raise ValueError(f"{src}: FIT.json is missing or has a malformed entry {err}; allowed: a file "
                          "written by hse-opt fit -o") from None

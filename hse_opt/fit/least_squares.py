@@ -4,7 +4,8 @@ import dataclasses
 import numpy as np
 
 from .. import units
-from ..information import UnidentifiableError, analyse, blind_out, invisible, null_space, separation_advice
+from ..information import (UnidentifiableError, analyse, blind_out, confounded, invisible, null_space,
+                           separation_advice)
 from ..model.composition import as_model
 from .problem import Problem, position_projector, setup
 from .result import FitResult, SolverError
@@ -235,8 +236,29 @@ def _fit(runs, model, *, fix, tilt_known, bounds, constraints, prior, robust, hu
     hw = np.ones(n)
     if robust:
         notes.append(f"Huber loss, threshold {huber_c:g} sigma (iteratively reweighted)")
+    z_start = z.copy()
+
+    def unidentifiable(err):
+        """A solver failure on runs that barely separate some parameters is that, not a
+        numerical accident: the error names the confounded group (exit 2, not 1)."""
+        J0 = prob.jacobian(z_start)
+        A0 = J0 / sigma[:, None]
+        F0 = blind_out(A0.T @ A0, invisible(J0, prob.ranges)) + L.T @ L
+        groups0 = confounded(F0, np.linalg.pinv(F0), prob.names, advice=advice_for(np.ones(k, bool)))
+        if not groups0:
+            return err
+        g = groups0[0]
+        advice = f". {g.advice[:1].upper()}{g.advice[1:]}" if g.advice else ""
+        return UnidentifiableError(f"parameters {', '.join(g.names)} cannot be told apart by these runs (|r| up to "
+                                   f"{g.correlation:.4f}, sigma inflated up to {max(g.inflation):.3g}-fold; the "
+                                   f"solver failed along their combination: {err}){advice}", g.names,
+                                   g.direction, np.inf)
+
     for _ in range(max_iter):
-        z, C, binding, act, method, status = solve(prob, np.sqrt(hw) / sigma, z, notes)
+        try:
+            z, C, binding, act, method, status = solve(prob, np.sqrt(hw) / sigma, z, notes)
+        except SolverError as err:
+            raise unidentifiable(err) from None
         res = prob.residual(z)
         k_eff = null_space(C, k).shape[1]
         dof = n_meas + r_prior - k_eff - n_pos
@@ -279,6 +301,9 @@ def _fit(runs, model, *, fix, tilt_known, bounds, constraints, prior, robust, hu
         F_data = F_data / (K ** 2 * np.sum(psi ** 2) / max(n - k_eff, 1) / m_ ** 2)
     info = field_analyse(blind_out(F_data, invisible(A * sigma[:, None], prob.ranges)) + L.T @ L,
                    prob.names, units_free, advice=advice_for(np.ones(k, bool)), Z=Z)
+    groups = confounded(info.fisher, info.covariance, prob.names, advice=advice_for(np.ones(k, bool)))
+    for g in groups:
+        notes.append(f"{g.text()} (confounded: |r| > 0.99 or sigma inflated more than 10-fold)")
 
     n_p = len(mm.names)
     cov = np.zeros((n_p, n_p))
@@ -307,7 +332,7 @@ def _fit(runs, model, *, fix, tilt_known, bounds, constraints, prior, robust, hu
         bic=ll_term + (k_eff + n_pos) * np.log(n_meas), condition=info.condition, weighting=weighting,
         method=method, status=status, binding=binding_names, downweighted=down, notes=tuple(notes),
         lower=lower, upper=upper, constraints=kept, active=active, weights=hw, chi2_prior=chi2_prior,
-        inputs=X)
+        inputs=X, confounded=groups)
 
 
 def _single_rate_positions(runs, group, positions):

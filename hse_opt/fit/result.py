@@ -1,7 +1,7 @@
 """The records of a fit: :class:`FitResult`, :class:`Constraint` (a linear constraint between
 parameters) and :class:`SolverError`."""
 import math
-from dataclasses import dataclass, field, fields
+from dataclasses import dataclass, field, fields, replace
 from typing import Mapping
 
 import numpy as np
@@ -174,6 +174,17 @@ class FitResult:
     inputs : numpy.ndarray, shape (n_x, n), or None
         The runs' measurement-model inputs (SI, :meth:`MeasurementModel.inputs` order): where
         the calibration holds (:mod:`hse_opt.fit.export`). None for a FIT.json without them.
+    confounded : tuple of ConfoundedGroup
+        Groups of free parameters these runs cannot separate (|r| > 0.99 or variance inflation
+        > 100, :func:`hse_opt.information.confounded`), with their sigma inflation and the runs
+        that would separate them; empty when none.
+    systematic : numpy.ndarray, shape (n_p,), or None
+        Per parameter the largest shift (display unit) that a catalogue effect missing from the
+        model could cause while the diagnosis would miss it, when it exceeds the parameter's
+        statistical sigma (0: no such risk); None when not assessed
+        (:func:`hse_opt.aliasing.alias_budget`, :meth:`with_budget`).
+    systematic_by : tuple of dict
+        Per parameter ``{effect: shift}`` of the effects behind ``systematic``.
     """
 
     model: Model
@@ -209,6 +220,9 @@ class FitResult:
     weights: np.ndarray = None
     chi2_prior: float = 0.0
     inputs: np.ndarray = None
+    confounded: tuple = ()
+    systematic: np.ndarray = None
+    systematic_by: tuple = ()
 
     def __post_init__(self):
         for f in fields(self):  # frozen all the way down: read-only copies of the arrays
@@ -237,6 +251,41 @@ class FitResult:
         i = self.measurement.parameter_index(name)
         return float(self.values[i]), float(self.std[i])
 
+    def with_budget(self, budget):
+        """This fit with the systematic part of an :class:`~hse_opt.aliasing.AliasBudget` of it
+        (``systematic``, ``systematic_by``) and its sentences among the notes ("lambda2 = 10.4
+        +- 1.5 arcsec statistical; sync_delay, undetectable here below 340 us, could move it by
+        up to 6.2 arcsec")."""
+        if tuple(budget.names) != tuple(self.names):
+            raise ValueError(f"the alias budget's parameters {list(budget.names)} are not this fit's "
+                             f"{list(self.names)}")
+        said = tuple(f"systematic risk: {line}" for line in budget.sentences(self.values))
+        return replace(self, systematic=np.asarray(budget.systematic, float),
+                       systematic_by=tuple(dict(d) for d in budget.systematic_by),
+                       notes=tuple(n for n in self.notes if not n.startswith("systematic risk: ")) + said)
+
+    def tilt_amplitudes(self):
+        """Without tilt columns a tilt-coupled parameter ``b`` is the azimuth sinusoid
+        ``b*tilt_cos cos(psi) + b*tilt_sin sin(psi)`` (plus a constant): its amplitude
+        ``A = hypot(b*tilt_cos, b*tilt_sin)`` is ``b`` times the amplitude of C23 (the README's
+        "3.3 +- 1.1 arcsec*mrad" of the paper's Table 1). Returns ``{b: (A, sigma_A, unit)}``
+        for every such pair fitted free, sigma by the delta method
+        (``g' C g``, ``g = (cos, sin) / A``)."""
+        out = {}
+        for i, name in enumerate(self.names):
+            if not name.endswith("*tilt_cos"):
+                continue
+            base = name[: -len("*tilt_cos")]
+            j = self.names.index(f"{base}*tilt_sin") if f"{base}*tilt_sin" in self.names else None
+            if j is None or not (self.free[i] and self.free[j]):
+                continue
+            c, s = float(self.values[i]), float(self.values[j])
+            a = math.hypot(c, s)
+            g = np.array([c, s]) / a if a > 0 else np.array([1.0, 0.0]) / math.sqrt(2.0)
+            C = self.covariance[np.ix_([i, j], [i, j])]
+            out[base] = (a, float(np.sqrt(max(g @ C @ g, 0.0))), self.units[i])
+        return out
+
     def high_correlations(self, threshold=0.9):
         """``(name_a, name_b, r)`` for free-parameter pairs with ``|r| > threshold``."""
         out = []
@@ -255,10 +304,14 @@ class FitResult:
         lines = [f"{self.n_runs} runs, effects {', '.join(d['effects'])}",
                  f"  weighting: {self.weighting}; solver: {self.method} ({self.status})", ""]
         width = max(len(n) for n in self.names) + 2
-        lines.append(f"  {'parameter':<{width}}{'value':>12}  {'1-sigma':>10}  unit")
+        sys_col = self.systematic is not None
+        lines.append(f"  {'parameter':<{width}}{'value':>12}  {'1-sigma':>10}  "
+                     + (f"{'systematic':>10}  " if sys_col else "") + "unit")
         for name, p in d["parameters"].items():
             state = ("(fixed)" if not p["free"] else "(at its bound)" if name in self.binding else "")
             sigma = f"{p['std']:>10.4g}" if p["std"] > 0 else f"{'':>10}"
+            if sys_col:
+                sigma += f"  {p['systematic']:>10.3g}" if p["systematic"] else f"  {'':>10}"
             lines.append(f"  {name:<{width}}{p['value']:>12.5g}  {sigma}  {p['unit']} {state}".rstrip())
         lines.append("")
         fit_line = f"  chi2 {self.chi2:.4g} / dof {self.dof} = {self.chi2_red:.4g}"
@@ -266,6 +319,9 @@ class FitResult:
             fit_line += f" (p = {chi2_sf(self.chi2, self.dof):.3g})"
         else:
             fit_line += " (sigma from the residuals: no goodness-of-fit test)"
+        for base, (a, sa, unit) in self.tilt_amplitudes().items():
+            lines.append(f"  heading-sensitive sinusoid {base} * C23 (tilt unknown): amplitude {a:.3g} +- "
+                         f"{sa:.2g} {unit}")
         lines += [fit_line, f"  AIC {self.aic:.4g}, BIC {self.bic:.4g}, residual RMS "
                             f"{self.rms_arcsec:.4g} arcsec, condition number {self.condition:.3g}"]
         lines.append(f"  bounds that bind: {', '.join(self.binding) or 'none'}")
@@ -290,9 +346,15 @@ class FitResult:
             "effects": list(self.model.effect_names),
             "n_runs": self.n_runs,
             "parameters": {n: {"value": float(v), "std": float(s), "unit": u, "free": bool(f),
-                               "lower": _finite(lo), "upper": _finite(hi)}
-                           for n, v, s, u, f, lo, hi in zip(self.names, self.values, self.std,
-                                                            self.units, self.free, lower, upper)},
+                               "lower": _finite(lo), "upper": _finite(hi),
+                               "systematic": None if self.systematic is None else float(self.systematic[i]),
+                               "systematic_by": ({} if not self.systematic_by else
+                                                 {e: float(x) for e, x in self.systematic_by[i].items()})}
+                           for i, (n, v, s, u, f, lo, hi) in enumerate(zip(self.names, self.values, self.std,
+                                                                           self.units, self.free, lower, upper))},
+            "confounded": [g.to_dict() for g in self.confounded],
+            "tilt_amplitudes": {b: {"value": a, "std": sa, "unit": u}
+                                for b, (a, sa, u) in self.tilt_amplitudes().items()},
             "chi2": float(self.chi2), "dof": int(self.dof), "chi2_red": float(self.chi2_red),
             "aic": float(self.aic), "bic": float(self.bic), "rms_arcsec": self.rms_arcsec,
             "chi2_prior": float(self.chi2_prior), "tilt_known": bool(self.tilt_known),

@@ -11,8 +11,8 @@ def report_data(fit_result, runs):
     Returns a dict: ``fit`` (:meth:`FitResult.to_dict`), ``runs`` (columns ``run``,
     ``rate_dps``, ``azimuth_deg``, ``t_start_s``, ``heading_err_arcsec``,
     ``predicted_arcsec``, ``residual_arcsec``, ``standardized``, ``weight``,
-    ``sigma_arcsec``) and ``parameters`` (rows of name, value, std, unit, free, bound state,
-    description).
+    ``sigma_arcsec``) and ``parameters`` (rows of name, value, std, systematic (None when not assessed), unit,
+    free, bound state, description).
     """
     mm = fit_result.measurement
     if len(runs) != fit_result.n_runs or not np.array_equal(np.asarray(runs.run), fit_result.run):
@@ -24,6 +24,7 @@ def report_data(fit_result, runs):
         state = ("fixed" if not fit_result.free[i] else "at bound" if q.name in fit_result.binding
                  else "free")
         rows.append({"name": q.name, "value": float(fit_result.values[i]), "std": float(fit_result.std[i]),
+                     "systematic": (None if fit_result.systematic is None else float(fit_result.systematic[i])),
                      "unit": q.unit, "state": state, "description": q.description})
     return {
         "fit": fit_result.to_dict(),

@@ -33,12 +33,14 @@ def _fit_statistics(fit):
 
 def _parameter_table(rows):
     """The parameter table from :func:`hse_opt.fit.summary.report_data` rows."""
+    budget = any(r.get("systematic") is not None for r in rows)
     cells = [[f"<code>{html.escape(r['name'])}</code>", _fmt(r["value"], 5),
-              _fmt(r["std"], 3) if r["state"] != "fixed" else "&ndash;", html.escape(r["unit"]),
-              html.escape(r["state"]), html.escape(r["description"])]
+              _fmt(r["std"], 3) if r["state"] != "fixed" else "&ndash;"]
+             + ([_fmt(r["systematic"], 3) if r.get("systematic") else "&ndash;"] if budget else [])
+             + [html.escape(r["unit"]), html.escape(r["state"]), html.escape(r["description"])]
              for r in rows]
-    return _table(["parameter", "value", "1-sigma", "unit", "state", "meaning"], cells,
-                  keys=[f"param:{r['name']}" for r in rows], cls="params")
+    head = ["parameter", "value", "1-sigma"] + (["systematic"] if budget else []) + ["unit", "state", "meaning"]
+    return _table(head, cells, keys=[f"param:{r['name']}" for r in rows], cls="params")
 
 
 def _correlation_table(fit):

@@ -12,10 +12,13 @@ run, goodness of fit (chi-square with the runs' own sigmas; pure-error lack of f
 settings are replicated), residual structure against every factor, every catalogue effect not
 in the model ranked by a score test, Delta-BIC and the residual RMS after refitting, the
 unexplained structure in words (level shifts and outliers in run order too), and the verdict
-(adequate, missing-effect or unexplained structure). Candidates are compared on one likelihood
+(adequate, missing-effect, unexplained structure, or inconclusive: no test rejects, but an
+effect the test would miss here (power < 0.8 at its plausible size) could move a calibrated
+parameter by more than its sigma, or the BIC strongly favours a candidate the test cannot
+confirm - the notes name them and the runs that would resolve them). Candidates are compared on one likelihood
 scale, the base model's noise model. --refine adds the best significant effect and diagnoses
 again until the verdict is adequate; it stops, adding nothing, when the best candidates are
-ambiguous or the structure follows no catalogue effect."""
+ambiguous, the structure follows no catalogue effect, or the verdict is inconclusive."""
 INPUTS = ("runs",)
 OUTPUTS = {"report": REPORT}
 EXAMPLE = """examples:
@@ -110,6 +113,9 @@ def _stopped(last):
                 "none added; make the proposed runs to tell them apart")
     if last.verdict == "unexplained structure":
         return "the strongest structure follows no catalogue effect (see the notes): none added"
+    if last.verdict == "inconclusive":
+        return ("inconclusive: the model fits, but these runs cannot rule out what would move it (see the "
+                "notes: the effects, and the runs that would resolve them)")
     return None
 
 

@@ -15,7 +15,12 @@ statistics, bounds that bind and strong correlations. Weights come from heading_
 else from the scatter of replicated runs (pure error), else from the residuals. Runs without
 pitch/roll get the tilt-coupled terms as free azimuth sinusoids (names like
 lambda2*tilt_cos). When the runs cannot separate two parameters the command stops (exit 2),
-names them and proposes runs that would."""
+names them and proposes runs that would; when they are only nearly inseparable (|r| > 0.99 or
+a sigma inflated more than 10-fold) it warns on stderr, names the group and lists it under
+'confounded' in --json. Every catalogue effect not in the model is put at the edge of its
+plausible range: an effect the diagnosis would not detect here (power < 0.8) that would move a
+parameter by more than its 1-sigma is a systematic risk, said in words and given per parameter
+as 'systematic' and 'systematic_by' (docs/formats.md: what a campaign cannot rule out)."""
 INPUTS = ("runs", "prior")
 OUTPUTS = {"output": FILE, "report": REPORT}
 EXAMPLE = """\
@@ -100,6 +105,13 @@ def run(args):
     except UnidentifiableError as err:
         raise UnidentifiableError(f"{args.runs}: {err} (or hold one of them with --fix NAME=VALUE)",
                                   err.names, err.direction, err.condition) from None
+    from ..aliasing import alias_budget
+    budget = alias_budget(result, runs)
+    result = result.with_budget(budget)
+    for g in result.confounded:
+        message(f"hse-opt fit: warning: {args.runs}: {g.text()}")
+    for line in budget.sentences(result.values):
+        message(f"hse-opt fit: warning: {args.runs}: systematic risk: {line}")
     if args.output:
         save_fit(result, args.tx.path("output"))
         message(f"hse-opt fit: wrote {args.output}")
@@ -112,7 +124,7 @@ def run(args):
         if field:
             from ...fit.field import position_lines
             extra["positions"] = [ln.to_dict() for ln in position_lines(result, runs)]
-        print_json({**result.to_dict(), **extra, "source": args.runs,
+        print_json({**result.to_dict(), **extra, "source": args.runs, "alias_budget": budget.to_dict(),
                     "outliers": [{"run": r, "studentized": t} for r, t in outliers(result, runs)],
                     "checks": check_lines(result, runs)})
     else:
