@@ -11,7 +11,7 @@ Detectability
     noise the statistic is noncentral F with noncentrality ``lambda = ||(I - P_M) A_E delta||^2``
     (``A_E`` the effect's columns weighted by the runs' sigmas, ``P_M`` the projection on the
     model's columns and, in a field campaign, the positions' unknown constants): the power is
-    ``P(F'(q, dof, lambda) > F_crit)``, closed form (:func:`scipy.stats.ncf`). The effect is
+    ``P(F'(q, dof, lambda) > F_crit)``, closed form (:func:`f_sf`, numpy only). The effect is
     *detectable* at a size when the power is at least :data:`POWER_LIMIT` (0.8, the usual
     design target); ``lambda`` grows with the size squared, so the size below which it goes
     undetected (the *threshold*) follows from the noncentrality that gives power 0.8.
@@ -41,6 +41,7 @@ reason. :func:`effect_power` is the detectability alone, for a candidate plan (t
 """
 from __future__ import annotations
 
+import functools
 import math
 from dataclasses import dataclass
 
@@ -228,25 +229,115 @@ def _vertices(edge):
     return np.asarray(edge, float)[:, None] * signs
 
 
+def _lgamma(x):
+    return np.vectorize(math.lgamma, otypes=[float])(x)
+
+
+def _betacf(a, b, x):
+    """The continued fraction of the regularised incomplete beta function (modified Lentz;
+    Press et al., *Numerical Recipes*, 3rd ed., Sec. 6.4), elementwise."""
+    tiny = 1e-300
+    qab, qap, qam = a + b, a + 1.0, a - 1.0
+    c = np.ones_like(x)
+    d = 1.0 - qab * x / qap
+    d = 1.0 / np.where(np.abs(d) < tiny, tiny, d)
+    h = d
+    for m in range(1, 5000):
+        m2 = 2 * m
+        for aa in (m * (b - m) * x / ((qam + m2) * (a + m2)),
+                   -(a + m) * (qab + m) * x / ((a + m2) * (qap + m2))):
+            d = 1.0 + aa * d
+            d = 1.0 / np.where(np.abs(d) < tiny, tiny, d)
+            c = 1.0 + aa / c
+            c = np.where(np.abs(c) < tiny, tiny, c)
+            step = d * c
+            h = h * step
+        if np.all(np.abs(step - 1.0) < 1e-15):
+            break
+    return h
+
+
+def betainc(a, b, x):
+    """Regularised incomplete beta function ``I_x(a, b)`` (elementwise, numpy only: the fit
+    command does not import scipy, :func:`hse_opt.fit.result.chi2_sf`)."""
+    a, b, x = np.broadcast_arrays(*(np.asarray(v, float) for v in (a, b, x)))
+    out = np.where(x <= 0.0, 0.0, 1.0)
+    inside = (x > 0.0) & (x < 1.0)
+    if not inside.any():
+        return out
+    a, b, x = a[inside], b[inside], x[inside]
+    log_front = _lgamma(a + b) - _lgamma(a) - _lgamma(b) + a * np.log(x) + b * np.log1p(-x)
+    direct = x < (a + 1.0) / (a + b + 2.0)
+    val = np.empty_like(x)
+    if direct.any():
+        i = direct
+        val[i] = np.exp(log_front[i]) * _betacf(a[i], b[i], x[i]) / a[i]
+    if (~direct).any():
+        i = ~direct
+        val[i] = 1.0 - np.exp(log_front[i]) * _betacf(b[i], a[i], 1.0 - x[i]) / b[i]
+    out[inside] = np.clip(val, 0.0, 1.0)
+    return out
+
+
+def f_sf(f, d1, d2, lam=0.0):
+    """``P(F > f)`` for F (noncentral with noncentrality ``lam``) with ``(d1, d2)`` degrees of
+    freedom: the Poisson mixture ``sum_j Pois(j; lam/2) I_x(d2/2, d1/2 + j)``,
+    ``x = d2 / (d2 + d1 f)`` (Johnson, Kotz & Balakrishnan, *Continuous Univariate
+    Distributions* vol. 2, Eq. 30.6), over the Poisson weights' +-12 sigma window."""
+    x = d2 / (d2 + d1 * float(f))
+    mu = 0.5 * float(lam)
+    if mu <= 0.0:
+        return float(betainc(0.5 * d2, 0.5 * d1, x))
+    sd = math.sqrt(mu)
+    j = np.arange(max(0, math.floor(mu - 12.0 * sd - 12.0)), math.ceil(mu + 12.0 * sd + 12.0) + 1, dtype=float)
+    log_w = -mu + j * math.log(mu) - _lgamma(j + 1.0)
+    return float(np.clip(np.sum(np.exp(log_w) * betainc(0.5 * d2, 0.5 * d1 + j, x)), 0.0, 1.0))
+
+
+def _solve(fun, target, lo, hi, rel=1e-9):
+    """The ``t`` in [lo, hi] with increasing ``fun(t) = target`` (Illinois regula falsi)."""
+    f_lo, f_hi = fun(lo) - target, fun(hi) - target
+    side = 0
+    for _ in range(200):
+        t = (lo * f_hi - hi * f_lo) / (f_hi - f_lo) if f_hi != f_lo else 0.5 * (lo + hi)
+        f_t = fun(t) - target
+        if f_t == 0.0 or hi - lo <= rel * max(abs(t), 1e-300):
+            return t
+        if (f_t > 0) == (f_hi > 0):
+            hi, f_hi = t, f_t
+            if side == -1:
+                f_lo *= 0.5
+            side = -1
+        else:
+            lo, f_lo = t, f_t
+            if side == 1:
+                f_hi *= 0.5
+            side = 1
+    return 0.5 * (lo + hi)
+
+
+@functools.lru_cache(maxsize=256)
+def _critical(q, dof, level):
+    """``(F_crit, lam80)``: the F(q, dof) value rejected at ``level`` and the noncentrality at
+    which the test's power is :data:`POWER_LIMIT`."""
+    # F_crit through x = dof / (dof + q F): I_x(dof/2, q/2) = level, increasing in x
+    x = _solve(lambda t: float(betainc(0.5 * dof, 0.5 * q, t)), level, 0.0, 1.0, rel=1e-13)
+    crit = dof * (1.0 - x) / (q * x)
+    hi = 10.0
+    while f_sf(crit, q, dof, hi) < POWER_LIMIT:
+        hi *= 4.0
+    return crit, _solve(lambda lam: f_sf(crit, q, dof, lam), POWER_LIMIT, 0.0, hi, rel=1e-9)
+
+
 def _test_power(lam, q, dof, level):
     """Power of the F(q, dof) test at ``level`` for noncentralities ``lam`` (array), and the
     noncentrality at which it is :data:`POWER_LIMIT` (``inf`` when no test is possible)."""
-    from scipy import optimize, stats
-
     lam = np.asarray(lam, float)
     if q < 1 or dof < 1:
         return np.zeros_like(lam), math.inf
-    crit = stats.f.isf(level, q, dof)
-    power = stats.ncf.sf(crit, q, dof, lam)
-    power = np.where(lam > 0, power, level)
-
-    def gap(x):
-        return float(stats.ncf.sf(crit, q, dof, x)) - POWER_LIMIT
-
-    hi = 10.0
-    while gap(hi) < 0:
-        hi *= 4.0
-    return power, float(optimize.brentq(gap, 0.0, hi, xtol=1e-10, rtol=1e-10))
+    crit, lam80 = _critical(int(q), int(dof), float(level))
+    power = np.array([f_sf(crit, q, dof, v) if v > 0 else level for v in lam.ravel()]).reshape(lam.shape)
+    return power, lam80
 
 
 class _Campaign:

@@ -207,7 +207,7 @@ def test_the_issues_field_campaign_is_never_confidently_wrong(seed):
 def test_fit_cli_says_the_systematic_in_words_json_and_fit_json(tmp_path, capsys):
     from hse_opt.cli import main
     from hse_opt.data import save_runs
-    from hse_opt.fit_file import load_fit
+    from hse_opt.fit import load_fit
     path = tmp_path / "RUNS.csv"
     save_runs(_field_campaign(0), path)
     before = path.read_bytes()
@@ -345,3 +345,20 @@ def test_a_real_effect_moving_the_base_is_not_called_implausible():
     B = alias_budget(d.fit, runs, ["sync_delay"]).effect("sync_delay").alias[:, 0]
     moved = np.array([c.fit.value(n)[0] for n in d.fit.names]) - d.fit.values
     np.testing.assert_allclose(moved, -B * c.fit.value("delay")[0], rtol=1e-2, atol=1e-3)
+
+
+def test_noncentral_f_without_scipy_matches_scipy():
+    """The fit command imports no scipy: the power's distributions are written with numpy;
+    scipy's special.betainc, stats.f and stats.ncf are the reference."""
+    from scipy import special
+    from hse_opt.aliasing import _critical, betainc, f_sf
+    rng = np.random.default_rng(0)
+    a, b, x = rng.uniform(0.5, 400, 300), rng.uniform(0.5, 400, 300), rng.uniform(0, 1, 300)
+    np.testing.assert_allclose(betainc(a, b, x), special.betainc(a, b, x), atol=1e-12)
+    for d1, d2, lam, f in [(1, 20, 5.0, 3.0), (2, 50, 30.0, 4.0), (4, 10, 0.5, 2.0), (1, 3, 100.0, 10.0),
+                           (1, 60, 0.0, 4.0)]:
+        ref = stats.ncf.sf(f, d1, d2, lam) if lam else stats.f.sf(f, d1, d2)
+        assert f_sf(f, d1, d2, lam) == pytest.approx(ref, abs=1e-12)
+    crit, lam80 = _critical(2, 40, 0.0025)
+    assert crit == pytest.approx(stats.f.isf(0.0025, 2, 40), rel=1e-9)
+    assert stats.ncf.sf(crit, 2, 40, lam80) == pytest.approx(POWER_LIMIT, abs=1e-8)

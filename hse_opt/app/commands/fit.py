@@ -105,7 +105,7 @@ def run(args):
     except UnidentifiableError as err:
         raise UnidentifiableError(f"{args.runs}: {err} (or hold one of them with --fix NAME=VALUE)",
                                   err.names, err.direction, err.condition) from None
-    from ..aliasing import alias_budget
+    from ...aliasing import alias_budget
     budget = alias_budget(result, runs)
     result = result.with_budget(budget)
     for g in result.confounded:
