@@ -76,8 +76,9 @@ RANGES = {
 }
 
 #: pitch/roll columns whose every |value| is below this (and the largest at least
-#: :data:`SMALL_TILT_FLOOR_ARCSEC`) look like radians or degrees: no stand is level to 0.05 arcsec
-#: (accelerometer biases of micro-g alone tilt the leveling by arcseconds)
+#: :data:`SMALL_TILT_FLOOR_ARCSEC`) may be radians or degrees: few stands are level to 0.05
+#: arcsec (accelerometer biases of micro-g alone tilt the leveling by arcseconds), but a level
+#: base does give such values, so they are a warning (:attr:`hse_opt.data.Runs.warnings`)
 SMALL_TILT_ARCSEC = 0.05
 SMALL_TILT_FLOOR_ARCSEC = 1e-4
 

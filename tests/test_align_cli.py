@@ -63,7 +63,8 @@ def test_align_writes_one_row_per_log_with_metadata(logdir, tmp_path, capsys):
     for i, (rate, az, _, _) in enumerate(RUNS_SPEC):
         log, att = truths[i]
         assert runs.rate[i] / units.DEG_PER_S == pytest.approx(rate, rel=1e-3)      # from the encoder
-        assert runs.duration[i] == pytest.approx(30.0, abs=1e-6)
+        assert runs.duration[i] == pytest.approx(log.t[-1] - log.t[0], abs=1e-6)    # the span of its samples
+        assert runs.duration[i] == pytest.approx(30.0 - 0.002, abs=1e-6)            # n - 1 intervals of 2 ms
         assert runs.t_start[i] == pytest.approx(900.0 + 60 * i)
         # the alignment against the simulator's true attitude of b0, within 5 of its own sigmas
         dh = (runs.heading[i] - att["heading"] + np.pi) % (2 * np.pi) - np.pi

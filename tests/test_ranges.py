@@ -3,13 +3,14 @@ exit codes of failures a user can cause (one line naming the file or option, exi
 solver's (exit 1 with its status)."""
 import io
 import json
+import math
 from contextlib import redirect_stderr, redirect_stdout
 
 import numpy as np
 import pytest
 
 from hse_opt.cli import main
-from hse_opt.data import DataError, load_plan, load_runs
+from hse_opt.data import DataError, DataWarning, load_plan, load_runs
 from hse_opt.datasets import paper_table1_path
 from hse_opt.ranges import RANGES
 
@@ -56,11 +57,14 @@ def test_the_bounds_themselves_are_allowed(tmp_path):
 
 
 def test_tilts_in_radians_and_sigmas_in_degrees_are_named(tmp_path):
+    """Tilts all below 0.05 arcsec are a warning, not an error: radians give such numbers, and so
+    does a level base (the alignment's own output; it was refused)."""
     header = HEADER + ",pitch_arcsec,roll_arcsec"
-    with pytest.raises(DataError, match="look like radians or degrees") as info:
-        load_runs(runs_file(tmp_path, ["1,40,0,1,28,600,-0.00058,-0.00027", "2,40,90,1,28,600,-0.00058,-0.00027"],
-                            header))
-    assert info.value.column == "pitch_arcsec"
+    with pytest.warns(DataWarning, match="column 'pitch_arcsec': every pitch and roll is below 0.05 arcsec: a "
+                                         "level base, or values in radians or degrees"):
+        runs = load_runs(runs_file(tmp_path, ["1,40,0,1,28,600,-0.00058,-0.00027",
+                                              "2,40,90,1,28,600,-0.00058,-0.00027"], header))
+    assert runs.pitch[0] == pytest.approx(-0.00058 * math.pi / 648000, rel=1e-12)
     with pytest.raises(DataError, match="heading_std_arcsec") as info:
         load_runs(runs_file(tmp_path, ["1,40,0,1,28,600,0.0022"], HEADER + ",heading_std_arcsec"))
     assert "look like degrees" in str(info.value)

@@ -84,13 +84,20 @@ def _align_one(path, config, mapping=None, noise=None, pulse_weights=None):
         return path, None, _error_line(path, exc)
     row = {"rate_dps": res.rate / units.DEG_PER_S,
            "heading_deg": float(np.mod(res.heading, 2 * np.pi)) / units.DEG,
-           "latitude_deg": lat / units.DEG, "duration_s": round(len(log) * log.sample_period, 6),
+           "latitude_deg": lat / units.DEG, "duration_s": round(float(log.t[-1] - log.t[0]), 6),
            "pitch_arcsec": res.pitch / units.ARCSEC, "roll_arcsec": res.roll / units.ARCSEC,
            "heading_std_arcsec": res.heading_std / units.ARCSEC, "quality": quality.summary(),
            **noise.columns(), "noise": noise}
     for key in ("run", "position", *LOG_META_COLUMNS):
         if log.meta.get(key) is not None:
             row[key] = log.meta[key]
+    try:        # the row alone as RUNS.csv takes it (a metadata value out of its range names this log)
+        Runs.from_columns(_columns([row])[0], source=path, min_rate_dps=0.0)
+    except DataError as exc:
+        return path, None, _error_line(path, DataError(path, exc.problem, column=exc.column))
+    n = len(log)     # the same samples under two names: a few of them, the encoder's sum and the repairs
+    row["_samples"] = (n, float(log.t[0]), float(log.t[-1]), *log.gyro[n // 2].tolist(),
+                       *log.accel[n // 3].tolist(), float(log.encoder.sum()), quality.summary())
     return path, row, None
 
 
@@ -173,8 +180,9 @@ def align_logs(paths, config, jobs=1, progress=None, client=None, *, mapping=Non
     -------
     rows : list of dict
         One RUNS row per good log, in the order of ``paths``: ``rate_dps`` (the encoder's mean
-        rate), ``heading_deg``, ``latitude_deg``, ``duration_s`` (samples times the sample
-        period, to the microsecond: the record's length),
+        rate), ``heading_deg``, ``latitude_deg`` (the log's, else the config's), ``duration_s``
+        (``t_{n-1} - t_0``, to the microsecond: the span the processor aligns; the first
+        row's increments have no encoder angle at their start),
         ``pitch_arcsec``, ``roll_arcsec``, ``heading_std_arcsec`` (the filter's 1-sigma),
         ``quality`` (:meth:`hse_opt.align.quality.Quality.summary`: ``ok``, or what was
         repaired or noted before alignment), the noise columns
@@ -183,7 +191,10 @@ def align_logs(paths, config, jobs=1, progress=None, client=None, *, mapping=Non
         from the log's metadata, when present: ``run``, ``position``, ``azimuth_deg``,
         ``t_start_s``, ``temp_c``. Each row also has ``log`` (its path).
     errors : list of str
-        One line per bad log (the file and, where it applies, the sample), in path order.
+        One line per bad log (the file and, where it applies, the sample), in path order: a
+        log that cannot be read, is refused by its checks, has a metadata value out of its
+        RUNS.csv range, or repeats an earlier log's samples (the same file given twice, or a
+        copy: the first is kept).
     """
     import dataclasses
 
@@ -200,11 +211,16 @@ def align_logs(paths, config, jobs=1, progress=None, client=None, *, mapping=Non
             config = dataclasses.replace(config, **combine_noise(noise.values()).tuning())
         progress = None if report is None else (lambda done, total: report((total + done) // 2, total))
     done = _map(_align_one, paths, config, jobs, progress, client, mapping, noise, pulse_weights)
-    rows, errors = [], []
+    rows, errors, seen = [], [], {}
     for path in paths:
         _, row, err = done[path]
         if err is None:
-            rows.append({**row, "log": path})
+            first = seen.setdefault(row["_samples"], path)
+            if first != path or any(r["log"] == path for r in rows):
+                err = (f"{path}: the same log as {first} (given twice, or a copy); allowed: each log once"
+                       if first != path else f"{path}: given twice; allowed: each log once")
+        if err is None:
+            rows.append({**{k: v for k, v in row.items() if k != "_samples"}, "log": path})
         else:
             errors.append(err)
     return rows, errors
@@ -224,11 +240,28 @@ def runs_from_rows(rows, source="<aligned logs>"):
     -------
     runs : hse_opt.data.Runs
     notes : list of str
+
+    Raises
+    ------
+    hse_opt.data.DataError
+        Naming the log (its row's ``log``) and the column.
     """
-    notes = []
     rows = list(rows)
     if all("t_start_s" in r for r in rows):
         rows.sort(key=lambda r: float(r["t_start_s"]))
+    columns, notes = _columns(rows)
+    try:
+        runs = Runs.from_columns(columns, source=source, min_rate_dps=0.0)
+    except DataError as exc:
+        if exc.row is None or not 1 <= exc.row <= len(rows) or "log" not in rows[exc.row - 1]:
+            raise
+        raise DataError(rows[exc.row - 1]["log"], exc.problem, column=exc.column) from None
+    return runs, notes
+
+
+def _columns(rows):
+    """The RUNS columns of ``rows`` (in their order) and the notes on what was left out."""
+    notes = []
     ids = [r.get("run") for r in rows]
     if not (all(isinstance(i, (int, np.integer)) and not isinstance(i, bool) for i in ids)
             and len(set(ids)) == len(ids)):
@@ -244,7 +277,7 @@ def runs_from_rows(rows, source="<aligned logs>"):
     if any("position" in r for r in rows):
         for r in rows:
             if "position" not in r:
-                raise DataError(r["log"], "has no 'position' in its metadata while other logs have one; "
+                raise DataError(r.get("log", "<log>"), "has no 'position' in its metadata while other logs have one; "
                                           "allowed: a position in every log's metadata or in none")
         columns["position"] = [str(r["position"]) for r in rows]
     if any("quality" in r for r in rows):
@@ -258,5 +291,4 @@ def runs_from_rows(rows, source="<aligned logs>"):
             columns[name] = [r[name] for r in rows]
         elif have:
             notes.append(f"'{name}' left out: only {have} of {len(rows)} logs give it")
-    runs = Runs.from_columns(columns, source=source, min_rate_dps=0.0)
-    return runs, notes
+    return columns, notes

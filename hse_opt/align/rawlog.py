@@ -15,14 +15,24 @@ column / array    shape       meaning
 ``gyro_rad``      (n, 3)      RLG angle increments over ``(t_{k-1}, t_k]``, rad, one per gyro
                               (x_g, y_g, z_g order): pulse counts times the nominal pulse
                               weight, *before* any calibration (the processor applies K~_g)
-``accel_mps``     (n, 3)      accelerometer velocity increments over ``(t_{k-1}, t_k]``, m/s
+``accel_mps``     (n, 3)      accelerometer velocity increments over ``(t_{k-1}, t_k]``, m/s,
+                              along the IMU axes x_s, y_s, z_s (specific force: on a static
+                              base their sum points up), *before* calibration (the processor
+                              applies the accelerometer matrix K_a, then C~_s^b)
 ``encoder_rad``   (n,)        table angle alpha latched at ``t_k``, rad, about z_b (down),
                               zero at the zero-position indicator; multi-turn (unwrapped) or
                               wrapped to one turn -- the loader unwraps it
 ================  ==========  =============================================================
 
+Frames (``docs/conventions.md``, ``docs/rawlogs.md``): the IMU is fixed to the table top b
+(z_b down along the rotation axis, x_b at the encoder's zero), so s (the IMU's orthogonal
+frame) and g (the gyro sensing axes) turn with the table; C~_s^b (the lab calibration,
+``CALIBRATION.toml``) places s in b -- in the paper's triad every gyro axis is 54.74 deg from
+z_b (the rotation axis in s near ``-(1, 1, 1)/sqrt(3)``). b turns relative to the base b0 by
+alpha; b0 is fixed on the stand (its attitude in n is what the alignment finds).
+
 The first row's increments belong to an interval that has no encoder angle at its start;
-the processor does not use them. Metadata (all optional, SI or unit-named): ``latitude_deg``
+the processor does not use them, and the record's length is ``t_{n-1} - t_0``. Metadata (all optional, SI or unit-named): ``latitude_deg``
 (required by the processor unless given to it), ``rate_dps`` (nominal), ``azimuth_deg``
 (stand reading), ``t_start_s`` (time since power-on at ``t_0``), ``temp_c`` (mean IMU
 temperature), ``source``.
@@ -56,12 +66,13 @@ from __future__ import annotations
 
 import json
 import os
+import stat
 from dataclasses import dataclass, field
 
 import numpy as np
 
 from hse_opt import units
-from hse_opt.data import atomic_path
+from hse_opt.data import DataError, atomic_path
 
 __all__ = ["RawLog", "validate_rawlog", "check_rawlog", "load_rawlog", "save_rawlog", "CSV_COLUMNS",
            "PULSE_COLUMNS"]
@@ -361,25 +372,31 @@ def load_rawlog(path, meta=None, *, check=True, pulse_weights=None):
 
     Raises
     ------
-    ValueError
-        The file is malformed, truncated or fails :func:`validate_rawlog` / :func:`check_rawlog`
-        (the message names the file and the sample index).
+    hse_opt.data.DataError
+        (a ValueError) The file is missing, not a regular file (a directory, a FIFO), not
+        readable, malformed, truncated, its metadata no JSON object, or it fails
+        :func:`validate_rawlog` / :func:`check_rawlog` (the message names the file, and the
+        sample index where one applies).
     """
     path = os.fspath(path)
+    if meta is not None and not isinstance(meta, dict):
+        raise DataError(path, f"meta is a {type(meta).__name__}; allowed: a dict (key -> value)")
     try:
+        _regular_file(path)
         if path.endswith(".npz"):
             z = _read_npz(path)
             missing = [k for k in ("t_s", "gyro_rad", "accel_mps", "encoder_rad") if k not in z]
             if missing:
                 raise ValueError(f"missing arrays {missing}")
-            file_meta = json.loads(str(z["meta_json"])) if "meta_json" in z else {}
+            file_meta = _meta_object(path, "meta_json", str(z["meta_json"])) if "meta_json" in z else {}
             arrays = (z["t_s"], z["gyro_rad"], z["accel_mps"], z["encoder_rad"])
         elif path.endswith(".csv"):
             header, data = _read_csv(path)
             file_meta = {}
-            if os.path.exists(path + ".json"):
+            if os.path.lexists(path + ".json"):
+                _regular_file(path + ".json")
                 with open(path + ".json", encoding="utf-8") as fh:
-                    file_meta = json.load(fh)
+                    file_meta = _meta_object(path + ".json", "the sidecar", fh.read())
             file_meta.update(meta or {})
             enc = header[-1:]
             enc_factor = {"encoder_rad": 1.0, "encoder_deg": units.DEG}.get(enc[0] if enc else "")
@@ -408,5 +425,30 @@ def load_rawlog(path, meta=None, *, check=True, pulse_weights=None):
         if check:
             check_rawlog(log)
         return log
+    except DataError:
+        raise
     except ValueError as exc:
-        raise ValueError(f"{path}: {exc}") from None
+        raise DataError(path, str(exc)) from None
+    except OSError as exc:
+        raise DataError(path, f"cannot read: {exc.strerror or exc}; allowed: a readable raw-log file") from None
+
+
+def _regular_file(path):
+    """DataError unless ``path`` is a regular file (a FIFO would block the reader, a directory or
+    device is no log); OSError (no such file) as :func:`os.stat` raises it."""
+    mode = os.stat(path).st_mode
+    if not stat.S_ISREG(mode):
+        kind = "a directory" if stat.S_ISDIR(mode) else "a FIFO" if stat.S_ISFIFO(mode) else "not a regular file"
+        raise DataError(path, f"is {kind}; allowed: a regular raw-log file (.npz, .csv, .csv.json)")
+
+
+def _meta_object(source, what, text):
+    """The metadata dict of a JSON text; DataError naming ``source`` if it is no JSON object."""
+    try:
+        meta = json.loads(text)
+    except ValueError as exc:
+        raise DataError(source, f"{what} is not valid JSON ({exc}); allowed: a JSON object") from None
+    if not isinstance(meta, dict):
+        raise DataError(source, f"{what} is a JSON {type(meta).__name__}; allowed: a JSON object "
+                                "(key -> value)")
+    return meta

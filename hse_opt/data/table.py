@@ -273,9 +273,10 @@ class _Table:
         return table
 
     def _check_ranges(self, values):
-        """The physical ranges of :data:`hse_opt.ranges.RANGES` (file units), a duration of at
-        least one table revolution, and pitch/roll that do not look like radians or degrees;
-        ``values`` are the columns as given (for the message)."""
+        """The physical ranges of :data:`hse_opt.ranges.RANGES` (file units) and a duration of at
+        least one table revolution; ``values`` are the columns as given (for the message).
+        Pitch/roll that look like radians or degrees are a warning (:attr:`warnings`): a level
+        base gives the same numbers."""
         src = self.source
         for col in self._COLUMNS:
             r, x = RANGES.get(col.name), getattr(self, col.attr)
@@ -293,13 +294,6 @@ class _Table:
             raise DataError(src, f"value {values['duration_s'][i]!r} is shorter than one table revolution; "
                                  f"allowed: duration_s >= 360/|rate_dps| = {turn[i]:.4g} s (the model averages "
                                  "the heading error over whole revolutions)", row=i + 1, column="duration_s")
-        if getattr(self, "pitch", None) is not None:
-            tilt = np.abs(np.concatenate([self.pitch, self.roll])) / ARCSEC
-            if np.all(tilt < SMALL_TILT_ARCSEC) and tilt.max() >= SMALL_TILT_FLOOR_ARCSEC:
-                raise DataError(src, f"all values are below {SMALL_TILT_ARCSEC:g} arcsec: they look like "
-                                     "radians or degrees; allowed: arcsec (no stand is level to "
-                                     f"{SMALL_TILT_ARCSEC:g} arcsec: 1e-3 rad is 206 arcsec)",
-                                column="pitch_arcsec")
 
     # -- helpers ---------------------------------------------------------------------------
     def __len__(self):
@@ -319,12 +313,19 @@ class _Table:
 
     @property
     def warnings(self):
-        """tuple of str: the text columns that hold numbers in other rows (a NaN, an empty cell
-        or a typo among numbers turns the whole column into text: it is passed through, never a
-        covariate). Each names the file, the first row that is not a number and the column;
+        """tuple of str: pitch/roll columns whose every value is below 0.05 arcsec (a level base,
+        or radians/degrees: read as given), and the text columns that hold numbers in other
+        rows (a NaN, an empty cell or a typo among numbers turns the whole column into text: it
+        is passed through, never a covariate). Each names the file, the first row that is not a number and the column;
         the loaders issue them as :class:`~hse_opt.data.errors.DataWarning` and the command
         line prints them on stderr."""
         out = ()
+        if getattr(self, "pitch", None) is not None:
+            tilt = np.abs(np.concatenate([self.pitch, self.roll])) / ARCSEC
+            if np.all(tilt < SMALL_TILT_ARCSEC) and tilt.max() >= SMALL_TILT_FLOOR_ARCSEC:
+                out += (f"{self.source}, column 'pitch_arcsec': every pitch and roll is below "
+                        f"{SMALL_TILT_ARCSEC:g} arcsec: a level base, or values in radians or degrees "
+                        "(1e-3 rad is 206 arcsec)? read as arcsec; allowed: arcsec",)
         for name, text in self.metadata.items():
             cells = text.tolist()
             i = _first_not_number(cells)
