@@ -215,3 +215,27 @@ def test_noise_in_the_file_tunes_the_filter(tmp_path, arw_dph_rthz):
     log = generate(truth, RunSpec(rate=40 * units.DEG_PER_S, azimuth=0.3, duration=600.0), np.random.default_rng(5))
     limit = cfg.arw / (7.292115e-5 * math.cos(math.radians(28.07)) * math.sqrt(600.0))
     assert align(log, cfg).heading_std == pytest.approx(limit, rel=0.06)
+
+
+def test_without_noise_in_the_file_the_filter_is_tuned_from_the_logs(tmp_path, capsys):
+    """Noise-free logs: tuned from their own (near-zero) Allan figures the filter's 1-sigma is
+    below an arcsec; tuned with the file's 0.012 deg/h/sqrt(Hz) it is the gyrocompass limit of
+    that ARW over 60 s, N / (w_ie cos L sqrt(T)) = 23.6 arcsec, or more (the prior)."""
+    truth = _orthogonal_truth()
+    (tmp_path / "logs").mkdir()
+    for i, rate in enumerate((40.0, -40.0)):
+        save_rawlog(generate(truth, RunSpec(rate=rate * units.DEG_PER_S, azimuth=0.5, duration=60.0,
+                                            t_start=900.0 + 100 * i), np.random.default_rng(i)),
+                    tmp_path / "logs" / f"r{i}.npz")
+    base = f"[gyro]\nK_g = {IDENTITY}\n[accel]\nK_a = {IDENTITY}\n[mount]\nr_zb_s = {IDEAL_R}\n"
+    _write(tmp_path / "A.toml", base)
+    _write(tmp_path / "B.toml", base + "[noise]\ngyro_arw_dph_rthz = 0.012\naccel_vrw_ug_rthz = 1\n")
+    std = {}
+    for name in ("A", "B"):
+        assert main(["align", str(tmp_path / "logs"), "-o", str(tmp_path / f"{name}.csv"), "--calibration",
+                     str(tmp_path / f"{name}.toml"), "--no-progress"]) == 0
+        runs = load_runs(tmp_path / f"{name}.csv")
+        assert np.all(np.abs(runs.heading_err) < 1e-4 * units.ARCSEC)
+        std[name] = runs.heading_std / units.ARCSEC
+    limit = 0.012 * units.DEG_PER_H / (7.292115e-5 * math.cos(math.radians(28.07)) * math.sqrt(60.0)) / units.ARCSEC
+    assert np.all(std["A"] < 1.0) and np.all(std["B"] > limit)
