@@ -105,6 +105,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from hse_opt import units
+from hse_opt.align.noise import _block_sums
 
 __all__ = ["Thresholds", "Finding", "Quality", "LogRefused", "assess", "check_metadata"]
 
@@ -436,11 +437,8 @@ def _check_rate(t, enc, L, m, th, findings):
 
 
 def _window_sums(x, L, m):
-    """Sums of ``x[1 + w L : 1 + (w + 1) L]`` for w < m, shape (m, 3) (as a view's sum for a
-    column-major array, by ``reduceat`` for a row-major one: each reads the samples once)."""
-    if x.flags.f_contiguous and not x.flags.c_contiguous:
-        return x.T[:, 1:m * L + 1].reshape(3, m, L).sum(axis=2).T
-    return np.add.reduceat(x[1:m * L + 1], np.arange(0, m * L, L), axis=0)
+    """Sums of ``x[1 + w L : 1 + (w + 1) L]`` for w < m, shape (m, 3)."""
+    return _block_sums(x, m * L + 1, m, L).T
 
 
 def _robust_flags(v, sigmas, floor):
