@@ -115,6 +115,19 @@ def test_a_first_encoder_sample_off_by_1_rad_no_longer_moves_a_short_run_by_degr
     assert abs(align(q.log, CFG).heading - res0.heading) < 0.1 * res0.heading_std
 
 
+def test_a_stale_encoder_reading_is_repaired(clean):
+    """The logger repeats sample K's angle at K + 1 (and, in a second case, at K + 2 too)."""
+    log, _ = clean
+    for n in (1, 2):
+        def stale(e):
+            e[K + 1:K + 1 + n] = e[K]
+        q = assess(_faulty(log, encoder=stale))
+        f = _only(q, "repaired")
+        assert (f.sample, f.time) == (K + 1, log.t[K + 1]) and "replaced by it" in f.detail
+        assert np.abs(q.log.encoder[K + 1:K + 1 + n] - log.encoder[K + 1:K + 1 + n]).max() < 2 * units.ARCSEC
+        _same_heading(q, clean)
+
+
 @pytest.mark.parametrize("where", ["first", "last"])
 def test_first_or_last_encoder_sample_off_is_extrapolated_by_the_gyros(clean, where):
     log, _ = clean

@@ -24,7 +24,8 @@ Checks, rules and thresholds (:class:`Thresholds`; the reasons are physical)
 
    *Repair*: a run of at most ``repair_samples`` (3) consecutive samples whose first and
    last neighbours agree with the table's rate (the steps around them add up to the rate's
-   within the threshold: a glitch, a sample off by a wrap, a repeated stale reading) is
+   within the threshold: a glitch, a repeated stale reading; a sample off by a whole turn
+   is already unwrapped by the loader, and one off by more than pi/2 otherwise refused there) is
    replaced by the linear interpolation of those neighbours; at the log's first or last
    samples by extrapolation from the good neighbour with the gyros' turn in each step. The
    row says so (``repaired: encoder at sample k (t = ... s): ...``).
