@@ -11,6 +11,8 @@ COMPENSATION_STD_COLUMN = "heading_comp_std_arcsec"
 #: column :func:`compensate` adds for runs with their own heading (``heading_deg``): the
 #: compensated heading, deg -- what a field alignment reports after compensation
 COMPENSATED_HEADING_COLUMN = "heading_comp_deg"
+#: column :func:`compensate` adds (arcsec): the correction's systematic bound (:func:`systematic_at`)
+COMPENSATION_SYS_COLUMN = "heading_comp_sys_arcsec"
 #: column :func:`compensate` adds: the validity domain's status of each run, the exported C's
 #: return value (0 inside; else the bitmask of :mod:`hse_opt.fit.domain`; -1 when the fit
 #: carries no run inputs to set the domain from)
@@ -82,12 +84,43 @@ def compensation(runs, fit_result, parameters=None):
 def compensation_at(X, fit_result, parameters=None):
     """:func:`compensation` at run inputs ``X`` (measurement-model order, SI; shape (n_x, n)):
     the modelled heading error (rad) and its 1-sigma (rad), each shape (n,)."""
+    correction, Jd, use = _at(X, fit_result, parameters)
+    C = np.asarray(fit_result.covariance)[np.ix_(use, use)]
+    return correction, propagated_std(Jd, C, np.array(fit_result.measurement.names)[use])
+
+
+def _at(X, fit_result, parameters):
+    """The modelled heading error at ``X`` (rad, (n,)), its Jacobian in the compensated
+    parameters (rad per display unit, (n, k)) and their mask."""
     mm = fit_result.measurement
     use, p = compensation_point(fit_result, parameters)
-    correction = mm.predict(p, X)
-    Jd = mm.jacobian(p, X)[:, use] * mm.scale[use][None, :]
-    C = np.asarray(fit_result.covariance)[np.ix_(use, use)]
-    return correction, propagated_std(Jd, C, np.array(mm.names)[use])
+    return mm.predict(p, X), mm.jacobian(p, X)[:, use] * mm.scale[use][None, :], use
+
+
+def systematic_shifts(fit_result, use):
+    """What the campaign could not rule out, per compensated parameter: ``(S, effects)`` with
+    ``S[j, e]`` the shift (display unit, >= 0) effect ``effects[e]`` could cause in the ``j``-th
+    parameter of mask ``use`` (``FitResult.systematic_by``; shape (k, 0) without any)."""
+    by = getattr(fit_result, "systematic_by", None) or ()
+    rows = [by[i] if i < len(by) and by[i] else {} for i in np.flatnonzero(use)]
+    effects = tuple(sorted({e for r in rows for e in r}))
+    S = np.array([[abs(float(r.get(e, 0.0))) for e in effects] for r in rows], dtype=float)
+    return S.reshape(len(rows), len(effects)), effects
+
+
+def systematic_at(X, fit_result, parameters=None):
+    """The correction's systematic bound at run inputs ``X`` (rad, shape (n,)): the largest
+    shift of the correction that one effect the campaign could not rule out would cause, if
+    present at the edge of its plausible range (:mod:`hse_opt.aliasing`), each parameter's
+    shift carried through the correction's Jacobian and added in absolute value (the signs of
+    the shifts are not kept: an upper bound),
+    ``max_e sum_j |dcorr/dp_j| S[j, e]`` (:func:`systematic_shifts`). 0 when the fit
+    carries no systematic budget."""
+    _, Jd, use = _at(X, fit_result, parameters)
+    S, _ = systematic_shifts(fit_result, use)
+    if S.shape[1] == 0:
+        return np.zeros(Jd.shape[0])
+    return (np.abs(Jd) @ S).max(axis=1)
 
 
 def domain_status(runs, fit_result, parameters=None):
@@ -116,13 +149,16 @@ def compensate(runs, fit_result, parameters=None):
     ``heading_comp_std_arcsec`` = the compensation's 1-sigma from the fit's covariance; for
     runs with their own heading (``heading_deg``, field campaigns) also ``heading_comp_deg`` =
     ``heading_deg`` minus the compensation, the compensated alignment heading; and
+    ``heading_comp_sys_arcsec``, the correction's systematic bound (:func:`systematic_at`: what
+    an effect the campaign could not rule out could add; 0 without a budget in the fit);
     ``comp_status``, the run's :func:`domain_status` (nonzero: the calibration never saw such
     a run, its correction is the model's extrapolation). At an unsurveyed
     position ``heading_err`` is relative to the position's mean heading (:mod:`hse_opt.data`),
     and so is its compensated value. The other columns are unchanged. Raises ``ValueError``
     when ``runs`` already has them.
     """
-    for col in (COMPENSATED_COLUMN, COMPENSATION_STD_COLUMN, COMPENSATED_HEADING_COLUMN, DOMAIN_STATUS_COLUMN):
+    for col in (COMPENSATED_COLUMN, COMPENSATION_STD_COLUMN, COMPENSATION_SYS_COLUMN, COMPENSATED_HEADING_COLUMN,
+                DOMAIN_STATUS_COLUMN):
         if col in runs.covariates:
             raise ValueError(f"{runs.source}, column '{col}': already present; allowed: runs without "
                              "it (compensate the uncompensated runs)")
@@ -130,6 +166,7 @@ def compensate(runs, fit_result, parameters=None):
     heading = {} if runs.heading is None else {
         COMPENSATED_HEADING_COLUMN: np.mod(runs.heading - correction, 2 * np.pi) / units.DEG}
     status, _ = domain_status(runs, fit_result, parameters)
+    sys = systematic_at(fit_result.measurement.inputs_from_runs(runs), fit_result, parameters)
     return runs.replace(**{COMPENSATED_COLUMN: (runs.heading_err - correction) / units.ARCSEC,
-                           COMPENSATION_STD_COLUMN: std / units.ARCSEC, **heading,
-                           DOMAIN_STATUS_COLUMN: status})
+                           COMPENSATION_STD_COLUMN: std / units.ARCSEC, COMPENSATION_SYS_COLUMN: sys / units.ARCSEC,
+                           **heading, DOMAIN_STATUS_COLUMN: status})

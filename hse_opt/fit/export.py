@@ -89,12 +89,13 @@ def compensation_function(fit_result, parameters=None):
     sin and cos of pitch and roll as Taylor series (exact to double rounding for tilts up to
     ``SMALL_ANGLE`` = 0.2 rad; the domain's model limits hold them within 2 degrees).
     """
-    from .correction import compensation_point
+    from .correction import compensation_point, systematic_shifts
     from ..model.folding import cost, fold_linear
 
     mm = fit_result.measurement
     use, p = compensation_point(fit_result, parameters)
     L = ca.DM(covariance_factor(np.asarray(fit_result.covariance)[np.ix_(use, use)], np.array(mm.names)[use]))
+    L = (L, ca.DM(systematic_shifts(fit_result, use)[0]))  # the statistical factor, the systematic shifts
     x = ca.SX.sym("x", mm.n_x)
     q = ca.SX.sym("q", int(use.sum()))  # compensated parameters, display units from the estimate
     p_expr = ca.SX(ca.DM(p))
@@ -112,7 +113,7 @@ def compensation_function(fit_result, parameters=None):
         built += [fold_linear([x], b, small=small) for b in list(built)]
     outputs = min((ca.cse(o) for o in built),  # shared subexpressions once
                   key=lambda o: cost(ca.Function("n", [x], o)))
-    return ca.Function(f"{ENTRY_POINT}_model", [x], outputs, ["x"], ["correction_rad", "sigma_rad"])
+    return ca.Function(f"{ENTRY_POINT}_model", [x], outputs, ["x"], ["correction_rad", "sigma_rad", "sigma_sys_rad"])
 
 
 def _direct(mm, p_expr, x, q, zero, L):
@@ -120,7 +121,18 @@ def _direct(mm, p_expr, x, q, zero, L):
     h = mm.h(p_expr, x)
     h0 = ca.substitute(h, q, zero)
     dh = ca.substitute(ca.jacobian(h, q), q, zero)
-    return [-h0, ca.sqrt(ca.sumsqr(ca.mtimes(dh, L)))]
+    return [-h0, *_spread(dh, L)]
+
+
+def _spread(dh, factors):
+    """The correction's 1-sigma and its systematic bound from its gradient ``dh`` (1, k) in
+    the compensated parameters: ``factors`` = (L with C = L L', the shifts S (k, m));
+    :func:`hse_opt.fit.correction.systematic_at` is the same bound in numpy."""
+    L, S = factors
+    sigma = ca.sqrt(ca.sumsqr(ca.mtimes(dh, L)))
+    if S.shape[1] == 0:
+        return [sigma, ca.SX(0.0)]
+    return [sigma, ca.mmax(ca.mtimes(ca.fabs(dh), S))]
 
 
 def _folded(model, mm, p_expr, x, q, zero, L):
@@ -146,7 +158,7 @@ def _folded(model, mm, p_expr, x, q, zero, L):
     e0, n0 = ca.dot(omega0, east), ca.dot(omega0, north)
     g0 = -ca.atan2(e0, n0)
     dh = -(n0 * ca.mtimes(east.T, d_omega) - e0 * ca.mtimes(north.T, d_omega)) / (e0 ** 2 + n0 ** 2) - d_ref
-    return [-(g0 - ref0), ca.sqrt(ca.sumsqr(ca.mtimes(dh, L)))]
+    return [-(g0 - ref0), *_spread(dh, L)]
 
 
 def _input_table(fit_result):
@@ -186,6 +198,13 @@ def _header(rows, domain, fit_result, source):
         " *     heading_compensated = heading_alignment + *correction_rad",
         " * (minus the modelled heading error, estimated - true). *sigma_rad is its 1-sigma from the",
         " * calibration's covariance (not the alignment's own noise).",
+        " *",
+        f" * int {ENTRY_POINT}_systematic(const double in[HSE_COMP_N_INPUTS], double *sigma_sys_rad);",
+        " * *sigma_sys_rad: the correction's systematic bound - the largest shift of the correction one",
+        " * effect the calibration campaign could not rule out (undetectable there, at the edge of its",
+        " * plausible range) would cause; the fitted parameters' shifts carried through the correction's",
+        " * gradient and added in absolute value (hse_opt/fit/correction.py). 0 without a budget in the",
+        " * fit. Same status as hse_compensation. Report sigma and sigma_sys side by side.",
         " *",
         " * Inputs, SI, in this order (in[HSE_COMP_IN_<NAME>]):",
     ]
@@ -233,6 +252,7 @@ def _header(rows, domain, fit_result, source):
     lines += [
         "",
         f"int {ENTRY_POINT}(const double in[HSE_COMP_N_INPUTS], double *correction_rad, double *sigma_rad);",
+        f"int {ENTRY_POINT}_systematic(const double in[HSE_COMP_N_INPUTS], double *sigma_sys_rad);",
         "",
         "#ifdef __cplusplus",
         "}",
@@ -294,10 +314,11 @@ def _source(function, rows, domain, source):
     c23 = (f"  const double c23 = -in[{i['roll']}] * cos(in[{i['azimuth']}]) + in[{i['pitch']}] * "
            f"sin(in[{i['azimuth']}]);  /* C23, as hse_opt.model.inputs.c23 */\n" if "c23" in domain.bounded else "")
     wrapper = f"""
-/* ---- entry point (see {ENTRY_POINT}.h) ---- */
-int {ENTRY_POINT}(const double in[HSE_COMP_N_INPUTS], double *correction_rad, double *sigma_rad) {{
+/* ---- entry points (see {ENTRY_POINT}.h) ---- */
+static int {ENTRY_POINT}_all(const double in[HSE_COMP_N_INPUTS], double *correction_rad, double *sigma_rad,
+                             double *sigma_sys_rad) {{
   const casadi_real *arg[{max(function.sz_arg(), 1)}];
-  casadi_real *res[{max(function.sz_res(), 1)}];
+  casadi_real *res[{max(function.sz_res(), 3)}];
   casadi_int iw[{max(function.sz_iw(), 1)}];
   casadi_real w[{max(function.sz_w(), 1)}];
   int status = 0;
@@ -305,8 +326,17 @@ int {ENTRY_POINT}(const double in[HSE_COMP_N_INPUTS], double *correction_rad, do
   arg[0] = in;
   res[0] = correction_rad;
   res[1] = sigma_rad;
+  res[2] = sigma_sys_rad;
   if ({name}(arg, res, iw, w, 0)) return -1;
   return status;
+}}
+
+int {ENTRY_POINT}(const double in[HSE_COMP_N_INPUTS], double *correction_rad, double *sigma_rad) {{
+  return {ENTRY_POINT}_all(in, correction_rad, sigma_rad, 0);
+}}
+
+int {ENTRY_POINT}_systematic(const double in[HSE_COMP_N_INPUTS], double *sigma_sys_rad) {{
+  return {ENTRY_POINT}_all(in, 0, 0, sigma_sys_rad);
 }}
 """
     head = (f"/* {ENTRY_POINT}.c - generated by hse_opt {__version__} (CasADi {ca.__version__} code "
@@ -419,6 +449,9 @@ def export_calibration(fit_result, directory, inputs=None, source="a FitResult",
             "name": ENTRY_POINT, "header": f"{ENTRY_POINT}.h", "source": f"{ENTRY_POINT}.c",
             "signature": f"int {ENTRY_POINT}(const double in[{len(rows)}], double *correction_rad, "
                          "double *sigma_rad)",
+            "systematic": {"name": f"{ENTRY_POINT}_systematic",
+                           "signature": f"int {ENTRY_POINT}_systematic(const double in[{len(rows)}], "
+                                        "double *sigma_sys_rad)"},
             "returns": "0 inside the validity domain (\"domain\"), else the bitmask: 1 << index for an "
                        "input not finite, beyond its model limit or outside its domain interval, "
                        f"1 << {C23_BIT} for C23 outside its interval; -1 if the generated code fails; "
@@ -430,7 +463,11 @@ def export_calibration(fit_result, directory, inputs=None, source="a FitResult",
              "sign": "ADD to the alignment's heading: heading_compensated = heading + correction "
                      "(minus the modelled heading error, estimated - true)"},
             {"name": "sigma_rad", "unit": "rad", "description": "1-sigma of the correction from the fit's "
-                                                                "covariance"}],
+                                                                "covariance"},
+            {"name": "sigma_sys_rad", "unit": "rad", "entry_point": f"{ENTRY_POINT}_systematic",
+             "description": "the correction's systematic bound: the largest shift one effect the campaign "
+                            "could not rule out would cause (max over effects of sum_j |dcorr/dp_j| "
+                            "systematic_by[j][effect]); 0 without a systematic budget"}],
         "domain": domain.to_dict(),
         "effects": d["effects"], "tilt_known": d["tilt_known"], "compensated_parameters": list(comp),
         "parameters": d["parameters"],

@@ -10,7 +10,9 @@ DESCRIPTION = """\
 Subtract the heading error the calibration predicts for each run (every system effect: the
 stand's own errors - the offset of its zero mark and its reading errors - are left alone) and
 write RUNS.csv with more columns: heading_err_comp_arcsec, the compensated heading error,
-heading_comp_std_arcsec, the compensation's 1-sigma from the calibration's covariance, and
+heading_comp_std_arcsec, the compensation's 1-sigma from the calibration's covariance,
+heading_comp_sys_arcsec, its systematic bound (the largest shift one effect the calibration
+campaign could not rule out would cause: FIT.json's systematic_by through the correction), and
 comp_status, 0 for a run inside the calibration's validity domain, else the exported C's
 status bitmask (|rate| or sense, C23 = -roll cos(heading) + pitch sin(heading), time or
 covariates outside what the calibration runs covered; hse_opt/fit/domain.py): such rows are
@@ -40,7 +42,8 @@ def _stats(x):
 def run(args):
     from ... import units
     from ...data import load_runs, save_runs
-    from ...fit.correction import (COMPENSATED_COLUMN, COMPENSATION_STD_COLUMN, DOMAIN_STATUS_COLUMN, compensate,
+    from ...fit.correction import (COMPENSATED_COLUMN, COMPENSATION_STD_COLUMN, COMPENSATION_SYS_COLUMN,
+                                   DOMAIN_STATUS_COLUMN, compensate,
                                    compensated_parameters, domain_status)
     from ...fit.file import load_fit
 
@@ -77,6 +80,7 @@ def run(args):
                "parameters": list(compensated_parameters(calibration)),
                "before": _stats(before), "after": _stats(after), **parts,
                "comp_std_mean_arcsec": float(np.mean(out.covariates[COMPENSATION_STD_COLUMN])),
+               "comp_sys_max_arcsec": float(np.max(out.covariates[COMPENSATION_SYS_COLUMN])),
                "outside_domain": [int(runs.run[i]) for i in outside]}
     if args.json:
         print_json(summary)
@@ -91,7 +95,8 @@ def run(args):
             print(f"  {what}{where}: RMS {b['rms_arcsec']:.4g} -> {a['rms_arcsec']:.4g} arcsec, "
                   f"peak-to-peak {b['ptp_arcsec']:.4g} -> {a['ptp_arcsec']:.4g} arcsec")
         print(f"  compensation 1-sigma (calibration uncertainty): mean "
-              f"{summary['comp_std_mean_arcsec']:.3g} arcsec")
+              f"{summary['comp_std_mean_arcsec']:.3g} arcsec; systematic bound (what the calibration "
+              f"campaign could not rule out): up to {summary['comp_sys_max_arcsec']:.3g} arcsec")
         if positions:
             print(f"  positions without a heading reference ({', '.join(positions)}): their true heading "
                   "errors are unknown; the scatter shows how consistent each position's headings became")

@@ -66,5 +66,6 @@ def run(args):
                       f"arcsec (the runs': {q['data_lower'] / units.ARCSEC:.6g} .. "
                       f"{q['data_upper'] / units.ARCSEC:.6g})")
         print("  outside the domain the return value is nonzero (bitmask in hse_compensation.h)")
-        print("  *correction_rad is ADDED to the alignment's heading; *sigma_rad its 1-sigma")
+        print("  *correction_rad is ADDED to the alignment's heading; *sigma_rad its 1-sigma; "
+              f"{ENTRY_POINT}_systematic(in, &sigma_sys_rad) its systematic bound")
     return 0
