@@ -4,8 +4,8 @@ Steps
 -----
 1. Blocks. The increments of each gyro and accelerometer channel (rows 1..n-1 of the log:
    the first row's interval has no encoder angle at its start) are summed over blocks of
-   ``B`` samples, ``B`` the whole number of samples nearest to :data:`BLOCK_PERIOD` (32 ms:
-   16 samples at 500 Hz, 3 at 100 Hz).
+   ``B`` samples, ``B`` the whole number of samples nearest to :data:`BLOCK_PERIOD` (64 ms:
+   32 samples at 500 Hz, 6 at 100 Hz).
 2. The deterministic part, fitted out per channel. The table turns at a constant rate about
    z_b, so in the sensor frame a gyro channel holds the table turn projected on its axis and
    the Earth rate modulated at the table rate; an accelerometer channel holds gravity and the
@@ -39,9 +39,10 @@ Steps
    points exist (the long cluster times, where the overlap matters), at most 2 x
    :data:`MAX_TERMS` otherwise (the short cluster times, where that many nearly independent
    clusters pin each value to 1.6 %). The number of independent clusters is taken as ``min(n
-   / m, start points)``. Clusters shorter than a block (1, 2, 4, 8 samples at 500 Hz) come
-   from the raw samples the same way, at up to :data:`MAX_TERMS` start points, with the
-   fitted deterministic part taken over each cluster's own span.
+   / m, start points)``. Clusters shorter than a block (1, 2, 4, 8, 16 samples at 500 Hz) come
+   from the raw samples of :data:`SEGMENTS` stretches of :data:`SEGMENT_SAMPLES` samples
+   spread over the log, fully overlapping within each, the fitted deterministic part taken
+   off every sample.
 4. IEEE Std 952-1997 Annex C terms: the least-squares fit of the Allan variance model
    ``sigma^2(tau) = sum_k A_k tau^k``, k = -2..1, with every ``A_k >= 0``, weighted by the
    estimate's own variance (relative standard deviation ``sqrt(2 / (K - 1))`` of a
@@ -105,7 +106,7 @@ CHANNELS = ("gyro_x", "gyro_y", "gyro_z", "accel_x", "accel_y", "accel_z")
 #: the fitted terms, in the order of the powers -2..1 of tau in the Allan variance model
 TERMS = ("quantization", "random_walk", "bias_instability", "rate_random_walk")
 #: the block the deterministic part is fitted on, s (shorter clusters come from the raw samples)
-BLOCK_PERIOD = 0.032
+BLOCK_PERIOD = 0.064
 #: at most about this many (at most twice) start points per cluster time
 MAX_TERMS = 2048
 #: relative 1-sigma of the four-term model itself, added in quadrature to each Allan
@@ -114,6 +115,10 @@ MODEL_ERROR = 0.1
 #: a fit whose weighted residuals exceed this many times their degrees of freedom is refitted
 #: with :data:`MODEL_ERROR` in its weights
 MISFIT = 10.0
+#: clusters shorter than a block come from this many stretches of the raw samples ...
+SEGMENTS = 8
+#: ... of this many samples each (2 s at 500 Hz; 8192 samples, 3 % of a 10-minute log)
+SEGMENT_SAMPLES = 1024
 #: fewest blocks a log must have (a curve of at least 10 cluster times)
 MIN_BLOCKS = 32
 _POWERS = np.arange(-2, 2)
@@ -373,35 +378,46 @@ def deterministic_residual(log, *, block_period=BLOCK_PERIOD):
                     coefficients=coef, rate=rate, edge_cos=ce, edge_sin=se)
 
 
-def _short_allan(log, residual, sizes, max_terms):
-    """Allan deviation at clusters shorter than a block (``sizes`` in samples), from the raw
-    increments at up to about ``max_terms`` start points each (block edges, evenly spread),
-    the fitted deterministic part taken over each cluster's own span (midpoint rule: over at
-    most a block the table turns a few degrees, and the rule's relative error ``d alpha^2 /
-    24`` is below 1e-4). Returns ``(tau, adev (6, k), clusters)``."""
+def _short_allan(log, residual, sizes, segments=SEGMENTS, length=SEGMENT_SAMPLES):
+    """Allan deviation at clusters shorter than a block (``sizes`` in samples) from the raw
+    samples of ``segments`` stretches of ``length`` samples spread evenly over the log (each
+    starting at a block edge), fully overlapping within each: the fitted deterministic part
+    is taken off every sample (its angle by the angle-addition series from the block edge's;
+    the rule's error over one sample, ``d alpha^2 / 24``, is below 1e-6), the cumulative
+    sums differenced as in :func:`allan_deviation`. Returns ``(tau, adev (6, k), clusters)``,
+    ``clusters = min(n, segments x length) / m``."""
     t, enc = np.asarray(log.t, dtype=float), np.asarray(log.encoder, dtype=float)
     n = t.shape[0] - 1                                            # increments: rows 1..n
     dt = (t[-1] - t[0]) / n
-    raw = (np.asarray(log.gyro).T, np.asarray(log.accel).T)       # (3, n + 1) each
-    coef, block = residual.coefficients.T, residual.block         # (6, 4)
+    block = residual.block
+    length = min(length, n)
+    count = max(1, min(segments, n // length))
+    first = np.round(np.linspace(0, (n - length) // block, count)).astype(np.int64) * block
+    edges = first[:, None] + np.arange(length + 1)                # (count, length + 1) sample edges
+    a, te = enc[edges], t[edges]
+    da, h = np.diff(a, axis=1), np.diff(te, axis=1)
+    start = edges[:, :-1] // block                                # the block edge each sample starts in
+    cd, sd = _cos_sin_small(a[:, :-1] + 0.5 * da - enc[start * block])
+    ce, se = residual.edge_cos[start], residual.edge_sin[start]
+    X = np.stack([h, (ce * cd - se * sd) * h, (se * cd + ce * sd) * h, da - residual.rate * h])
+    rows = edges[:, 1:]
+    r = np.empty((6, count, length))
+    r[:3] = np.take(np.asarray(log.gyro).T, rows, axis=1)
+    r[3:] = np.take(np.asarray(log.accel).T, rows, axis=1)
+    r -= np.tensordot(residual.coefficients.T, X, axes=1)
+    # sums of m consecutive samples by doubling (sizes are powers of two): cheaper than the
+    # cumulative sum; the Allan difference is then of two adjacent sums
     adev, clusters = np.empty((6, len(sizes))), np.empty(len(sizes))
+    sums, width = r, 1
     for i, m in enumerate(sizes):
-        edges = (n - 2 * m) // block + 1                          # block edges a cluster pair fits after
-        b = np.arange(0, edges, max(1, edges // max_terms))
-        e = b * block
-        rows = e[:, None] + 1 + np.arange(2 * m)                # (cnt, 2m)
-        w = np.repeat([-1.0, 1.0], m)
-        d = np.concatenate([np.take(x, rows, axis=1).reshape(-1, 2 * m) @ w for x in raw]).reshape(6, -1)
-        a0, a1, a2 = enc[e], enc[e + m], enc[e + 2 * m]
-        h1, h2 = t[e + m] - t[e], t[e + 2 * m] - t[e + m]
-        ce, se = residual.edge_cos[b], residual.edge_sin[b]
-        (c1, s1), (c2, s2) = _cos_sin_small(0.5 * (a1 - a0)), _cos_sin_small(0.5 * (a1 + a2) - a0)
-        dX = np.stack([h2 - h1, (ce * c2 - se * s2) * h2 - (ce * c1 - se * s1) * h1,
-                       (se * c2 + ce * s2) * h2 - (se * c1 + ce * s1) * h1,
-                       (a2 - a1) - (a1 - a0) - residual.rate * (h2 - h1)])
-        d -= coef @ dX
-        adev[:, i] = np.sqrt(np.einsum("ij,ij->i", d, d) / (2.0 * e.size)) / (m * dt)
-        clusters[i] = min(n / m, e.size)
+        while width < m:
+            sums = sums[:, :, width:] + sums[:, :, :-width]
+            width *= 2
+        if width != m:
+            raise ValueError(f"short cluster sizes must be powers of two, got {m}")
+        d = sums[:, :, m:] - sums[:, :, :-m]
+        adev[:, i] = np.sqrt(np.einsum("csl,csl->c", d, d) / (2.0 * d[0].size)) / (m * dt)
+        clusters[i] = count * length / m
     return np.asarray(sizes) * dt, adev, clusters
 
 
@@ -547,7 +563,7 @@ def noise_from_log(log, *, block_period=BLOCK_PERIOD, max_terms=MAX_TERMS):
     tau, adev, clusters = allan_deviation(res.blocks, res.tau0, max_terms=max_terms,
                                           sizes=cluster_sizes(res.blocks.shape[1], steps_per_octave=1))
     if short:
-        tau_s, adev_s, clusters_s = _short_allan(log, res, short, max_terms)
+        tau_s, adev_s, clusters_s = _short_allan(log, res, short)
         tau, adev = np.concatenate([tau_s, tau]), np.concatenate([adev_s, adev], axis=1)
         clusters = np.concatenate([clusters_s, clusters])
     coef, std = fit_allan(tau, adev, clusters)
