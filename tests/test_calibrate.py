@@ -128,7 +128,7 @@ def test_exported_c_agrees_with_its_test_vectors_and_the_driver_can_fail(campaig
     assert rows[0, head.index("correction_rad")] == pytest.approx(-corr[order[0]], rel=1e-12)
     assert rows[0, head.index("sigma_rad")] == pytest.approx(std[order[0]], rel=1e-12)
     # a vector the target gets wrong is reported and fails the driver
-    bad = lines[:2] + [",".join(lines[2].split(",")[:-3] + ["0.001", "0", "0"])] + lines[3:]
+    bad = lines[:2] + [",".join(lines[2].split(",")[:-4] + ["0.001", "0", "0", "0"])] + lines[3:]
     (tmp_path / "bad.csv").write_text("\n".join(bad) + "\n")
     ran = subprocess.run([str(exe), str(tmp_path / "bad.csv")], capture_output=True, text=True, timeout=60)
     assert ran.returncode == 1 and ran.stdout.splitlines()[-1] == f"{n - 1} of {n} test vectors agree"

@@ -7,7 +7,7 @@ beside the exported C (:func:`hse_opt.fit.export.export_calibration`):
 ``test_vectors.csv``
     One header row: the inputs by name with their SI unit (``in_rate_rad_s``, ...: the
     order of ``in[]``, ``calibration.json``'s ``inputs``), then ``correction_rad``,
-    ``sigma_rad`` and ``status``; one row per vector, every number with 17 significant digits
+    ``sigma_rad``, ``sigma_sys_rad`` (``hse_compensation_systematic``) and ``status``; one row per vector, every number with 17 significant digits
     (exact round trip of a double). The vectors are the calibration runs' own inputs (up to
     :data:`N_INSIDE`, spread over the runs: status 0) and, for each quantity of the validity
     domain (:mod:`hse_opt.fit.domain`), the first run moved far outside it (``|rate|``, time,
@@ -15,10 +15,12 @@ beside the exported C (:func:`hse_opt.fit.export.export_calibration`):
     is farthest from the domain, when one leaves it), each input with a model limit at twice
     it, and the sense of rotation the runs never used where there is one. The expected outputs come from the measurement model the fit used
     (:func:`hse_opt.fit.correction.compensation_at`: minus the modelled heading error, and
-    its 1-sigma from the covariance), not from the C; the expected status from
+    its 1-sigma from the covariance; :func:`hse_opt.fit.correction.systematic_at`, its
+    systematic bound), not from the C; the expected status from
     :meth:`hse_opt.fit.domain.Domain.status`, the rule the C implements.
 ``test_hse_compensation.c``
-    A C99 driver: reads the CSV, calls ``hse_compensation`` on each row and compares; prints
+    A C99 driver: reads the CSV, calls ``hse_compensation`` and ``hse_compensation_systematic``
+    on each row and compares; prints
     one line per disagreement and a last line ``N of M test vectors agree``; exits 0 when all
     agree. Build and run::
 
@@ -122,14 +124,17 @@ def _unit_name(unit):
 
 def vectors_csv(fit_result, inputs=None):
     """The text of ``test_vectors.csv`` (module docstring)."""
+    from .correction import systematic_at
     from .export import _input_table
     X, corr, sigma, status = vectors(fit_result, inputs)
+    sys = systematic_at(X, fit_result)
     rows = _input_table(fit_result)
     head = [f"in_{r['name']}" + ("" if r["unit"].startswith("as in") else f"_{_unit_name(r['unit'])}")
-            for r in rows] + ["correction_rad", "sigma_rad", "status"]
+            for r in rows] + ["correction_rad", "sigma_rad", "sigma_sys_rad", "status"]
     lines = [",".join(head)]
     for j in range(X.shape[1]):
-        vals = [f"{v:.17g}" for v in X[:, j]] + [f"{corr[j]:.17g}", f"{sigma[j]:.17g}", str(int(status[j]))]
+        vals = [f"{v:.17g}" for v in X[:, j]] + [f"{corr[j]:.17g}", f"{sigma[j]:.17g}", f"{sys[j]:.17g}",
+                                                 str(int(status[j]))]
         lines.append(",".join(vals))
     return "\n".join(lines) + "\n"
 
@@ -140,8 +145,8 @@ _DRIVER = r"""/* test_hse_compensation.c - runs hse_compensation on the test vec
  *   ./test_hse_compensation test_vectors.csv
  *
  * test_vectors.csv: a header row, then per row the HSE_COMP_N_INPUTS inputs (SI, the order of
- * in[]), the expected correction_rad, sigma_rad and return status. Both outputs must agree to
- * ABS_TOL_RAD + REL_TOL * |expected|, the status exactly. Prints each disagreement and
+ * in[]), the expected correction_rad, sigma_rad, sigma_sys_rad (hse_compensation_systematic) and
+ * return status. The outputs must agree to ABS_TOL_RAD + REL_TOL * |expected|, the statuses exactly. Prints each disagreement and
  * "N of M test vectors agree"; exit status 0 when all agree, 1 when one does not, 2 when the
  * file cannot be read.
  */
@@ -160,7 +165,7 @@ static int close_enough(double got, double expected) {
 int main(int argc, char **argv) {
   const char *path = argc > 1 ? argv[1] : "test_vectors.csv";
   FILE *f = fopen(path, "r");
-  double in[HSE_COMP_N_INPUTS], expected[2], got[2];
+  double in[HSE_COMP_N_INPUTS], expected[3], got[3];
   int c, k, row = 0, good = 0, status_expected;
   if (!f) {
     fprintf(stderr, "%s: cannot open\n", path);
@@ -177,20 +182,23 @@ int main(int argc, char **argv) {
     for (k = 0; k < HSE_COMP_N_INPUTS; k++)
       if (fscanf(f, " %lf ,", &in[k]) != 1) break;
     if (k == 0 && feof(f)) break;
-    if (k < HSE_COMP_N_INPUTS || fscanf(f, " %lf , %lf , %d", &expected[0], &expected[1], &status_expected) != 3) {
-      fprintf(stderr, "%s: row %d: expected %d inputs, correction_rad, sigma_rad, status\n", path, row + 2,
+    if (k < HSE_COMP_N_INPUTS ||
+        fscanf(f, " %lf , %lf , %lf , %d", &expected[0], &expected[1], &expected[2], &status_expected) != 4) {
+      fprintf(stderr, "%s: row %d: expected %d inputs, correction_rad, sigma_rad, sigma_sys_rad, status\n", path, row + 2,
               HSE_COMP_N_INPUTS);
       fclose(f);
       return 2;
     }
     int status = hse_compensation(in, &got[0], &got[1]);
+    int status_sys = hse_compensation_systematic(in, &got[2]);
     row++;
-    if (status == status_expected && close_enough(got[0], expected[0]) && close_enough(got[1], expected[1])) {
+    if (status == status_expected && status_sys == status_expected && close_enough(got[0], expected[0]) &&
+        close_enough(got[1], expected[1]) && close_enough(got[2], expected[2])) {
       good++;
     } else {
       printf("vector %d: status %d (expected %d), correction_rad %.17g (expected %.17g), "
-             "sigma_rad %.17g (expected %.17g)\n", row, status, status_expected, got[0], expected[0],
-             got[1], expected[1]);
+             "sigma_rad %.17g (expected %.17g), sigma_sys_rad %.17g (expected %.17g)\n", row, status,
+             status_expected, got[0], expected[0], got[1], expected[1], got[2], expected[2]);
     }
   }
   fclose(f);
