@@ -338,3 +338,17 @@ def test_align_report_plots_the_allan_curves_with_the_fitted_slopes(sim_logs, tm
                 x, y = np.log(line.get_xdata()), np.log(line.get_ydata())
                 slopes.add(round(float((y[-1] - y[0]) / (x[-1] - x[0])), 6))
     assert {-1.0, -0.5} <= slopes <= {-1.0, -0.5, 0.0, 0.5}
+
+
+def test_the_tuning_pools_up_to_eight_logs_spread_over_the_campaign(monkeypatch, tmp_path):
+    from hse_opt.align import AlignConfig, batch
+    seen = []
+
+    def record(path, *args, **kw):
+        seen.append(path)
+        return path, None, f"{path}: not read in this test"
+    monkeypatch.setattr(batch, "_noise_one", record)
+    paths = [str(tmp_path / f"log{i:02d}.npz") for i in range(20)]
+    rows, errors = batch.align_logs(paths, AlignConfig(latitude=0.5), tune_from_data=True)
+    assert len(seen) == batch.TUNING_LOGS == 8 and seen[0] == paths[0] and seen[-1] == paths[-1]
+    assert seen == sorted(seen) and len(errors) == 20 and not rows     # every log still tried in pass 2

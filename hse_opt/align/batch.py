@@ -22,6 +22,10 @@ from hse_opt.data import DataError, Runs
 
 __all__ = ["align_logs", "runs_from_rows", "single_blas_thread", "LOG_META_COLUMNS"]
 
+#: the filter tuned from the data pools the Allan figures of at most this many logs, spread
+#: evenly over the campaign (the noise is the system's: eight ten-minute logs pin its terms to
+#: a few per cent, and a first pass over every log would read each twice)
+TUNING_LOGS = 8
 #: metadata keys of a raw log that become RUNS.csv columns (file units)
 LOG_META_COLUMNS = ("azimuth_deg", "t_start_s", "temp_c")
 
@@ -168,9 +172,10 @@ def align_logs(paths, config, jobs=1, progress=None, client=None, *, mapping=Non
     tune_from_data : bool
         Tune the filter from the logs' own noise instead of ``config``'s ``arw``, ``vrw``,
         ``gyro_pulse``, ``accel_pulse`` (for a system whose noise no calibration file gives):
-        a first pass takes every log's Allan analysis (:func:`hse_opt.align.noise.noise_from_log`),
-        pooled over the logs (:func:`hse_opt.align.noise.combine_noise`: one system, so one
-        noise; a single log's long-cluster points are few), and every log is aligned with
+        a first pass takes the Allan analysis (:func:`hse_opt.align.noise.noise_from_log`) of
+        up to :data:`TUNING_LOGS` logs spread evenly over ``paths``, pooled
+        (:func:`hse_opt.align.noise.combine_noise`: one system, so one noise; a single log's
+        long-cluster points are few), and every log is aligned with
         :meth:`~hse_opt.align.noise.NoiseFigures.tuning` of the pooled figures.
     pulse_weights : (gyro, accel), optional
         Pulse weights (rad, m/s; one number or three each) for pulse-count CSV logs whose
@@ -201,15 +206,14 @@ def align_logs(paths, config, jobs=1, progress=None, client=None, *, mapping=Non
     if isinstance(jobs, bool) or not isinstance(jobs, (int, np.integer)) or jobs < 1:
         raise ValueError(f"jobs = {jobs!r} is not allowed: an integer >= 1 is required")
     paths = [str(p) for p in paths]
-    noise, report = None, progress
-    if tune_from_data:      # two passes: progress counts each log's half in each
-        first = _map(_noise_one, paths, config, jobs,
-                     None if report is None else (lambda done, total: report(done // 2, total)), client, mapping,
-                     pulse_weights=pulse_weights)
-        noise = {p: first[p][1] for p in paths if first[p][1] is not None}   # in path order: pooled alike
+    noise = None
+    if tune_from_data:      # a first pass over up to TUNING_LOGS logs spread over the campaign
+        sample = [paths[i] for i in sorted(set(np.linspace(0, len(paths) - 1, min(TUNING_LOGS, len(paths)))
+                                                .round().astype(int).tolist()))]
+        first = _map(_noise_one, sample, config, jobs, None, client, mapping, pulse_weights=pulse_weights)
+        noise = {p: first[p][1] for p in sample if first[p][1] is not None}   # in path order: pooled alike
         if noise:
             config = dataclasses.replace(config, **combine_noise(noise.values()).tuning())
-        progress = None if report is None else (lambda done, total: report((total + done) // 2, total))
     done = _map(_align_one, paths, config, jobs, progress, client, mapping, noise, pulse_weights)
     rows, errors, seen = [], [], {}
     for path in paths:

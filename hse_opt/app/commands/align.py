@@ -34,7 +34,8 @@ DESCRIPTION = (
     "--write-calibration` writes a simulated system's), or --truth TRUTH.toml (a simulated "
     "system's), else the orthogonal system with the paper's ideal mount (K_g = K_a = I, every "
     "gyro axis at 54.74 deg from the rotation axis); unless the calibration file has a [noise] "
-    "section (or --truth is given) the filter is tuned from the logs' pooled figures.")
+    "section (or --truth is given) the filter is tuned from the pooled figures of up to 8 logs "
+    "spread over the campaign.")
 INPUTS = ("logs", "truth", "calibration", "mapping")
 OUTPUTS = {"output": FILE, "report": REPORT}
 EXAMPLE = """examples:
