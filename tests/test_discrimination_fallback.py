@@ -21,3 +21,16 @@ def test_a_failed_discrimination_design_does_not_stop_the_diagnosis():
     steps = refine(runs)
     assert steps[0].verdict in ("missing-effect", "inconclusive")
     assert all(isinstance(d.proposals, tuple) for d in steps)
+
+
+def test_refine_does_not_add_a_candidate_whose_refit_failed():
+    """A natural stand campaign without a hidden effect (studies/robustness.py, 'none', seed
+    20): encoder_harmonic's score test is significant but its refit cannot separate enc_c1,
+    enc_s1 from offset and lambda2; refine stops at that diagnosis instead of raising."""
+    names = ["none", *study.hidden_effects()]
+    rng = np.random.default_rng([0, 0, (names.index("none") - 1) % 99, 20])
+    runs, truth = study.campaign("stand", "none", rng)
+    steps = refine(runs)
+    failed = [c for c in steps[0].candidates if c.significant and c.fit is None]
+    assert failed and failed[0].effect == "encoder_harmonic"
+    assert all("encoder_harmonic" not in d.effects for d in steps)

@@ -210,7 +210,9 @@ def refine(runs, model=None, *, max_steps=4, **kw):
     significant candidate is left, or ``max_steps`` effects were added). It stops without
     adding when the verdict is ``unexplained structure`` or the best candidates are ambiguous
     (the last diagnosis says which, and proposes the runs that tell them apart): it never picks
-    one of an ambiguous pair.
+    one of an ambiguous pair. Nor does it add a candidate whose refit failed (its parameters
+    cannot be told apart from the model's by these runs: the diagnosis says which): the model
+    it would make is not identifiable, and the last diagnosis stands.
 
     Returns
     -------
@@ -220,7 +222,7 @@ def refine(runs, model=None, *, max_steps=4, **kw):
     """
     steps = [diagnose(runs, model, **kw)]
     while steps[-1].verdict == "missing-effect" and len(steps) <= max_steps and steps[-1].best is not None \
-            and len(steps[-1].ambiguous) < 2:
+            and steps[-1].best.fit is not None and len(steps[-1].ambiguous) < 2:
         steps.append(steps[-1].add(steps[-1].best.effect))
     return tuple(steps)
 
