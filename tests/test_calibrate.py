@@ -17,7 +17,9 @@ from browser import render
 from hse_opt import cli, units
 from hse_opt.data import Plan, load_plan
 from hse_opt.fit import load_fit
+from hse_opt.align import save_calibration
 from hse_opt.sim import TruthConfig, run_campaign
+from hse_opt.sim.campaign import lab_calibration
 
 COMPILER = shutil.which("cc") or shutil.which("gcc") or shutil.which("clang")
 DELAY_US = 400.0
@@ -26,6 +28,7 @@ LAMBDA2 = sum(TRUTH.gyro.eps) / units.ARCSEC          # the simulated system's t
 RATES = (20.0, 40.0, 60.0, -40.0)
 HEADINGS = (0.0, 120.0, 240.0)
 DURATION_S = 120.0
+CALIBRATION = None          # the lab calibration file (set by a fixture)
 
 
 def _plan():
@@ -39,17 +42,27 @@ def _plan():
 
 @pytest.fixture(scope="module")
 def campaigns(tmp_path_factory):
-    """Raw logs of the three campaigns: {kind: folder}."""
+    """Raw logs of the three campaigns: {kind: folder}; and the system's lab calibration
+    file (what ``hse-opt simulate --write-calibration`` writes) under ``"calibration"``."""
     out = {}
     for kind, field, surveyed in (("surveyed", False, ()), ("field", True, ()), ("mixed", True, ("P1",))):
         folder = tmp_path_factory.mktemp(kind)
         run_campaign(_plan(), TRUTH, 5, field=field, surveyed=surveyed, raw_logs=folder)
         out[kind] = folder
+    out["calibration"] = tmp_path_factory.mktemp("lab") / "CALIBRATION.toml"
+    save_calibration(lab_calibration(TRUTH), out["calibration"])
     return out
 
 
-def _calibrate(args, capsys):
-    status = cli.main(["calibrate", *map(str, args), "--no-progress"])
+@pytest.fixture(autouse=True)
+def _lab_calibration(campaigns):
+    global CALIBRATION
+    CALIBRATION = str(campaigns["calibration"])
+
+
+def _calibrate(args, capsys, calibration=True):
+    extra = ["--calibration", CALIBRATION] if calibration else []
+    status = cli.main(["calibrate", *map(str, args), "--no-progress", *extra])
     out = capsys.readouterr()
     return status, out.out, out.err
 
@@ -87,6 +100,18 @@ def test_each_campaign_end_to_end_finds_the_hidden_effect(kind, campaigns, tmp_p
     assert {"hse_compensation.c", "hse_compensation.h", "calibration.json", "test_vectors.csv",
             "test_hse_compensation.c"} <= set(os.listdir(out / "nav"))
     assert {f: (logs / f).read_bytes() for f in _listing(logs)} == before      # inputs untouched
+
+
+def test_the_runs_are_what_hse_opt_align_writes_with_the_same_processor(campaigns, tmp_path, capsys):
+    """Without a calibration file both take the orthogonal system and tune the filter from the
+    logs' pooled noise: the session's RUNS.csv is align's, byte for byte."""
+    logs = campaigns["field"]
+    assert _calibrate([logs, "--out", tmp_path / "s"], capsys, calibration=False)[0] == 0
+    assert cli.main(["align", str(logs), "-o", str(tmp_path / "R.csv"), "--no-progress"]) == 0
+    capsys.readouterr()
+    assert (tmp_path / "s" / "RUNS.csv").read_bytes() == (tmp_path / "R.csv").read_bytes()
+    page = (tmp_path / "s" / "report.html").read_text()
+    assert "gyro ARW" in page and "quality" in page        # the noise and the quality of the logs
 
 
 def test_text_output_starts_with_the_verdict(campaigns, tmp_path, capsys):
@@ -193,7 +218,7 @@ def test_watch_reads_each_new_log_once_whole_and_stops_on_ctrl_c(campaigns, tmp_
         shutil.copy(src / f, logs / f)
     env = {**os.environ, "PYTHONPATH": os.pathsep.join(sys.path)}
     proc = subprocess.Popen([sys.executable, "-m", "hse_opt.cli", "calibrate", str(logs), "--out", str(out),
-                             "--watch", "--poll-s", "0.2", "--time-left-h", "2"],
+                             "--watch", "--poll-s", "0.2", "--time-left-h", "2", "--calibration", CALIBRATION],
                             stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=env)
     try:
         lines = [_readline(proc, 120)]
@@ -228,7 +253,8 @@ def test_watch_reads_each_new_log_once_whole_and_stops_on_ctrl_c(campaigns, tmp_
 def test_watch_stops_at_the_target(campaigns, tmp_path):
     env = {**os.environ, "PYTHONPATH": os.pathsep.join(sys.path)}
     done = subprocess.run([sys.executable, "-m", "hse_opt.cli", "calibrate", str(campaigns["field"]), "--out",
-                           str(tmp_path / "s"), "--watch", "--poll-s", "0.1", "--target-sigma", "1000"],
+                           str(tmp_path / "s"), "--watch", "--poll-s", "0.1", "--target-sigma", "1000",
+                           "--calibration", CALIBRATION],
                           capture_output=True, text=True, env=env, timeout=180)
     assert done.returncode == 0, done.stderr
     assert len(done.stdout.splitlines()) == 1 and "usable" in done.stdout

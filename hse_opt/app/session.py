@@ -202,15 +202,15 @@ class SessionResult:
         }
 
 
-def log_paths(items):
-    """Raw-log files: files as given, a folder -> its raw logs (``.npz``, ``.csv``, not
-    starting with ``.``), sorted by name. ValueError naming what is missing."""
+def log_paths(items, suffixes=_SUFFIXES):
+    """Raw-log files: files as given, a folder -> its raw logs (names ending in ``suffixes``,
+    not starting with ``.``), sorted by name. ValueError naming what is missing."""
     paths = []
     for item in items:
         item = os.fspath(item)
         if os.path.isdir(item):
             paths += sorted(os.path.join(item, f) for f in os.listdir(item)
-                            if f.endswith(_SUFFIXES) and not f.startswith(".")
+                            if f.endswith(tuple(suffixes)) and not f.startswith(".")
                             and os.path.isfile(os.path.join(item, f)))
         elif not os.path.exists(item):
             raise ValueError(f"{item}: no such file or directory; allowed: raw-log files or folders of them")
@@ -239,10 +239,14 @@ def _campaign(runs):
     return "field" if not runs.surveyed.any() else "mixed"
 
 
-def _align(paths, config, jobs, progress, cache):
+def _align(paths, config, jobs, progress, cache, align_kw, client):
     """Aligned rows and errors for ``paths``, reusing ``cache`` (path -> (signature, row,
-    error)) for logs whose signature is unchanged."""
+    error)) for logs whose signature is unchanged - unless the filter is tuned from the logs'
+    pooled noise (``tune_from_data``): every log's tuning then depends on all of them, and all
+    are aligned again."""
     from ..align.batch import align_logs
+    if align_kw.get("tune_from_data") and cache is not None:
+        cache.clear()     # each log's tuning depends on all of them: all are aligned again
     todo, sigs = [], {}
     for p in paths:
         try:
@@ -252,7 +256,7 @@ def _align(paths, config, jobs, progress, cache):
         if cache is None or p not in cache or cache[p][0] != sigs[p]:
             todo.append(p)
     if todo:
-        rows, errors = align_logs(todo, config, jobs=jobs, progress=progress)
+        rows, errors = align_logs(todo, config, jobs=jobs, progress=progress, client=client, **align_kw)
         got = {r["log"]: r for r in rows}
         bad = iter(errors)
         results = {}
@@ -269,23 +273,31 @@ def _align(paths, config, jobs, progress, cache):
     return rows, errors
 
 
-def calibrate(logs, *, config=None, effects=(), time_left_h=DEFAULT_TIME_LEFT_H, jobs=1, target_sigma=None,
-              progress=None, cache=None, costs=None):
+def calibrate(logs, *, config=None, align_kw=None, suffixes=_SUFFIXES, effects=(), time_left_h=DEFAULT_TIME_LEFT_H,
+              jobs=1, client=None, target_sigma=None, progress=None, cache=None, costs=None):
     """The session on raw logs (module docstring).
 
     Parameters
     ----------
     logs : sequence of str or os.PathLike
         Raw-log files and folders of them (:mod:`hse_opt.align.rawlog` formats).
-    config : hse_opt.sim.AlignConfig, optional
-        The alignment processor: the system's lab calibration and noise (default: the
-        paper-like system's, each log's own latitude).
+    config : hse_opt.align.AlignConfig, optional
+        The alignment processor: the system's lab calibration and noise (default, as
+        ``hse-opt align``: the orthogonal system with the paper's ideal mount, the filter tuned
+        from the logs' own noise, each log's own latitude).
+    align_kw : dict, optional
+        More arguments of :func:`hse_opt.align.batch.align_logs` (``mapping``,
+        ``tune_from_data``, ``pulse_weights``; ``hse-opt align``'s options give them).
+    suffixes : tuple of str
+        The file names a folder's raw logs end with.
     effects : sequence of str
         Effects to model besides the paper's ``hse`` from the start (the diagnosis may add more).
     time_left_h : float
         Stand time left for the rest of the campaign after the last log, h.
     jobs : int
         Local worker processes for the alignment.
+    client : dask.distributed.Client, optional
+        Align on this Dask cluster instead (the same rows as ``jobs=1``).
     target_sigma : float, optional
         Target total sigma of lambda2, arcsec: the verdict is ``not yet`` above it, and the
         plan of the rest stops once it is predicted.
@@ -320,9 +332,10 @@ def calibrate(logs, *, config=None, effects=(), time_left_h=DEFAULT_TIME_LEFT_H,
         raise ValueError(f"--target-sigma {target_sigma:g}: allowed: arcsec > 0")
     model = as_model(["hse", *[e for e in effects if e != "hse"]])
     if config is None:
-        from ..sim import TruthConfig
-        from ..sim.campaign import default_align_config
-        config = default_align_config(TruthConfig.default())
+        from ..align import LabCalibration
+        config = LabCalibration.orthogonal().align_config()
+        align_kw = {"tune_from_data": True, **(align_kw or {})}
+    align_kw = dict(align_kw or {})
 
     def step(name):
         if progress is not None:
@@ -330,12 +343,12 @@ def calibrate(logs, *, config=None, effects=(), time_left_h=DEFAULT_TIME_LEFT_H,
 
     seconds = {}
     t0 = time.perf_counter()
-    paths = log_paths(logs)
+    paths = log_paths(logs, suffixes)
     if not paths:
         raise ValueError(f"{', '.join(map(os.fspath, logs))}: no raw logs (.npz, .csv); allowed: raw-log files "
                          "or folders of them")
     cb = None if progress is None else (lambda done, total: progress("align", done, total))
-    rows, errors = _align(paths, config, jobs, cb, cache)
+    rows, errors = _align(paths, config, jobs, cb, cache, align_kw, client)
     seconds["align"] = time.perf_counter() - t0
     if not rows:
         raise NoRunsError(f"none of the {len(paths)} logs could be aligned (first: {errors[0]})")
@@ -499,7 +512,8 @@ def watch(folder, *, poll=POLL_S, time_left_h=DEFAULT_TIME_LEFT_H, target_sigma=
     clock, sleep : callable
         Time source and sleep (tests).
     **kw
-        Passed to :func:`calibrate` (``config``, ``effects``, ``jobs``, ``costs``, ``progress``).
+        Passed to :func:`calibrate` (``config``, ``align_kw``, ``suffixes``, ``effects``,
+        ``jobs``, ``client``, ``costs``, ``progress``).
 
     Yields
     ------
@@ -514,7 +528,7 @@ def watch(folder, *, poll=POLL_S, time_left_h=DEFAULT_TIME_LEFT_H, target_sigma=
     budget = float(time_left_h) * units.HOUR
     cache, last, seen = {}, None, {}
     while True:
-        ready = _stable(folder, seen)
+        ready = _stable(folder, seen, kw.get("suffixes", _SUFFIXES))
         key = tuple((p, seen[p]) for p in ready)
         if ready and key != last:
             last = key
@@ -535,14 +549,14 @@ def watch(folder, *, poll=POLL_S, time_left_h=DEFAULT_TIME_LEFT_H, target_sigma=
         sleep(poll)
 
 
-def _stable(folder, seen):
+def _stable(folder, seen, suffixes=_SUFFIXES):
     """Names of the logs in ``folder`` whose signature is the one ``seen`` recorded at the last
     poll (then unchanged over one interval); ``seen`` is updated to this poll's signatures."""
     ready = []
     now = {}
     for name in sorted(os.listdir(folder)):
         path = os.path.join(folder, name)
-        if name.startswith(".") or not name.endswith(_SUFFIXES) or not os.path.isfile(path):
+        if name.startswith(".") or not name.endswith(tuple(suffixes)) or not os.path.isfile(path):
             continue
         try:
             now[name] = log_signature(path)

@@ -22,7 +22,7 @@ _LOG_COLUMNS = (("run", "run"), ("position", "position"), ("rate_dps", "rate deg
                 ("azimuth_deg", "stand azimuth deg"), ("heading_deg", "heading deg"),
                 ("pitch_arcsec", "pitch arcsec"), ("roll_arcsec", "roll arcsec"),
                 ("heading_std_arcsec", "heading 1-sigma arcsec"), ("duration_s", "duration s"),
-                ("t_start_s", "t_start s"), ("temp_c", "temp degC"))
+                ("t_start_s", "t_start s"), ("temp_c", "temp degC"), ("quality", "quality"))
 
 
 def _uncertainty(result):
@@ -95,6 +95,11 @@ def log_table_section(result):
                          "coarse TRIAD, Kalman filter, whole-revolution smoothing). Each row is one "
                          "RUNS.csv row; the heading 1-sigma is the filter's own."),
               _table(header, rows, keys)]
+    noise = [row["noise"] for row in r.rows if row.get("noise") is not None]
+    if noise:
+        from ..align.noise import combine_noise
+        blocks.insert(1, _paragraph(f"Noise from the logs themselves (Allan deviation, IEEE Std 952 terms, pooled "
+                                    f"over {len(noise)} logs): {combine_noise(noise).summary()}."))
     if r.errors:
         blocks += [_paragraph(f"{len(r.errors)} bad log(s), left out:"), _notes(list(r.errors))]
     if r.notes:

@@ -53,6 +53,17 @@ _MAPPED_SUFFIXES = (".csv", ".txt", ".dat")
 def add_arguments(parser):
     parser.add_argument("logs", nargs="+", metavar="LOG", help="raw-log files or directories of them")
     parser.add_argument("-o", "--output", metavar="RUNS.csv", required=True, help="results to write")
+    add_processor_arguments(parser)
+    parser.add_argument("--jobs", type=int, default=1, help="local worker processes (default 1)")
+    add_dask_argument(parser)
+    add_report_argument(parser)
+    parser.add_argument("--no-progress", dest="progress", action="store_false",
+                        help="no progress bar on stderr")
+
+
+def add_processor_arguments(parser):
+    """The alignment processor's options (also ``hse-opt calibrate``'s): --calibration or
+    --truth, --latitude-deg, --mapping."""
     calib = parser.add_mutually_exclusive_group()
     calib.add_argument("--calibration", metavar="CAL.toml",
                        help="the system's lab calibration: [gyro] K_g (gyro outputs -> s), [accel] K_a "
@@ -73,11 +84,6 @@ def add_arguments(parser):
                              "and axis order: docs/rawlogs.md; examples in hse_opt/datasets/mappings/), "
                              "e.g. --mapping counter_stand.toml; a directory then stands for its .csv, "
                              ".txt and .dat files")
-    parser.add_argument("--jobs", type=int, default=1, help="local worker processes (default 1)")
-    add_dask_argument(parser)
-    add_report_argument(parser)
-    parser.add_argument("--no-progress", dest="progress", action="store_false",
-                        help="no progress bar on stderr")
 
 
 def _expand(items, suffixes=_SUFFIXES):
@@ -97,20 +103,24 @@ def _expand(items, suffixes=_SUFFIXES):
     return paths
 
 
-def run(args):
-    import dataclasses
+def processor(args):
+    """The alignment processor the options of :func:`add_processor_arguments` ask for.
 
-    from tqdm import tqdm
+    Returns
+    -------
+    config : hse_opt.align.AlignConfig
+    kw : dict
+        :func:`hse_opt.align.batch.align_logs`'s ``mapping``, ``tune_from_data`` and
+        ``pulse_weights``.
+    suffixes : tuple of str
+        The file names a folder's raw logs end with.
+    """
+    import dataclasses
 
     from ... import units
     from ...align import LabCalibration, load_calibration
-    from ...align.batch import align_logs, runs_from_rows
-    from ...align.noise import combine_noise
     from ...align.processor import LATITUDE_TOL_DEG
-    from ...data import save_runs
 
-    if args.jobs < 1:
-        raise ValueError(f"--jobs {args.jobs}: allowed: an integer >= 1")
     if args.latitude_deg is not None and not abs(args.latitude_deg) < 89.0:
         raise ValueError(f"--latitude-deg {args.latitude_deg:g}: allowed: |latitude| < 89 deg")
     if args.truth:
@@ -134,11 +144,24 @@ def run(args):
     if args.mapping:
         from ...align.mapping import load_mapping
         mapping = load_mapping(args.mapping)
-    paths = _expand(args.logs, _MAPPED_SUFFIXES if mapping else _SUFFIXES)
+    return (config, dict(mapping=mapping, tune_from_data=from_data, pulse_weights=weights),
+            _MAPPED_SUFFIXES if mapping else _SUFFIXES)
+
+
+def run(args):
+    from tqdm import tqdm
+
+    from ...align.batch import align_logs, runs_from_rows
+    from ...align.noise import combine_noise
+    from ...data import save_runs
+
+    if args.jobs < 1:
+        raise ValueError(f"--jobs {args.jobs}: allowed: an integer >= 1")
+    config, kw, suffixes = processor(args)
+    paths = _expand(args.logs, suffixes)
     with dask_client(args.dask) as client, tqdm(total=len(paths), unit="log", desc="align", file=sys.stderr,
                                                 disable=None if args.progress else True) as bar:
-        rows, errors = align_logs(paths, config, jobs=args.jobs, client=client, mapping=mapping,
-                                  tune_from_data=from_data, pulse_weights=weights,
+        rows, errors = align_logs(paths, config, jobs=args.jobs, client=client, **kw,
                                   progress=lambda done, total: bar.update(done - bar.n))
     for err in errors:
         message(f"hse-opt align: error: {' '.join(err.split())}")

@@ -3,7 +3,7 @@ import json
 import os
 import sys
 
-from . import message, print_json
+from . import add_dask_argument, dask_client, message, print_json
 
 NAME = "calibrate"
 HELP = "the field session in one command: raw logs in; calibration, evidence, C and the next plan out"
@@ -28,7 +28,7 @@ ignored (write under such a name and rename, or just write). Stops with exit 0 w
 verdict is usable with lambda2's total sigma <= --target-sigma (arcsec of lambda2) or when
 --time-left-h has passed; Ctrl-C stops it with exit 130, the report of the last update
 complete in DIR (SIGTERM: 143, the same)."""
-INPUTS = ("logs",)
+INPUTS = ("logs", "calibration", "truth", "mapping")
 
 
 def _files():
@@ -51,6 +51,8 @@ def add_arguments(parser):
     parser.add_argument("--out", metavar="DIR", required=True,
                         help="folder for report.html, summary.json, RUNS.csv, FIT.json, nav/, NEXT_PLAN.csv "
                              "(created when missing)")
+    from .align import add_processor_arguments
+    add_processor_arguments(parser)
     parser.add_argument("--effects", metavar="a,b", default="",
                         help="effects to model besides 'hse' from the start (the diagnosis may add more), "
                              "e.g. --effects sync_delay,warmup")
@@ -61,6 +63,7 @@ def add_arguments(parser):
                         help="target total 1-sigma of lambda2, arcsec: the verdict is 'not yet' above it; "
                              "--watch stops once it is reached, e.g. --target-sigma 1.5")
     parser.add_argument("--jobs", type=int, default=1, help="local worker processes for the alignment (default 1)")
+    add_dask_argument(parser)
     parser.add_argument("--watch", action="store_true",
                         help="the live session: wait for new logs in the folder, one line and a new report "
                              "after each (see above)")
@@ -74,7 +77,7 @@ def add_arguments(parser):
 
 def _effects(text):
     from ...model import as_model
-    names = [e.strip() for e in text.split(",") if e.strip()]
+    names = [e.strip() for e in text.split(",") if e.strip() and e.strip() != "hse"]
     try:
         as_model(["hse", *names])
     except ValueError as err:
@@ -103,16 +106,21 @@ def _check(args):
 
 def run(args):
     from ..session import calibrate, write_outputs
+    from .align import processor
     from .demo import _progress_bar
 
     _check(args)
-    effects = _effects(args.effects)
+    config, align_kw, suffixes = processor(args)
+    kw = dict(config=config, align_kw=align_kw, suffixes=suffixes, effects=_effects(args.effects),
+              jobs=args.jobs)
     if args.watch:
-        return _watch(args, effects)
+        with dask_client(args.dask) as client:
+            return _watch(args, {**kw, "client": client})
     progress, close = _progress_bar(args.progress)
     try:
-        result = calibrate(args.logs, effects=effects, time_left_h=args.time_left_h, jobs=args.jobs,
-                           target_sigma=args.target_sigma, progress=progress)
+        with dask_client(args.dask) as client:
+            result = calibrate(args.logs, **kw, client=client, time_left_h=args.time_left_h,
+                               target_sigma=args.target_sigma, progress=progress)
     finally:
         close()
     for err in result.errors:
@@ -129,7 +137,7 @@ def run(args):
     return 0
 
 
-def _watch(args, effects):
+def _watch(args, kw):
     from ..cli import Terminated
     from ..session import OUTPUT_FILES, watch, write_outputs
     from .outputs import Transaction
@@ -137,7 +145,7 @@ def _watch(args, effects):
     written = None
     try:
         for result in watch(args.logs[0], poll=args.poll_s, time_left_h=args.time_left_h,
-                            target_sigma=args.target_sigma, effects=effects, jobs=args.jobs):
+                            target_sigma=args.target_sigma, **kw):
             with Transaction([("LOGS", p) for p in result.logs],
                              [("out", "--out", args.out, OUTPUT_FILES)]) as tx:
                 data = write_outputs(result, tx.path("out"), shown=args.out)
