@@ -2,20 +2,32 @@
 command, from a seeded generator (each case is reproducible from its seed).
 
 Every case asserts what a user is promised: exit status 0 or 2 (1 only with a solver's
-status), no traceback and no internal error, a failure in one line naming what is wrong, the
+status), no traceback and no internal error, a failure in one line naming what is wrong (the
+file, row, column or option) and what is allowed (warning lines may come before it), the
 inputs unchanged (checksums) and no partial output (the folder listing is the same as before
 when the command fails; every output is there, with no temporary file, when it succeeds).
+And no malformed input is a wrong answer in disguise: where a mutated input is accepted
+(exit 0), the answer is the clean input's within its stated uncertainty, or a note, check or
+warning the clean input does not get says what is different.
+
+What is fuzzed is one registry: :data:`INPUTS` (each input file, how it is mutated, and the
+commands that read it) and :data:`OPTION_CASES` (malformed options). A new command, or a new
+input file kind, is one entry there; :func:`test_every_command_is_fuzzed` derives the
+commands covered from the registry.
 
 ``HSE_FUZZ_CASES=N`` runs N cases per class instead of the CI size (the report's counts come
 from ``HSE_FUZZ_CASES=60``).
 """
+import csv
 import hashlib
 import io
 import json
 import os
 import re
+import shutil
 from collections import Counter
 from contextlib import redirect_stderr, redirect_stdout
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
@@ -244,46 +256,60 @@ MUST_REFUSE = ("tamper:", "names:")
 BAD_NUMBERS = ["-1", "0", "nan", "inf", "-inf", "1e9", "1e999", "abc", "", "1e-300", "9" * 400]
 
 
+def _pick(*values):
+    return lambda rng: str(rng.choice(list(values)))
+
+
+#: (class, argv template): ``{...}`` names the files the fixture provides, a callable draws a value
+OPTION_CASES = [
+    ("fit:--fix", ["fit", "{T1}", "--fix", _pick("lambda2", "=1", "nope=1", "offset=abc", "offset=nan",
+                                                 "lambda2*tilt_const=1e999")]),
+    ("fit:--fix-all", ["fit", "{T1}", "--fix", "offset=0", "--fix", "lambda2*tilt_cos=0", "--fix",
+                       "lambda2*tilt_sin=0", "--fix", "lambda2*tilt_const=0"]),
+    ("fit:--bound", ["fit", "{T1}", *FIX, "--bound", _pick("offset=1", "offset=5:1", "offset=a:b", "nope=0:1",
+                                                         "offset=nan:1")]),
+    ("fit:--effects", ["fit", "{T1}", *FIX, "--effects", _pick("nope", ",", "hse,hse", "covariate:", "covariate:nope",
+                                                             "warmup" * 50, "covariate:temp c")]),
+    ("fit:--min-rate-dps", ["fit", "{T1}", *FIX, "--min-rate-dps", _pick(*BAD_NUMBERS)]),
+    ("compensate:--fit", ["compensate", "{T1}", "--fit", _pick("{T1}", "/dev/null", "nofile.json", "{DIR}"),
+                          "-o", "C.csv"]),
+    ("simulate:--seed", ["simulate", "{PLAN}", "-o", "S.csv", "--seed", _pick("-1", "abc", "1e3")]),
+    ("simulate:--jobs", ["simulate", "{PLAN}", "-o", "S.csv", "--jobs", _pick("0", "-2", "x")]),
+    ("simulate:--truth", ["simulate", "{PLAN}", "-o", "S.csv", "--truth", _pick("/dev/zero", "nofile.toml", "{DIR}",
+                                                                              "{PLAN}")]),
+    ("simulate:--dask", ["simulate", "{PLAN}", "-o", "S.csv", "--dask", _pick("not an address", "", "tcp://:0")]),
+    ("design:--budget-h", ["design", "-o", "P2.csv", "--budget-h", _pick(*BAD_NUMBERS)]),
+    ("design:--rates", ["design", "-o", "P2.csv", "--rates", _pick("60:20", "a:b", "0:10", "-5:5", "1e6:1e7",
+                                                                  "nan:1")]),
+    ("design:--latitude-deg", ["design", "--evaluate", "{PLAN}", "--latitude-deg", _pick("90", "-91", "nan",
+                                                                                         "1e999")]),
+    ("design:--arw-dph-rthz", ["design", "--evaluate", "{PLAN}", "--arw-dph-rthz", _pick(*BAD_NUMBERS)]),
+    ("design:--times", ["design", "--evaluate", "{PLAN}", _pick("--warmup-s", "--azimuth-change-s", "--floor-arcsec",
+                                                                "--rate-change-s"), _pick("-1", "nan", "inf", "1e9")]),
+    ("design:--criterion", ["design", "--evaluate", "{PLAN}", "--criterion", _pick("X", "c:nope", "c:")]),
+    ("design:--evaluate-o", ["design", "--evaluate", "{PLAN}", "-o", "P2.csv"]),
+    ("diagnose:--alpha", ["diagnose", "{T1}", *FIX, "--alpha", _pick("0", "1", "-1", "nan", "2")]),
+    ("diagnose:--covariates", ["diagnose", "{T1}", *FIX, "--covariates", _pick("nope", "", ",")]),
+    ("demo:--seed", ["demo", "--seed", _pick("-1", "x", "1e3"), "--out", "D"]),
+    ("export:-o", ["export", "{FIT}", "-o", _pick("{FIT}", "{T1}", "nodir/x", "/dev/null")]),
+    ("align:logs", ["align", _pick("{T1}", "nofile.npz", "{DIR}", "/dev/zero"), "-o", "R.csv"]),
+    ("align:--mapping", ["align", "logs", "-o", "R.csv", "--mapping", _pick("nofile.toml", "{T1}", "{DIR}",
+                                                                              "/dev/zero", "{TRUTH}")]),
+    ("align:--latitude-deg", ["align", "logs", "-o", "R.csv", "--latitude-deg", _pick("90", "nan", "-1e9")]),
+    ("config:--config", ["config", "--config", _pick("nofile.toml", "{DIR}", "{T1}", "/dev/zero")]),
+    ("calibrate:logs", ["calibrate", _pick("{T1}", "nofile.npz", "{DIR}", "/dev/zero"), "--out", "CAL",
+                        "--no-progress"]),
+    ("calibrate:numbers", ["calibrate", "{DIR}", "--out", _pick("CAL", "{T1}", "{DIR}"),
+                           _pick("--time-left-h", "--target-sigma", "--jobs", "--poll-s"), _pick(*BAD_NUMBERS)]),
+    ("any:-o", [_pick("fit", "compensate", "simulate"), "{IN}", "-o",
+                _pick("{IN}", "{HARD}", "{SYM}", "nodir/x.csv", "{DIR}", "/dev/null", "", "x/")]),
+]
+
+
 def option_case(rng):
     """(class, argv) of an option mutation; ``{...}`` names the files the fixture provides."""
-    cases = [
-        ("fit:--fix", ["fit", "{T1}", "--fix", str(rng.choice(["lambda2", "=1", "nope=1", "offset=abc",
-                                                              "offset=nan", "lambda2*tilt_const=1e999"]))]),
-        ("fit:--fix-all", ["fit", "{T1}", "--fix", "offset=0", "--fix", "lambda2*tilt_cos=0", "--fix",
-                           "lambda2*tilt_sin=0", "--fix", "lambda2*tilt_const=0"]),
-        ("fit:--bound", ["fit", "{T1}", *FIX, "--bound", str(rng.choice(["offset=1", "offset=5:1", "offset=a:b",
-                                                                        "nope=0:1", "offset=nan:1"]))]),
-        ("fit:--effects", ["fit", "{T1}", *FIX, "--effects", str(rng.choice(["nope", ",", "hse,hse", "covariate:",
-                                                                            "covariate:nope", "warmup" * 50]))]),
-        ("fit:--min-rate-dps", ["fit", "{T1}", *FIX, "--min-rate-dps", str(rng.choice(BAD_NUMBERS))]),
-        ("compensate:--fit", ["compensate", "{T1}", "--fit", str(rng.choice(["{T1}", "/dev/null", "nofile.json",
-                                                                            "{DIR}"])), "-o", "C.csv"]),
-        ("simulate:--seed", ["simulate", "{PLAN}", "-o", "S.csv", "--seed", str(rng.choice(["-1", "abc", "1e3"]))]),
-        ("simulate:--jobs", ["simulate", "{PLAN}", "-o", "S.csv", "--jobs", str(rng.choice(["0", "-2", "x"]))]),
-        ("simulate:--truth", ["simulate", "{PLAN}", "-o", "S.csv", "--truth",
-                              str(rng.choice(["/dev/zero", "nofile.toml", "{DIR}", "{PLAN}"]))]),
-        ("design:--budget-h", ["design", "-o", "P2.csv", "--budget-h", str(rng.choice(BAD_NUMBERS))]),
-        ("design:--rates", ["design", "-o", "P2.csv", "--rates", str(rng.choice(["60:20", "a:b", "0:10",
-                                                                              "-5:5", "1e6:1e7", "nan:1"]))]),
-        ("design:--latitude-deg", ["design", "--evaluate", "{PLAN}", "--latitude-deg",
-                                   str(rng.choice(["90", "-91", "nan", "1e999"]))]),
-        ("design:--criterion", ["design", "--evaluate", "{PLAN}", "--criterion", str(rng.choice(["X", "c:nope", "c:"]))]),
-        ("design:--evaluate-o", ["design", "--evaluate", "{PLAN}", "-o", "P2.csv"]),
-        ("diagnose:--alpha", ["diagnose", "{T1}", *FIX, "--alpha", str(rng.choice(["0", "1", "-1", "nan", "2"]))]),
-        ("diagnose:--covariates", ["diagnose", "{T1}", *FIX, "--covariates", "nope"]),
-        ("demo:--seed", ["demo", "--seed", str(rng.choice(["-1", "x", "1e3"])), "--out", "D"]),
-        ("export:-o", ["export", "{FIT}", "-o", str(rng.choice(["{FIT}", "{T1}", "nodir/x", "/dev/null"]))]),
-        ("align:logs", ["align", str(rng.choice(["{T1}", "nofile.npz", "{DIR}", "/dev/zero"])), "-o", "R.csv"]),
-        ("calibrate:logs", ["calibrate", str(rng.choice(["{T1}", "nofile.npz", "{DIR}", "/dev/zero"])), "--out",
-                            "CAL", "--no-progress"]),
-        ("calibrate:numbers", ["calibrate", "{DIR}", "--out", str(rng.choice(["CAL", "{T1}", "{DIR}"])),
-                               str(rng.choice(["--time-left-h", "--target-sigma", "--jobs", "--poll-s"])),
-                               str(rng.choice(BAD_NUMBERS))]),
-        ("any:-o", [str(rng.choice(["fit", "compensate", "simulate"])), "{IN}", "-o",
-                    str(rng.choice(["{IN}", "{HARD}", "{SYM}", "nodir/x.csv", "{DIR}", "/dev/null", "", "x/"]))]),
-    ]
-    k = int(rng.integers(len(cases)))
-    return cases[k]
+    cls, template = OPTION_CASES[int(rng.integers(len(OPTION_CASES)))]
+    return cls, [a(rng) if callable(a) else a for a in template]
 
 
 # -- harness ---------------------------------------------------------------------------------
@@ -292,8 +318,15 @@ def snapshot(folder):
             for p in sorted(Path(folder).rglob("*")) if not p.is_symlink()}
 
 
+#: an error line names a file (a path with a suffix, or a folder given), an option, or a
+#: parameter; these are the words that do
+_NAMES = re.compile(r"(\S+\.(csv|json|toml|npz|txt|dat)\b|(^|[\s(])--?[a-z]|\blogs?\b|parameters?\b|"
+                    r"\bcolumn\b|\brow\b|\bline\b|/dev/|\badir\b|\bD\b|\bnodir\b|\bEXP\b|positions?\b)")
+
+
 def run_case(work, argv, outputs):
-    """Run ``argv`` in ``work`` in-process and check every promise; returns the exit status."""
+    """Run ``argv`` in ``work`` in-process and check every promise; returns (exit status,
+    stdout, stderr)."""
     before = snapshot(work)
     err, out = io.StringIO(), io.StringIO()
     cwd = os.getcwd()
@@ -312,15 +345,102 @@ def run_case(work, argv, outputs):
     for path, digest in before.items():  # inputs (every file that was there) unchanged
         if path not in outputs:
             assert after.get(path) == digest, f"{path} changed: {what}"
+    lines = text.strip("\n").split("\n") if text.strip() else []
+    assert all(line.startswith(f"hse-opt {argv[0]}") or line.startswith("  ") for line in lines), what
     if code != 0:
         assert after == before, f"partial output: {set(after) ^ set(before)}: {what}"
-        lines = text.strip("\n").split("\n")
-        # one line; align names each log it could not read, then says what it did
-        assert len(lines) == 1 or argv[0] == "align", what
-        assert all(line.startswith(f"hse-opt {argv[0]}") for line in lines), what
+        # one error line after any warnings; align names each log it could not read, then says
+        # what it did
+        errors = [line for line in lines if ": warning: " not in line]
+        assert len(errors) == 1 or argv[0] == "align", what
+        if code == 2:
+            assert all("allowed" in line for line in errors if "error:" in line), what
+            assert all(_NAMES.search(line) for line in errors), what
     else:
         assert all(o in after for o in outputs), what
-    return code
+    return code, out.getvalue(), text
+
+
+# -- what each input is, how it is mutated, which commands read it -------------------------------
+@dataclass(frozen=True)
+class Target:
+    """A command that reads the mutated input ``{IN}``: its argv, its outputs and, for a
+    command whose answer is comparable, how to read the answer (:data:`ANSWERS`)."""
+
+    argv: tuple
+    outputs: tuple = ()
+    answer: str = ""
+
+
+@dataclass(frozen=True)
+class Input:
+    """An input file of the fixture (:func:`base`), its mutation, the commands that read it,
+    and the CI size and seed of its cases."""
+
+    name: str
+    mutate: object
+    targets: tuple
+    cases: int
+    seed: int
+
+
+def _fit_answer(out, stdout):
+    """(value, std, notes) per parameter of a ``fit --json`` output."""
+    d = json.loads(stdout)
+    return ({k: (p["value"], p["std"]) for k, p in d["parameters"].items()},
+            set(d["notes"]) | {json.dumps(c, sort_keys=True) for c in d.get("checks", []) + d.get("outliers", [])})
+
+
+def _align_answer(out, stdout):
+    """(heading, its sigma) per run of an ``align`` output, and the quality notes."""
+    with open(out, newline="") as fh:
+        rows = list(csv.DictReader(fh))
+    return ({r["run"]: (float(r["heading_deg"]) * 3600, float(r["heading_std_arcsec"])) for r in rows},
+            {r.get("quality", "") for r in rows} - {"ok", ""})
+
+
+#: how an answer is read: name -> function(output path, stdout) -> ({key: (value, sigma)}, notes)
+ANSWERS = {"fit": _fit_answer, "align": _align_answer}
+
+RUNS_TARGETS = (Target(("fit", "{IN}", *FIX, "-o", "F2.json"), ("F2.json",)),
+                Target(("compensate", "{IN}", "--fit", "FIT.json", "-o", "C.csv"), ("C.csv",)),
+                Target(("fit", "{IN}", *FIX, "--json"), answer="fit"),
+                Target(("diagnose", "{IN}", *FIX, "--json")))
+FIELD_TARGETS = (Target(("fit", "{IN}", "--json"), answer="fit"),
+                 Target(("diagnose", "{IN}", "--json")),
+                 Target(("compensate", "{IN}", "--fit", "FIELD_FIT.json", "-o", "C.csv"), ("C.csv",)))
+FIT_TARGETS = (Target(("compensate", "T1.csv", "--fit", "{IN}", "-o", "C.csv"), ("C.csv",)),
+               Target(("fit", "T1.csv", *FIX, "--prior", "{IN}")),
+               Target(("export", "{IN}", "-o", "EXP"), ("EXP",)),
+               Target(("design", "--evaluate", "PLAN.csv", "--prior", "{IN}")))
+
+INPUTS = (
+    Input("T1.csv", mutate_csv, RUNS_TARGETS, 24, 11),
+    Input("SHEET.csv", mutate_csv, RUNS_TARGETS, 12, 12),
+    Input("FIELD.csv", mutate_csv, FIELD_TARGETS, 16, 22),
+    Input("PLAN.csv", mutate_csv, (Target(("simulate", "{IN}", "-o", "S.csv", "--no-progress", "--write-truth",
+                                           "T2.toml"), ("S.csv", "T2.toml")),
+                                   Target(("design", "--evaluate", "{IN}", "--json"))), 14, 13),
+    Input("FIELD_PLAN.csv", mutate_csv, (Target(("simulate", "{IN}", "--field", "-o", "S.csv", "--no-progress"),
+                                                ("S.csv",)),
+                                         Target(("design", "--evaluate", "{IN}", "--field", "--json"))), 8, 23),
+    Input("TRUTH.toml", mutate_toml, (Target(("simulate", "PLAN.csv", "--truth", "{IN}", "-o", "S.csv",
+                                              "--no-progress"), ("S.csv",)),), 12, 14),
+    Input("PROJECT.toml", mutate_toml, (Target(("config", "--config", "{IN}", "--json")),
+                                        Target(("fit", "T1.csv", *FIX, "--config", "{IN}", "-o", "F2.json"),
+                                               ("F2.json",)),
+                                        Target(("design", "--evaluate", "PLAN.csv", "--config", "{IN}",
+                                                "--json"))), 10, 17),
+    Input("FIT.json", mutate_json, FIT_TARGETS, 14, 15),
+    Input("FIT.json", tamper_json, FIT_TARGETS, 10, 18),
+    Input("T1.csv", hostile_header, RUNS_TARGETS, 6, 19),
+    Input("FIELD_FIT.json", mutate_json, (Target(("export", "{IN}", "-o", "EXP"), ("EXP",)),
+                                          Target(("compensate", "FIELD.csv", "--fit", "{IN}", "-o", "C.csv"),
+                                                 ("C.csv",))), 8, 20),
+    Input("logs/run_1.csv", mutate_csv, (Target(("align", "logs", "-o", "R.csv", "--no-progress"), ("R.csv",),
+                                                answer="align"),), 10, 21),
+)
+FIELD_PLAN = [("A", 37.0, 150, -400), ("B", 212.0, -300, 250)]
 
 
 @pytest.fixture(scope="module")
@@ -336,84 +456,122 @@ def base(tmp_path_factory):
     (d / "PLAN.csv").write_text(PLAN)
     (d / "TRUTH.toml").write_text(TRUTH)
     (d / "PROJECT.toml").write_text(PROJECT)
-    assert run_case(d, ["fit", "T1.csv", *FIX, "-o", "FIT.json"], {"FIT.json"}) == 0
+    # a field campaign (the README's two positions without a reference), its fit
+    plan = ["run,rate_dps,azimuth_deg,t_start_s,duration_s,tilt_x_arcsec,tilt_y_arcsec,position"]
+    for label, heading, tx, ty in FIELD_PLAN:
+        for rate in (20, 60, -40, 20, 60, -40):
+            plan.append(f"{len(plan)},{rate},{heading},{3600 + 360 * len(plan)},300,{tx},{ty},{label}")
+    (d / "FIELD_PLAN.csv").write_text("\n".join(plan) + "\n")
+    assert run_case(d, ["simulate", "FIELD_PLAN.csv", "--field", "-o", "FIELD.csv", "--seed", "3", "--no-progress"],
+                    {"FIELD.csv"})[0] == 0
+    assert run_case(d, ["fit", "T1.csv", *FIX, "-o", "FIT.json"], {"FIT.json"})[0] == 0
+    assert run_case(d, ["fit", "FIELD.csv", "-o", "FIELD_FIT.json"], {"FIELD_FIT.json"})[0] == 0
+    # a raw log as a CSV file (12 s at 500 Hz, two table turns), in a folder of its own
+    from hse_opt import units
+    from hse_opt.sim import RunSpec, TruthConfig, generate, save_rawlog
+    log = generate(TruthConfig.default(), RunSpec(rate=60 * units.DEG_PER_S, azimuth=np.radians(33.0),
+                                                  duration=12.0, t_start=600.0), np.random.default_rng(2))
+    object.__setattr__(log, "meta", {"latitude_deg": 28.07, "azimuth_deg": 33.0, "run": 1, "t_start_s": 600.0})
+    (d / "logs").mkdir()
+    save_rawlog(log, d / "logs" / "run_1.csv")
     return d
 
 
 @pytest.fixture
 def work(base, tmp_path):
-    for p in base.iterdir():
-        (tmp_path / p.name).write_bytes(p.read_bytes())
+    shutil.copytree(base, tmp_path, dirs_exist_ok=True)
     (tmp_path / "adir").mkdir()
     os.link(tmp_path / "T1.csv", tmp_path / "hard.csv")
     os.symlink("T1.csv", tmp_path / "sym.csv")
     return tmp_path
 
 
-def _argv_for(kind, name):
-    """The commands that read a mutated input file ``name``, and their outputs."""
-    if kind == "csv-runs":
-        return [(["fit", name, *FIX, "-o", "F2.json"], {"F2.json"}),
-                (["compensate", name, "--fit", "FIT.json", "-o", "C.csv"], {"C.csv"}),
-                (["fit", name, "--json"], set())]
-    if kind == "csv-plan":
-        return [(["simulate", name, "-o", "S.csv", "--no-progress", "--write-truth", "T2.toml"], {"S.csv", "T2.toml"}),
-                (["design", "--evaluate", name, "--json"], set())]
-    if kind == "toml":
-        return [(["simulate", "PLAN.csv", "--truth", name, "-o", "S.csv", "--no-progress"], {"S.csv"})]
-    if kind == "toml-project":
-        return [(["config", "--config", name, "--json"], set()),
-                (["fit", "T1.csv", *FIX, "--config", name, "-o", "F2.json"], {"F2.json"}),
-                (["design", "--evaluate", "PLAN.csv", "--config", name, "--json"], set())]
-    return [(["compensate", "T1.csv", "--fit", name, "-o", "C.csv"], {"C.csv"}),
-            (["fit", "T1.csv", *FIX, "--prior", name], set()),
-            (["export", name, "-o", "EXP"], {"EXP"}),
-            (["design", "--evaluate", "PLAN.csv", "--prior", name], set())]
-
-
-# (input kind, base file, mutation, cases per class in CI, seed)
-FILE_CLASSES = [("csv-runs", "T1.csv", mutate_csv, 24, 11), ("csv-runs", "SHEET.csv", mutate_csv, 12, 12),
-                ("csv-plan", "PLAN.csv", mutate_csv, 14, 13), ("toml", "TRUTH.toml", mutate_toml, 12, 14),
-                ("toml-project", "PROJECT.toml", mutate_toml, 10, 17),
-                ("json", "FIT.json", mutate_json, 14, 15), ("json", "FIT.json", tamper_json, 10, 18),
-                ("csv-runs", "T1.csv", hostile_header, 6, 19)]
 TALLY = Counter()
+#: the clean input's answer per (input, target): computed once
+_CLEAN = {}
 
 
-@pytest.mark.parametrize("kind, name, mutate, n, seed", FILE_CLASSES,
-                         ids=[f"{k}-{n}" for k, n, *_ in FILE_CLASSES])
-def test_malformed_files(work, kind, name, mutate, n, seed):
-    rng = np.random.default_rng(seed)
-    original = (work / name).read_text()
-    for case in range(CASES or n):
-        cls, data = mutate(original, rng)
-        bad = f"bad_{case}{Path(name).suffix}"
-        (work / bad).write_bytes(data)
-        for argv, outputs in _argv_for(kind, bad)[int(rng.integers(len(_argv_for(kind, bad)))):][:1]:
-            code = run_case(work, argv, outputs)
+def _remove(work, outputs):
+    for o in outputs:  # the next case starts without this one's outputs
+        p = work / o
+        if p.is_dir():
+            shutil.rmtree(p)
+        elif p.exists():
+            p.unlink()
+
+
+def _answer(work, target, stdout):
+    out = next((work / o for o in target.outputs), None)
+    return ANSWERS[target.answer](out, stdout)
+
+
+def _unsaid(clean, mutated, stderr):
+    """The parameters (or runs) whose answer moved beyond the stated uncertainty with no new
+    note, check or warning to say so; [] when every difference is explained."""
+    (v0, notes0), (v1, notes1) = clean, mutated
+    number = re.compile(r"[-+]?\d[\d.e+-]*")
+    new = {number.sub("#", n) for n in notes1} - {number.sub("#", n) for n in notes0}
+    if new or ": warning: " in stderr:
+        return []
+    moved = []
+    for key in v0.keys() & v1.keys():
+        (a, sa), (b, sb) = v0[key], v1[key]
+        if abs(b - a) > max(sa, sb, 1e-9 * max(abs(a), 1.0)):
+            moved.append(f"{key}: {a:.6g} +- {sa:.3g} -> {b:.6g} +- {sb:.3g}")
+    return moved
+
+
+@pytest.mark.parametrize("spec", INPUTS, ids=[f"{i.name}-{i.seed}" for i in INPUTS])
+def test_malformed_files(work, spec):
+    rng = np.random.default_rng(spec.seed)
+    path = work / spec.name
+    original = path.read_text()
+    for case in range(CASES or spec.cases):
+        cls, data = spec.mutate(original, rng)
+        target = spec.targets[int(rng.integers(len(spec.targets)))]
+        if "/" in spec.name:  # a file inside a folder the command reads: mutated in place
+            bad, restore = path, True
+        else:
+            bad, restore = work / f"bad_{case}{path.suffix}", False
+        bad.write_bytes(data)
+        argv = [str(bad.relative_to(work)) if a == "{IN}" else a for a in target.argv]
+        try:
+            code, stdout, stderr = run_case(work, argv, set(target.outputs))
             TALLY[(cls, argv[0], code)] += 1
             assert code == 2 or not cls.startswith(MUST_REFUSE), f"{cls}: {argv} exit {code}"
-            for o in outputs:  # the next case starts without this one's outputs
-                p = work / o
-                if p.is_dir():
-                    import shutil
-                    shutil.rmtree(p)
-                elif p.exists():
-                    p.unlink()
-        (work / bad).unlink()
+            if code == 0 and target.answer:
+                key = (spec.name, target.argv)
+                if key not in _CLEAN:
+                    bad.write_text(original)
+                    _remove(work, target.outputs)
+                    c0, out0, _ = run_case(work, [str(path.relative_to(work)) if a == "{IN}" else a
+                                                  for a in target.argv], set(target.outputs))
+                    assert c0 == 0
+                    _CLEAN[key] = _answer(work, target, out0)
+                    _remove(work, target.outputs)
+                    bad.write_bytes(data)
+                    code, stdout, stderr = run_case(work, argv, set(target.outputs))
+                moved = _unsaid(_CLEAN[key], _answer(work, target, stdout), stderr)
+                assert not moved, f"{cls} {argv}: exit 0, the answer moved without a note: {moved}"
+        finally:
+            _remove(work, target.outputs)
+            if restore:
+                bad.write_text(original)
+            else:
+                bad.unlink()
 
 
 def test_malformed_options(work):
     rng = np.random.default_rng(16)
     names = {"{T1}": "T1.csv", "{PLAN}": "PLAN.csv", "{FIT}": "FIT.json", "{DIR}": "adir", "{HARD}": "hard.csv",
-             "{SYM}": "sym.csv"}
-    for case in range(CASES or 60):
+             "{SYM}": "sym.csv", "{TRUTH}": "TRUTH.toml"}
+    for case in range(CASES or 70):
         cls, argv = option_case(rng)
         names["{IN}"] = "PLAN.csv" if argv[0] == "simulate" else "T1.csv"
         extra = {"compensate": ["--fit", "FIT.json"], "fit": FIX}.get(argv[0], []) if cls == "any:-o" else []
         argv = [names.get(a, a) for a in argv] + extra
         outputs = {argv[i + 1] for i, a in enumerate(argv[:-1]) if a in ("-o", "--out", "--report")}
-        code = run_case(work, argv, outputs)
+        code = run_case(work, argv, outputs)[0]
         TALLY[(cls, argv[0], code)] += 1
         for o in outputs:
             p = work / o
@@ -422,9 +580,12 @@ def test_malformed_options(work):
 
 
 def test_every_command_is_fuzzed():
-    """The fuzz covers every registered command (a new command must be added here)."""
-    fuzzed = {"fit", "compensate", "simulate", "design", "diagnose", "demo", "export", "align", "config",
-              "calibrate"}
+    """The registry covers every registered command: a new command is one entry in
+    :data:`INPUTS` or :data:`OPTION_CASES`."""
+    fuzzed = {t.argv[0] for i in INPUTS for t in i.targets}
+    fuzzed |= {template[0] for _, template in OPTION_CASES if isinstance(template[0], str)}
+    fuzzed |= {v for _, template in OPTION_CASES if callable(template[0])
+               for v in ("fit", "compensate", "simulate")}
     assert set(COMMANDS) <= fuzzed, set(COMMANDS) - fuzzed
 
 

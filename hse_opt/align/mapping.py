@@ -340,7 +340,8 @@ def load_mapping(path):
     try:
         d = read_toml(src, "a mapping file (TOML: docs/rawlogs.md)")
     except OSError as err:
-        raise ValueError(f"{src}: cannot read the mapping: {err.strerror or err}") from None
+        raise ValueError(f"{src}: cannot read the mapping: {err.strerror or err}; allowed: a mapping file "
+                         "(TOML) you can read") from None
     return mapping_from_dict(d, source=src)
 
 

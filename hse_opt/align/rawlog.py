@@ -152,10 +152,10 @@ def validate_rawlog(t, gyro, accel, encoder, *, copy=True):
     accel = asarray(accel, dtype=float)
     encoder = asarray(encoder, dtype=float)
     if t.ndim != 1:
-        raise ValueError(f"raw log t_s must be 1-D, got shape {t.shape}")
+        raise ValueError(f"raw log t_s has shape {t.shape}; allowed: 1-D, one timestamp per sample")
     n = t.shape[0]
     if n < 3:
-        raise ValueError(f"raw log has {n} samples: at least 3 are required")
+        raise ValueError(f"raw log has {n} samples; allowed: at least 3")
     for name, arr, shape in (("gyro_rad", gyro, (n, 3)), ("accel_mps", accel, (n, 3)),
                              ("encoder_rad", encoder, (n,))):
         if arr.shape != shape:
@@ -164,12 +164,14 @@ def validate_rawlog(t, gyro, accel, encoder, *, copy=True):
         bad = ~np.isfinite(arr)
         if bad.any():
             idx = int(np.argmax(bad.reshape(n, -1).any(axis=1)))
-            raise ValueError(f"raw log {name} is not finite (NaN or inf) at sample index {idx}")
+            raise ValueError(f"raw log {name} is not finite (NaN or inf) at sample index {idx}; allowed: finite "
+                             "numbers")
     dt = np.diff(t)
     if (dt <= 0).any():
         idx = int(np.argmax(dt <= 0)) + 1
         raise ValueError(f"raw log timestamps are not strictly increasing at sample index {idx} "
-                         f"(t_s[{idx}] = {t[idx]!r} <= t_s[{idx - 1}] = {t[idx - 1]!r})")
+                         f"(t_s[{idx}] = {float(t[idx])!r} <= t_s[{idx - 1}] = {float(t[idx - 1])!r}); allowed: "
+                         "increasing times, one sample each")
     med = float(np.median(dt))
     gap = dt > GAP_FACTOR * med
     if gap.any():
@@ -312,7 +314,7 @@ def _read_csv(path):
                     float(v)
                 except ValueError:
                     raise ValueError(f"sample index {k} (line {k + 2}), column {name}: {v.strip()!r} is not a "
-                                     "number") from None
+                                     "number; allowed: decimal numbers, comma-separated") from None
         raise
     if data.shape[1] != len(header):
         raise ValueError(f"{data.shape[1]} values per row, the header {len(header)}; allowed: one value per "
@@ -417,7 +419,7 @@ def load_rawlog(path, meta=None, *, check=True, pulse_weights=None):
                                  "encoder as encoder_rad or encoder_deg)")
             arrays = (data[:, 0], gyro, accel, data[:, 7] * enc_factor)
         else:
-            raise ValueError("raw log files end in .npz or .csv")
+            raise ValueError("not a raw log; allowed: files ending in .npz or .csv")
         m = dict(file_meta)
         m.update(meta or {})
         t, gyro, accel, encoder = validate_rawlog(*arrays, copy=False)  # the arrays are the loader's own

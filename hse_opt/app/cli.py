@@ -22,7 +22,28 @@ class _Parser(argparse.ArgumentParser):
     """Usage errors in one line (naming what is wrong) and exit status 2."""
 
     def error(self, message):
-        self.exit(2, f"{self.prog}: error: {message} (see '{self.prog} --help')\n")
+        self.exit(2, f"{self.prog}: error: {_usage_allowed(message)} (see '{self.prog} --help')\n")
+
+
+def _usage_allowed(message):
+    """argparse's usage error with what is allowed (the contract's "allowed: ..." part)."""
+    import re
+    if "allowed" in message:
+        return message
+    m = re.match(r"argument (\S+): invalid (int|float) value", message)
+    if m:
+        return f"{message}; allowed: {'an integer' if m.group(2) == 'int' else 'a number'}"
+    m = re.match(r"argument (\S+): expected one argument", message)
+    if m:
+        opt = m.group(1).split("/")[-1]
+        return (f"{message}; allowed: a value after {opt} (one that starts with '-' written as "
+                f"{opt}=VALUE)")
+    m = re.match(r"(argument \S+: invalid choice: \S+) \(choose from (.*)\)$", message)
+    if m:
+        return f"{m.group(1)}; allowed: {m.group(2)}"
+    if message.startswith("the following arguments are required"):
+        return f"{message}; allowed: the command's usage line"
+    return f"{message}; allowed: the options and arguments of the command's --help"
 
 
 def build_parser():
@@ -100,6 +121,11 @@ def _message(err):
         text = err.strerror or str(err)
         if err.filename is not None:
             text = f"{err.filename}: {text}"
+        allowed = {FileNotFoundError: "an existing file", IsADirectoryError: "a file, not a folder",
+                   NotADirectoryError: "a path whose folders exist",
+                   PermissionError: "a file you can read (outputs: a folder you can write)"}
+        if "allowed" not in text:
+            text += f"; allowed: {allowed.get(type(err), 'a file this user can read')}"
     else:
         text = str(err)
     return " ".join(text.split())

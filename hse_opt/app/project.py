@@ -133,8 +133,13 @@ def load(path):
     """The project file at ``path``. Raises ValueError naming the file (and key) when it cannot
     be read, is not TOML, or holds a section, key or value that is not allowed."""
     path = Path(path)
+    from hse_opt.ranges import MAX_FILE_BYTES
     try:
-        raw = path.read_bytes()
+        with open(path, "rb") as fh:  # bounded: /dev/zero is no project file
+            raw = fh.read(MAX_FILE_BYTES + 1)
+        if len(raw) > MAX_FILE_BYTES:
+            raise ValueError(f"{path}: larger than {MAX_FILE_BYTES / 2**20:g} MiB; allowed: a project file "
+                             "(TOML) of a few lines")
     except OSError as err:
         raise ValueError(f"{path}: cannot read the project file ({err.strerror or err}); "
                          f"allowed: a readable TOML file") from None
@@ -143,6 +148,9 @@ def load(path):
     except (UnicodeDecodeError, tomllib.TOMLDecodeError) as err:
         raise ValueError(f"{path}: not a TOML file ({' '.join(str(err).split())}); allowed: TOML "
                          f"with sections {', '.join(KEYS)}") from None
+    except RecursionError:  # arrays nested thousands deep
+        raise ValueError(f"{path}: not a TOML file this tool reads (arrays or tables nested too deeply); "
+                         f"allowed: TOML with sections {', '.join(KEYS)}") from None
     folder = path.resolve().parent
     settings = []
     for section, table in data.items():

@@ -16,6 +16,8 @@ def _decimal(value):
         text = value.strip()
         if not text:
             raise ValueError("is empty")
+        if not text.isascii() or "_" in text:  # Decimal reads '١٢', '１２' and '1_000' as numbers: no file should
+            raise ValueError(f"{value!r} is not a number (ASCII digits only, no '_')")
         try:
             return decimal.Decimal(text)
         except decimal.InvalidOperation:

@@ -343,8 +343,8 @@ def as_criterion(criterion):
 def unit_vector(names, name):
     names = list(names)
     if name not in names:
-        raise ValueError(f"criterion c:{name}: unknown parameter {name!r}; this model has: "
-                         f"{', '.join(names)}")
+        raise ValueError(f"criterion c:{name}: unknown parameter {name!r}; allowed: c:NAME with NAME one of "
+                         f"the model's parameters: {', '.join(names)}")
     e = np.zeros(len(names))
     e[names.index(name)] = 1.0
     return e

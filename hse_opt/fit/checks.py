@@ -1,6 +1,7 @@
 """What a user should look at after a fit: runs far off the model (externally studentised
 residuals, Bonferroni over the runs), a reduced chi-square far from 1 when sigma is known or
-from pure error, and degenerate noise (zero scatter).
+from pure error, degenerate noise (zero scatter) and a scatter no alignment gives (a unit
+error).
 
 Every ``hse-opt fit`` runs these checks, so they load no scipy.stats (a second of start-up):
 the chi-square check uses the closed form :func:`~hse_opt.fit.result.chi2_sf`, and the
@@ -64,12 +65,34 @@ def zero_scatter(result):
             "copied values)")
 
 
+#: a residual scatter this many times the default noise model's is no alignment noise
+IMPLAUSIBLE_SCATTER = 100.0
+
+
+def implausible_scatter(result, runs):
+    """The sentence saying that the residual scatter is :data:`IMPLAUSIBLE_SCATTER` times or
+    more what a gyrocompass alignment of these runs' lengths gives with the default gyro noise
+    (:func:`hse_opt.information.heading_sigma`): heading errors in another unit (a column of
+    milliarcseconds, say), or runs that did not align; or ""."""
+    from ..information import heading_sigma
+    scatter = float(np.sqrt(np.mean(np.asarray(result.residuals) ** 2)))
+    expected = float(np.sqrt(np.mean(heading_sigma(runs.duration, runs.latitude) ** 2)))
+    if scatter < IMPLAUSIBLE_SCATTER * expected:
+        return ""
+    return (f"the residual scatter {scatter / units.ARCSEC:.4g} arcsec RMS is {scatter / expected:.0f} times what "
+            f"a gyrocompass alignment of these lengths gives with the default gyro noise "
+            f"({expected / units.ARCSEC:.3g} arcsec): heading errors in another unit, or runs that did not align?")
+
+
 def check_lines(result, runs):
     """Sentences for the fit's report (empty when nothing needs a look)."""
     out = []
     zero = zero_scatter(result)
     if zero:
         return [f"{zero}; sigmas, tests and uncertainties mean nothing here"]
+    implausible = implausible_scatter(result, runs)
+    if implausible:
+        out.append(implausible)
     if result.weighting in ("heading_std", "pure-error") and result.dof > 0:
         p = chi2_sf(result.chi2_red * result.dof, result.dof)
         if not ALPHA / 2 <= p <= 1 - ALPHA / 2:

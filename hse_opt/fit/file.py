@@ -132,15 +132,15 @@ def load_fit(path, model=None):
             model = Model([make_effect(e) for e in d["effects"]], geometry)
         elif list(model.effect_names) != list(d["effects"]):
             raise ValueError(f"{src}: the file's effects {d['effects']} differ from the model's "
-                             f"{list(model.effect_names)}")
+                             f"{list(model.effect_names)}; allowed: a FIT.json of the same effects")
         tilt_known = d["tilt_known"]
         if not isinstance(tilt_known, bool):
             raise ValueError(f"{src}: \"tilt_known\" is {tilt_known!r}; allowed: true or false")
         mm = model.measurement(tilt_known)
         names = tuple(d["names"])
         if names != mm.names:
-            raise ValueError(f"{src}: parameters {list(names)} do not match the model's "
-                             f"{list(mm.names)}")
+            raise ValueError(f"{src}: \"names\" {list(names)} do not match the effects' parameters; "
+                             f"allowed: {list(mm.names)}, in this order (as hse-opt fit writes them)")
         par = d["parameters"]
         get = lambda key: np.array([par[nm][key] for nm in names], dtype=float)  # noqa: E731
         bound = lambda key, inf: np.array([inf if par[nm][key] is None else par[nm][key]  # noqa: E731

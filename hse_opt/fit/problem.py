@@ -97,14 +97,12 @@ def setup(mm, runs, fix, bounds, constraints, prior, notes, start=None):
         try:
             lo, hi = (-np.inf if b[0] is None else float(b[0])), (np.inf if b[1] is None else float(b[1]))
         except (TypeError, ValueError, IndexError):
-            raise ValueError(f"bound of {nm!r} must be (lower, upper) in {mm.params[i].unit}, "
-                             f"got {b!r}") from None
+            raise ValueError(f"bound of {nm!r} is {b!r}; allowed: (lower, upper) in {mm.params[i].unit}") from None
         if math.isnan(lo) or math.isnan(hi) or lo > hi:
-            raise ValueError(f"bound of {nm!r}: need lower <= upper, got {lo} and {hi} "
-                             f"{mm.params[i].unit}")
+            raise ValueError(f"bound of parameter {nm!r}: got {lo} and {hi} {mm.params[i].unit}; allowed: lower <= upper")
         if not free[i] and not lo <= values[i] <= hi:
             raise ValueError(f"parameter {nm!r} is fixed at {values[i]:g} {mm.params[i].unit}, outside "
-                             f"its bound [{lo:g}, {hi:g}]")
+                             f"its bound; allowed: a value in [{lo:g}, {hi:g}]")
         lower[i], upper[i] = lo, hi
         user_bounded.add(nm)
     for i, q in enumerate(mm.params):

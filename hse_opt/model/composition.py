@@ -22,7 +22,7 @@ class Model:
         names = [e.name for e in effects]
         dup = {n for n in names if names.count(n) > 1}
         if dup:
-            raise ValueError(f"effects {sorted(dup)} appear more than once in the model")
+            raise ValueError(f"effects {sorted(dup)} appear more than once in the model; allowed: each effect once")
         pnames = [p.name for e in effects for p in e.params]
         dup = {n for n in pnames if pnames.count(n) > 1}
         if dup:

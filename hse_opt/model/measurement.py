@@ -296,7 +296,8 @@ class MeasurementModel:
         values = {**(values or {}), **kw}
         unknown = sorted(set(values) - set(self.names))
         if unknown:
-            raise ValueError(f"unknown parameter(s) {unknown}; this model has: {', '.join(self.names)}")
+            raise ValueError(f"unknown parameter(s) {unknown}; this model has: {', '.join(self.names)} (allowed: "
+                             "those names)")
         out = []
         for q in self.params:
             v = float(values.get(q.name, q.nominal))
@@ -340,7 +341,7 @@ class MeasurementModel:
         try:
             return self.names.index(name)
         except ValueError:
-            raise ValueError(f"unknown parameter {name!r}; this model has {', '.join(self.names)}") from None
+            raise ValueError(f"unknown parameter {name!r}; allowed: this model's {', '.join(self.names)}") from None
 
 
 def _check_inputs(X, tilt_known):

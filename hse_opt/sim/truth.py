@@ -335,7 +335,7 @@ _HARMONIC_CLS_FIELDS = {(EncoderConfig, "harmonics"), (StandConfig, "azimuth_har
 def _unknown(name, valid, where):
     close = difflib.get_close_matches(name, valid, n=1, cutoff=0.5)
     hint = f"; did you mean {close[0]!r}?" if close else ""
-    return ValueError(f"unknown key {name!r} in {where}{hint} Valid keys: {', '.join(sorted(valid))}")
+    return ValueError(f"unknown key {name!r} in {where}{hint} allowed: {', '.join(sorted(valid))}")
 
 
 def _is_number(v):

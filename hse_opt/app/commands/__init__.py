@@ -32,6 +32,9 @@ def add_input_checks(parser):
 
 def input_checks(args):
     """Keyword arguments of :func:`hse_opt.data.load_runs` / ``load_plan`` from the options."""
+    if not args.min_rate_dps >= 0:
+        raise ValueError(f"--min-rate-dps {args.min_rate_dps:g} is not allowed; allowed: >= 0 deg/s (0 turns the "
+                         "lock-in check off)")
     return dict(min_rate_dps=args.min_rate_dps, allow_small_azimuths=args.allow_small_azimuths)
 
 

@@ -94,7 +94,8 @@ def _expand(items, suffixes=_SUFFIXES):
             found = sorted(os.path.join(item, f) for f in os.listdir(item)
                            if f.endswith(suffixes) and not f.startswith("."))
             if not found:
-                raise ValueError(f"{item}: no raw logs ({', '.join(suffixes)}) in the directory")
+                raise ValueError(f"{item}: no raw logs ({', '.join(suffixes)}) in the directory; allowed: a "
+                                 f"directory of raw logs ({', '.join(suffixes)})")
             paths += found
         elif not os.path.exists(item):
             raise ValueError(f"{item}: no such file or directory; allowed: raw-log files or directories")
@@ -129,7 +130,8 @@ def processor(args):
         try:
             truth = TruthConfig.from_toml(args.truth)
         except OSError as err:
-            raise ValueError(f"{args.truth}: cannot read the truth: {err.strerror or err}") from None
+            raise ValueError(f"{args.truth}: cannot read the truth: {err.strerror or err}; allowed: a "
+                             "TRUTH.toml you can read") from None
         config, weights, from_data = default_align_config(truth), None, False
     else:
         cal = load_calibration(args.calibration) if args.calibration else LabCalibration.orthogonal()

@@ -114,7 +114,7 @@ def run(args):
     from ..demo import run_demo, write_outputs
 
     if args.seed < 0:
-        raise ValueError(f"--seed {args.seed} is not allowed: an integer >= 0")
+        raise ValueError(f"--seed {args.seed} is not allowed; allowed: an integer >= 0")
     out = Path(args.out)
     progress, close = _progress_bar(args.progress)
     try:

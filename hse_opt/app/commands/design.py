@@ -249,6 +249,9 @@ def run(args):
     lo, hi = _pair(args.rates, "--rates", sep=":")
     if not 0 < lo <= hi:
         raise ValueError(f"--rates {args.rates}: allowed LO:HI in deg/s with 0 < LO <= HI")
+    if hi > 400:  # the design space's limit (hse_opt.design.space)
+        raise ValueError(f"--rates {args.rates}: {hi:g} deg/s is not allowed; allowed: LO:HI in deg/s with "
+                         "HI <= 400 (a rate table's range)")
     if lo < args.min_rate_dps:
         raise ValueError(f"--rates {args.rates}: {lo:g} deg/s is inside the lock-in limit; allowed: LO >= "
                          f"{args.min_rate_dps:g} deg/s (--min-rate-dps)")

@@ -67,7 +67,8 @@ def run(args):
     try:
         runs = load_runs(args.runs, **input_checks(args))
     except OSError as err:
-        raise ValueError(f"{args.runs}: cannot read the file ({err.strerror or err})") from None
+        raise ValueError(f"{args.runs}: cannot read the file ({err.strerror or err}); allowed: a RUNS.csv "
+                         "you can read") from None
     covariates = None
     if args.derived:  # the user's own derived columns are never factors or candidates
         from ...factors import is_derived
@@ -75,6 +76,9 @@ def run(args):
     if args.covariates is not None:
         covariates = [] if args.covariates.strip().lower() == "none" else \
             [c.strip() for c in args.covariates.split(",") if c.strip()]
+    if args.alpha is not None and not 0.0 < args.alpha < 1.0:
+        raise ValueError(f"--alpha {args.alpha:g} is not allowed; allowed: a significance level in (0, 1), "
+                         "e.g. 0.05")
     kw = dict(fix=parse_fix(args.fix), covariates=covariates,
               alpha=ALPHA if args.alpha is None else args.alpha)
     model = model_option(args.effects)

@@ -67,7 +67,8 @@ def _number(text, option, name):
     try:
         x = float(text)
     except ValueError:
-        raise ValueError(f"{option} {name}={text!r}: {text!r} is not a number") from None
+        raise ValueError(f"{option} {name}={text!r}: {text!r} is not a number; allowed: a number in the "
+                         "parameter's unit") from None
     if not np.isfinite(x):
         raise ValueError(f"{option} {name}={text!r}: allowed: a finite number")
     return x

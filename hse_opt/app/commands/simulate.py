@@ -57,7 +57,8 @@ def _io(action, what, fun, path, *args):
     try:
         return fun(*args, path) if args else fun(path)
     except OSError as err:
-        raise ValueError(f"{path}: cannot {action} the {what}: {err.strerror or err}") from None
+        raise ValueError(f"{path}: cannot {action} the {what}: {err.strerror or err}; allowed: "
+                         f"{'a file you can read' if action == 'read' else 'a path you can write'}") from None
 
 
 def run(args):
@@ -66,6 +67,10 @@ def run(args):
     from ...data import load_plan, save_runs
     from ...sim import TruthConfig, run_campaign
 
+    if args.seed < 0:
+        raise ValueError(f"--seed {args.seed} is not allowed; allowed: an integer >= 0")
+    if args.jobs < 1:
+        raise ValueError(f"--jobs {args.jobs} is not allowed; allowed: an integer >= 1")
     surveyed = [p.strip() for p in args.surveyed.split(",") if p.strip()]
     if surveyed and not args.field:
         raise ValueError("--surveyed: allowed only with --field")
