@@ -415,9 +415,9 @@ FIT_TARGETS = (Target(("compensate", "T1.csv", "--fit", "{IN}", "-o", "C.csv"), 
                Target(("design", "--evaluate", "PLAN.csv", "--prior", "{IN}")))
 
 INPUTS = (
-    Input("T1.csv", mutate_csv, RUNS_TARGETS, 24, 11),
-    Input("SHEET.csv", mutate_csv, RUNS_TARGETS, 12, 12),
-    Input("FIELD.csv", mutate_csv, FIELD_TARGETS, 16, 22),
+    Input("T1.csv", mutate_csv, RUNS_TARGETS, 30, 11),
+    Input("SHEET.csv", mutate_csv, RUNS_TARGETS, 16, 12),
+    Input("FIELD.csv", mutate_csv, FIELD_TARGETS, 24, 22),
     Input("PLAN.csv", mutate_csv, (Target(("simulate", "{IN}", "-o", "S.csv", "--no-progress", "--write-truth",
                                            "T2.toml"), ("S.csv", "T2.toml")),
                                    Target(("design", "--evaluate", "{IN}", "--json"))), 14, 13),
@@ -425,7 +425,7 @@ INPUTS = (
                                                 ("S.csv",)),
                                          Target(("design", "--evaluate", "{IN}", "--field", "--json"))), 8, 23),
     Input("TRUTH.toml", mutate_toml, (Target(("simulate", "PLAN.csv", "--truth", "{IN}", "-o", "S.csv",
-                                              "--no-progress"), ("S.csv",)),), 12, 14),
+                                              "--no-progress"), ("S.csv",)),), 14, 14),
     Input("PROJECT.toml", mutate_toml, (Target(("config", "--config", "{IN}", "--json")),
                                         Target(("fit", "T1.csv", *FIX, "--config", "{IN}", "-o", "F2.json"),
                                                ("F2.json",)),
@@ -438,7 +438,9 @@ INPUTS = (
                                           Target(("compensate", "FIELD.csv", "--fit", "{IN}", "-o", "C.csv"),
                                                  ("C.csv",))), 8, 20),
     Input("logs/run_1.csv", mutate_csv, (Target(("align", "logs", "-o", "R.csv", "--no-progress"), ("R.csv",),
-                                                answer="align"),), 10, 21),
+                                                answer="align"),
+                                         Target(("calibrate", "logs", "--out", "CAL", "--no-progress"), ("CAL",))),
+          10, 21),
 )
 FIELD_PLAN = [("A", 37.0, 150, -400), ("B", 212.0, -300, 250)]
 
@@ -565,7 +567,7 @@ def test_malformed_options(work):
     rng = np.random.default_rng(16)
     names = {"{T1}": "T1.csv", "{PLAN}": "PLAN.csv", "{FIT}": "FIT.json", "{DIR}": "adir", "{HARD}": "hard.csv",
              "{SYM}": "sym.csv", "{TRUTH}": "TRUTH.toml"}
-    for case in range(CASES or 70):
+    for case in range(CASES or 100):
         cls, argv = option_case(rng)
         names["{IN}"] = "PLAN.csv" if argv[0] == "simulate" else "T1.csv"
         extra = {"compensate": ["--fit", "FIT.json"], "fit": FIX}.get(argv[0], []) if cls == "any:-o" else []
