@@ -54,7 +54,7 @@ import numpy as np
 from .. import units
 from ..data import write_text_atomic
 
-__all__ = ["SessionResult", "calibrate", "write_outputs", "watch", "log_signature", "OUTPUT_FILES",
+__all__ = ["SessionResult", "calibrate", "write_outputs", "summary", "watch", "log_signature", "OUTPUT_FILES",
            "POLL_S", "TARGET", "DEFAULT_TIME_LEFT_H", "NoRunsError"]
 
 #: what :func:`write_outputs` writes into the output folder (``nav/`` a folder)
@@ -455,6 +455,13 @@ def _reasons(result):
 
 
 # -- outputs ---------------------------------------------------------------------------------
+def summary(result, shown):
+    """The JSON summary (``summary.json``, ``--json``): :meth:`SessionResult.to_dict` with the
+    output folder ``shown`` and its report's path."""
+    from ..report import REPORT_NAME
+    return {**result.to_dict(), "report": os.path.join(os.fspath(shown), REPORT_NAME), "out": os.fspath(shown)}
+
+
 def write_outputs(result, directory, shown=None):
     """Write the session's report and data into ``directory`` (existing): :data:`OUTPUT_FILES`
     (``FIT.json`` and ``nav/`` only with a fit, ``NEXT_PLAN.csv`` only with a plan; each file
@@ -487,7 +494,7 @@ def write_outputs(result, directory, shown=None):
     if r.continuation is not None and r.continuation.plan is not None:
         save_plan(r.continuation.plan, os.path.join(directory, "NEXT_PLAN.csv"))
     report.write_report(directory, session_sections(r, calibration), "hse-opt calibrate", summary_lines(r))
-    data = {**r.to_dict(), "report": os.path.join(shown, report.REPORT_NAME), "out": shown}
+    data = summary(r, shown)
     write_text_atomic(os.path.join(directory, "summary.json"), json.dumps(data, indent=2, allow_nan=False) + "\n")
     return data
 

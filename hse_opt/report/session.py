@@ -177,6 +177,12 @@ def session_sections(result, calibration=None):
     else:
         sections.append(text_section("The calibration", [f"No model could be fitted: {r.failure}"]))
     sections.append(log_table_section(r))
+    noise = [(os.path.basename(row["log"]), row["noise"]) for row in r.rows if row.get("noise") is not None]
+    if noise:
+        from ..align.noise import combine_noise
+        from .noise import noise_section
+        names, figures = zip(*noise)
+        sections.append(noise_section(figures, combine_noise(figures), names=names))
     if calibration is not None:
         sections.append(interface_section(calibration))
     sections.append(next_section(r))

@@ -1,4 +1,5 @@
-"""``hse-opt calibrate``: the whole field session in one command (see :mod:`hse_opt.session`)."""
+"""``hse-opt calibrate``: the whole field session in one command (see :mod:`hse_opt.app.session`)."""
+import contextlib
 import json
 import os
 import sys
@@ -21,7 +22,8 @@ none. The first line printed is the verdict. Exit status 0 whenever the report w
 
 --watch: the live session. After the logs already in the folder, wait for new ones; after
 each, print one line (lambda2 so far with its total uncertainty, the verdict, the next
-alignment to run) and rewrite DIR's files (each update whole). A log is read once its size
+alignment to run) as soon as it is known, then rewrite DIR's files (each update whole; the
+report's plots take a few seconds more). A log is read once its size
 and modification time (and its .json sidecar's) are unchanged over one poll interval
 (--poll-s): a log still being written is never read half; names starting with '.' are
 ignored (write under such a name and rename, or just write). Stops with exit 0 when the
@@ -137,24 +139,48 @@ def run(args):
     return 0
 
 
+@contextlib.contextmanager
+def _signals_deferred():
+    """Ctrl-C and SIGTERM wait until the block is done (the report being rewritten is finished
+    first), then act as they would have (main thread only)."""
+    import signal
+    import threading
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+    got = []
+    names = [n for n in ("SIGINT", "SIGTERM", "SIGHUP") if hasattr(signal, n)]
+    old = {n: signal.signal(getattr(signal, n), lambda signum, frame: got.append(signum)) for n in names}
+    try:
+        yield
+    finally:
+        for n, handler in old.items():
+            signal.signal(getattr(signal, n), handler)
+        for signum in got[:1]:
+            signal.raise_signal(signum)
+
+
 def _watch(args, kw):
+    """The live session: after each update the line first (the next alignment as soon as it is
+    known), then DIR rewritten, Ctrl-C deferred until it is whole."""
     from ..cli import Terminated
-    from ..session import OUTPUT_FILES, watch, write_outputs
+    from ..session import OUTPUT_FILES, summary, watch, write_outputs
     from .outputs import Transaction
 
     written = None
     try:
         for result in watch(args.logs[0], poll=args.poll_s, time_left_h=args.time_left_h,
                             target_sigma=args.target_sigma, **kw):
-            with Transaction([("LOGS", p) for p in result.logs],
-                             [("out", "--out", args.out, OUTPUT_FILES)]) as tx:
-                data = write_outputs(result, tx.path("out"), shown=args.out)
-            written = result
-            if args.json:
-                sys.stdout.write(json.dumps(data, allow_nan=False) + "\n")
-            else:
-                sys.stdout.write(result.line() + "\n")
-            sys.stdout.flush()
+            with _signals_deferred():
+                if args.json:
+                    sys.stdout.write(json.dumps(summary(result, args.out), allow_nan=False) + "\n")
+                else:
+                    sys.stdout.write(result.line() + "\n")
+                sys.stdout.flush()
+                with Transaction([("LOGS", p) for p in result.logs],
+                                 [("out", "--out", args.out, OUTPUT_FILES)]) as tx:
+                    write_outputs(result, tx.path("out"), shown=args.out)
+                written = result
     except (KeyboardInterrupt, Terminated) as err:
         what = "interrupted" if isinstance(err, KeyboardInterrupt) else f"terminated (signal {err.signum})"
         done = ("no log was processed: no report written" if written is None else
