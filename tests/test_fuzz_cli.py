@@ -137,9 +137,21 @@ def mutate_csv(text, rng):
     return f"csv:{kind}", _csv_text(r).encode()
 
 
+#: values a TOML key may be given instead of its own
+BAD_TOML_VALUES = ['"x"', '""', "nan", "inf", "-inf", "-1", "0", "1e999", "9" * 400, "[]", "{}", "true",
+                   '[1, "a"]', "[[1, 2], [3]]", "[1, 2, 3, 4]", '"../../etc/passwd"', "1e-300"]
+
+
 def mutate_toml(text, rng):
     kind = rng.choice(["unknown_key", "type", "big_int", "big_float", "nan", "range", "nesting", "syntax",
-                       "duplicate", "harmonic", "bytes", "empty"])
+                       "duplicate", "harmonic", "bytes", "empty", "value", "value", "value", "drop"])
+    keys = [k for k, line in enumerate(text.split("\n")) if re.match(r"^\s*\w+\s*=", line)]
+    if kind in ("value", "drop") and keys:  # any file's keys: a value replaced, or a key left out
+        lines = text.split("\n")
+        k = keys[int(rng.integers(len(keys)))]
+        key = lines[k].split("=", 1)[0]
+        lines[k] = f"{key}= {rng.choice(BAD_TOML_VALUES)}" if kind == "value" else ""
+        return "toml:" + kind, "\n".join(lines).encode()
     if kind == "unknown_key":
         return "toml:" + kind, (text + "\n[gyro2]\nx = 1\n").encode()
     if kind == "type":
@@ -437,6 +449,10 @@ INPUTS = (
     Input("FIELD_FIT.json", mutate_json, (Target(("export", "{IN}", "-o", "EXP"), ("EXP",)),
                                           Target(("compensate", "FIELD.csv", "--fit", "{IN}", "-o", "C.csv"),
                                                  ("C.csv",))), 8, 20),
+    Input("CAL.toml", mutate_toml, (Target(("align", "logs", "--calibration", "{IN}", "-o", "R.csv", "--no-progress"),
+                                           ("R.csv",)),), 14, 24),
+    Input("MAP.toml", mutate_toml, (Target(("align", "stand", "--mapping", "{IN}", "-o", "R.csv", "--no-progress"),
+                                           ("R.csv",)),), 14, 25),
     Input("logs/run_1.csv", mutate_csv, (Target(("align", "logs", "-o", "R.csv", "--no-progress"), ("R.csv",),
                                                 answer="align"),
                                          Target(("calibrate", "logs", "--out", "CAL", "--no-progress"), ("CAL",))),
@@ -476,6 +492,14 @@ def base(tmp_path_factory):
     object.__setattr__(log, "meta", {"latitude_deg": 28.07, "azimuth_deg": 33.0, "run": 1, "t_start_s": 600.0})
     (d / "logs").mkdir()
     save_rawlog(log, d / "logs" / "run_1.csv")
+    # the lab calibration file and a stand's own CSV with its mapping file (the second example)
+    from hse_opt.align.mapping import example_mapping
+    from hse_opt.datasets import __file__ as datasets
+    (d / "CAL.toml").write_bytes((Path(datasets).parent / "calibration_example.toml").read_bytes())
+    (d / "MAP.toml").write_bytes(Path(example_mapping("rate_stand")).read_bytes())
+    (d / "stand").mkdir()
+    from test_align_mapping import _rate_stand_csv   # the stand's format, written by that test's helper
+    _rate_stand_csv(log, d / "stand" / "run_1.csv")
     return d
 
 

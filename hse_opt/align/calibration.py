@@ -235,14 +235,14 @@ def _shown(raw):
 
 def _si(source, where, raw, factor, n=None):
     """A number (n None) or one-or-n numbers (n given) in file units -> SI float / tuple."""
-    if n is not None and _numbers(raw, (n,)):
-        return tuple(_to_si(str(v), factor) for v in raw)
-    if _numbers(raw, ()):
-        try:
+    try:
+        if n is not None and _numbers(raw, (n,)):
+            return tuple(_to_si(str(v), factor) for v in raw)
+        if _numbers(raw, ()):
             v = _to_si(str(raw), factor)
-        except ValueError as exc:
-            raise DataError(source, f"{where} {exc}") from None
-        return v if n is None else (v,) * n
+            return v if n is None else (v,) * n
+    except ValueError as exc:  # NaN, inf, 1e999
+        raise DataError(source, f"{where} {' '.join(str(exc).split())[:80]}; allowed: finite numbers") from None
     allowed = "a number" if n is None else f"one number or {n}"
     raise DataError(source, f"{where} = {_shown(raw)!r}; allowed: {allowed}")
 
@@ -321,14 +321,16 @@ def load_calibration(path):
     try:
         text = read_text(src, "a UTF-8 TOML file")
     except OSError as exc:
-        raise DataError(src, f"cannot read the calibration: {exc.strerror or exc}") from None
+        raise DataError(src, f"cannot read the calibration: {exc.strerror or exc}; allowed: a CALIBRATION.toml "
+                        "you can read") from None
     except UnicodeDecodeError as exc:
         raise DataError(src, f"is not UTF-8 text ({exc.reason} at byte {exc.start}); allowed: a UTF-8 "
                         "TOML file") from None
     try:
         d = tomllib.loads(text, parse_float=Decimal)
     except tomllib.TOMLDecodeError as exc:
-        raise DataError(src, f"not valid TOML: {exc}") from None
+        raise DataError(src, f"not valid TOML: {exc}; allowed: the sections of CALIBRATION.toml "
+                        "(docs/calibration.md)") from None
     except RecursionError:
         raise DataError(src, "arrays or tables nested too deeply; allowed: the sections of "
                         "CALIBRATION.toml") from None
