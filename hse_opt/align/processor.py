@@ -258,7 +258,8 @@ def _blocks(log, config):
     rate = span / duration
     if not abs(span) >= 2 * math.pi:
         raise ValueError(f"raw log: the table turned {abs(span) / (2 * math.pi):.5f} revolutions; "
-                         "the alignment needs at least one whole revolution")
+                         "the alignment needs at least one whole revolution; allowed: a log of one table "
+                         "revolution or more")
     dt = duration / (n - 1)
     rev_samples = 2 * math.pi / (abs(rate) * dt)
     # at least 3 blocks per revolution: the table-fixed (once per revolution) states stay

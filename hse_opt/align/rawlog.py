@@ -248,7 +248,8 @@ def save_rawlog(log, path, *, pulse_weights=None):
             counts = inc / np.concatenate([wg, wa])
             whole = np.round(counts)
             if not np.all(np.abs(counts - whole) <= 1e-6 * np.maximum(1.0, np.abs(whole))):
-                raise ValueError(f"{path}: the increments are not whole multiples of the pulse weights")
+                raise ValueError(f"{path}: the increments are not whole multiples of the pulse weights; allowed: pulse "
+                         "counts times the weights given")
             inc = whole
             header = PULSE_COLUMNS
             meta["gyro_pulse_arcsec"] = (wg / units.ARCSEC).tolist()
@@ -262,7 +263,7 @@ def save_rawlog(log, path, *, pulse_weights=None):
     if pulse_weights is not None:
         raise ValueError(f"{path}: pulse counts are a CSV form; allowed: a .csv path with pulse_weights")
     if not path.endswith(".npz"):
-        raise ValueError(f"{path}: raw log files end in .npz or .csv")
+        raise ValueError(f"{path}: not a raw log; allowed: files ending in .npz or .csv")
     with atomic_path(path) as tmp:
         np.savez(tmp, t_s=log.t, gyro_rad=log.gyro, accel_mps=log.accel, encoder_rad=log.encoder,
                  meta_json=np.array(json.dumps(log.meta, sort_keys=True)))
@@ -389,7 +390,8 @@ def load_rawlog(path, meta=None, *, check=True, pulse_weights=None):
             z = _read_npz(path)
             missing = [k for k in ("t_s", "gyro_rad", "accel_mps", "encoder_rad") if k not in z]
             if missing:
-                raise ValueError(f"missing arrays {missing}")
+                raise ValueError(f"missing arrays {missing}; allowed: an .npz with t_s, gyro_rad, accel_mps and "
+                                 "encoder_rad")
             file_meta = _meta_object(path, "meta_json", str(z["meta_json"])) if "meta_json" in z else {}
             arrays = (z["t_s"], z["gyro_rad"], z["accel_mps"], z["encoder_rad"])
         elif path.endswith(".csv"):

@@ -197,8 +197,9 @@ def design(model=None, criterion="c:lambda2", *, budget, space=None, stand=None,
                          f"{', '.join(f'{v / units.ARCSEC:g}' for v in stand.tilt)} arcsec is not allowed; allowed: "
                          "|fixture + stand tilt| <= 3600 arcsec in each axis (the model is first order in the tilt)")
     if not tilt_known and space.max_tilt > 0:
-        raise ValueError("a tilt fixture (max_tilt > 0) needs tilt_known=True: with the tilt unknown the model "
-                         "assumes one tilt fixed in b0 for every run")
+        raise ValueError("a tilt fixture (max_tilt > 0, --max-tilt-arcsec) needs tilt_known=True: with the tilt "
+                         "unknown the model assumes one tilt fixed in b0 for every run; allowed: max_tilt 0 "
+                         "with the tilt unknown")
     guard_models = _guard_models(identify, model, crit)
     for m in (model, *guard_models):
         if m.covariates:

@@ -122,7 +122,8 @@ def round_design(prob, w):
             counts = most(idx, counts, min(per_slot, limit - int(counts.sum())))
     if counts.sum() == 0:
         raise ValueError(f"budget {budget / units.HOUR:.4g} h: no whole-run plan fits it"
-                         + (" (each run must end within its time slot)" if slot_length else ""))
+                         + (" (each run must end within its time slot)" if slot_length else "")
+                         + "; allowed: a budget (--budget-h) of at least one run with its set-up")
     counts = exchange(sub, counts, fit)
     keep = counts > 0
     return Exact(settings.take(keep), counts[keep], sub.rows[:, keep], tuple(g.take(keep) for g in sub.guards),

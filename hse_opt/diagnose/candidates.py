@@ -128,7 +128,8 @@ def candidate_names(f0, covariates, candidates):
     for name in names:
         make_effect(name)  # raises with the allowed names
         if name in have:
-            raise ValueError(f"candidate {name!r} is already in the model ({', '.join(sorted(have))})")
+            raise ValueError(f"candidate {name!r} is already in the model ({', '.join(sorted(have))}); allowed: "
+                             "effects not in the model")
     return names
 
 

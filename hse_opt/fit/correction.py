@@ -77,7 +77,8 @@ def compensation(runs, fit_result, parameters=None):
     mm = fit_result.measurement
     if fit_result.tilt_known and runs.pitch is None:
         raise ValueError(f"{runs.source}: the calibration was fitted with known tilt; compensating "
-                         "needs each run's pitch_arcsec/roll_arcsec (Eq. 14 uses C23 from leveling)")
+                         "needs each run's pitch_arcsec/roll_arcsec (Eq. 14 uses C23 from leveling); allowed: "
+                         "runs with both columns")
     return compensation_at(mm.inputs_from_runs(runs), fit_result, parameters)
 
 

@@ -143,7 +143,8 @@ def _fit(runs, model, *, fix, tilt_known, bounds, constraints, prior, robust, hu
     if tilt_known is None:
         tilt_known = runs.pitch is not None
     if tilt_known and runs.pitch is None:
-        raise ValueError(f"{runs.source}: tilt_known=True needs pitch_arcsec/roll_arcsec columns")
+        raise ValueError(f"{runs.source}: tilt_known=True needs pitch_arcsec/roll_arcsec columns; allowed: "
+                         "runs with both columns, or tilt_known=False")
     if not huber_c > 0:
         raise ValueError(f"huber_c must be > 0 sigma, got {huber_c}")
     mm = model.measurement(tilt_known)
@@ -264,13 +265,14 @@ def _fit(runs, model, *, fix, tilt_known, bounds, constraints, prior, robust, hu
         dof = n_meas + r_prior - k_eff - n_pos
         if dof <= 0:
             raise ValueError(f"{runs.source}: no degrees of freedom left ({n_meas} runs, {k_eff} free "
-                             "directions)")
+                             "directions); allowed: more runs than free parameters, or some held with --fix")
         new_sigma = sigma
         if weighting in ("residual", "robust-scale"):
             s = np.sqrt(np.sum(res ** 2 / count) / dof) if weighting == "residual" else mad_scale(res)
             if s <= 0:
                 raise ValueError(f"{runs.source}: the model fits the runs exactly; sigma cannot be "
-                                 "estimated from the residuals (give heading_std_arcsec)")
+                                 "estimated from the residuals; allowed: runs with heading_std_arcsec, or more "
+                                 "runs than parameters")
             new_sigma = s * np.sqrt(count)
         new_hw = huber_weights(res / new_sigma, huber_c) if robust else hw
         settled = (np.max(np.abs(new_hw - hw)) < 1e-7  # ~1e-7/n sigma on the estimates
@@ -296,7 +298,8 @@ def _fit(runs, model, *, fix, tilt_known, bounds, constraints, prior, robust, hu
         psi, dpsi = np.clip(u, -huber_c, huber_c), (np.abs(u) <= huber_c).astype(float)
         m_ = dpsi.mean()
         if m_ == 0:
-            raise ValueError(f"{runs.source}: every run is beyond the Huber threshold; raise huber_c")
+            raise ValueError(f"{runs.source}: every run is beyond the Huber threshold; allowed: a larger "
+                             "huber_c")
         K = 1 + k_eff / n * dpsi.var() / m_ ** 2
         F_data = F_data / (K ** 2 * np.sum(psi ** 2) / max(n - k_eff, 1) / m_ ** 2)
     info = field_analyse(blind_out(F_data, invisible(A * sigma[:, None], prob.ranges)) + L.T @ L,

@@ -59,7 +59,7 @@ def fit_profiled(runs, model=None, *, fix=None, tilt_known=None, start=None):
     dof = f_held.dof - len(held)
     if dof < 1:
         raise ValueError(f"{runs.source}: {f_held.n_runs} runs cannot fit the model's free parameters and "
-                         f"{', '.join(held)}; need more runs")
+                         f"{', '.join(held)}; allowed: more runs, or some parameters held with --fix")
     text = ", ".join(f"{n} = {v:.4g} {mm.params[mm.parameter_index(n)].unit}"
                      + (" (at its bound)" if not _inside(mm, n, v, margin=1e-3) else "")
                      for n, v in held.items())

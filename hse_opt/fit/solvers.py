@@ -193,8 +193,8 @@ def _ipopt(prob, w, z0):
     if not stats["success"]:
         status = stats["return_status"]
         if status in ("Infeasible_Problem_Detected", "Restoration_Failed") and m:
-            raise ValueError(f"the bounds and constraints cannot all hold (IPOPT: {status}); check "
-                             f"them against each other")
+            raise ValueError(f"the bounds and constraints cannot all hold (IPOPT: {status}); allowed: bounds "
+                             "and constraints that hold together")
         raise SolverError("IPOPT did not solve the fit" + _hint(prob), status)
     return (np.array(sol["x"]).ravel() * D, np.array(sol["lam_x"]).ravel() / D,
             np.array(sol["lam_g"]).ravel()[prob.A_eq.shape[0]:], stats["return_status"], D)

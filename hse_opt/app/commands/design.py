@@ -206,8 +206,8 @@ def run(args):
                           criterion=None if args.field else args.criterion,
                           nominal=_nominal(args.nominal), prior=prior, field=args.field)
         except UnidentifiableError as err:
-            raise UnidentifiableError(f"{args.evaluate}: {err}", err.names, err.direction,
-                                      err.condition) from None
+            raise UnidentifiableError(f"{args.evaluate}: {err}; allowed: a plan whose runs separate them",
+                                      err.names, err.direction, err.condition) from None
         report("evaluation_section", f"hse-opt design --evaluate {args.evaluate}", evaluation=ev,
                plan=plan)
         if args.json:
@@ -220,7 +220,8 @@ def run(args):
         return 0
 
     if not args.output:
-        raise ValueError("-o PLAN.csv is required to design a plan (or use --evaluate PLAN.csv)")
+        raise ValueError("-o PLAN.csv is required to design a plan; allowed: -o PLAN.csv, or --evaluate "
+                         "PLAN.csv to score a plan")
     from ...ranges import RANGES
     budget = RANGES["--budget-h"]
     for opt, value, allowed, ok in (("--budget-h", args.budget_h, budget.allowed("H"), budget.contains),
@@ -274,9 +275,14 @@ def run(args):
                          f"{args.stand_tilt_arcsec}: allowed |fixture + stand tilt| <= 3600 arcsec in each axis")
     kw = dict(budget=args.budget_h * units.HOUR, space=space, stand=stand, costs=costs, max_runs=args.max_runs,
               tilt_known=tilt_known, nominal=_nominal(args.nominal), prior=prior)
-    result = design(model, args.criterion, **kw, identify=identify, identify_efficiency=args.identify_efficiency,
-                    refine=args.refine, order=args.order, rng=np.random.default_rng(args.seed),
-                    resolution=resolution)
+    try:
+        result = design(model, args.criterion, **kw, identify=identify, identify_efficiency=args.identify_efficiency,
+                        refine=args.refine, order=args.order, rng=np.random.default_rng(args.seed),
+                        resolution=resolution)
+    except UnidentifiableError as err:
+        raise UnidentifiableError(f"{err}; allowed: candidate runs that identify every parameter (--rates, "
+                                  "--reverse, --azimuth-step-deg, --max-tilt-arcsec, --budget-h) or fewer effects",
+                                  err.names, err.direction, err.condition) from None
     save_plan(result.plan, args.tx.path("output"))
     message(f"hse-opt design: wrote {args.output} ({result.n_runs} runs)")
     report("design_section", f"hse-opt design {args.output}", result=result)

@@ -104,7 +104,8 @@ def run(args):
         result = fit(runs, model, fix=parse_fix(args.fix), bounds=parse_bounds(args.bound),
                      prior=prior, robust=args.robust, tilt_known=False if args.ignore_tilt else None)
     except UnidentifiableError as err:
-        raise UnidentifiableError(f"{args.runs}: {err} (or hold one of them with --fix NAME=VALUE)",
+        raise UnidentifiableError(f"{args.runs}: {err}; allowed: runs that separate them, or one of them held "
+                                  "with --fix NAME=VALUE",
                                   err.names, err.direction, err.condition) from None
     from ...aliasing import alias_budget
     budget = alias_budget(result, runs)
