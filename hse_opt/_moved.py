@@ -20,6 +20,9 @@ MOVED = {
     "hse_opt.fit_file": "hse_opt.fit.file",
     "hse_opt.field": "hse_opt.fit.field",
     "hse_opt.paper_procedure": "hse_opt.fit.paper_procedure",
+    "hse_opt.sim.rawlog": "hse_opt.align.rawlog",
+    "hse_opt.sim.rotations": "hse_opt.align.rotations",
+    "hse_opt.sim.align": "hse_opt.align.processor",
 }
 
 

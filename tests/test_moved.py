@@ -15,6 +15,16 @@ def test_an_old_name_imports_the_very_module_at_its_new_name(old):
     assert module.__spec__.name == MOVED[old]          # the module keeps its own identity
 
 
+def test_the_simulators_old_module_names_keep_its_function_names():
+    """hse_opt.sim.align (the module, now hse_opt.align.processor) imports; hse_opt.sim.align the
+    function stays the function."""
+    code = ("import hse_opt.sim.align, hse_opt.sim.rawlog\nfrom hse_opt.sim.align import AlignConfig\n"
+            "from hse_opt.sim import align\nfrom hse_opt.align import processor\n"
+            "assert callable(align) and align is processor.align and hse_opt.sim.rawlog.load_rawlog\nprint('ok')")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=60)
+    assert out.stdout.strip() == "ok", out.stderr
+
+
 def test_a_moved_package_takes_its_submodules_along():
     from hse_opt.commands import outputs as old
     from hse_opt.app.commands import outputs as new

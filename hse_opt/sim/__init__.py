@@ -20,6 +20,9 @@ campaign
     and the processor of a simulated system). The command ``hse-opt simulate`` is
     :mod:`hse_opt.app.commands.simulate`.
 """
+import sys
+import types
+
 from hse_opt.align import (AlignConfig, AlignHistory, AlignResult, RawLog, align, check_rawlog, load_rawlog,
                            save_rawlog, triad, validate_rawlog)
 from hse_opt.sim.campaign import (RunResult, align_config_from_truth, default_align_config, lab_calibration,
@@ -34,3 +37,17 @@ __all__ = [
     "true_attitude", "RawLog", "check_rawlog", "load_rawlog", "save_rawlog", "validate_rawlog",
     "Harmonic", "RunSpec", "TruthConfig", "load_truth", "save_truth",
 ]
+
+
+class _Package(types.ModuleType):
+    """``hse_opt.sim.align`` stays the function: the old module name ``hse_opt.sim.align`` (now
+    :mod:`hse_opt.align.processor`, kept as an alias by :mod:`hse_opt._moved`) would rebind the
+    package's attribute to the module when a script imports it."""
+
+    def __setattr__(self, name, value):
+        if name == "align" and isinstance(value, types.ModuleType):
+            return
+        super().__setattr__(name, value)
+
+
+sys.modules[__name__].__class__ = _Package
