@@ -8,6 +8,7 @@ import json
 from contextlib import redirect_stderr, redirect_stdout
 from pathlib import Path
 
+import numpy as np
 import pytest
 
 from hse_opt.cli import main
@@ -279,3 +280,58 @@ def test_a_header_only_raw_log_says_so_without_a_warning(tmp_path):
     assert code == 2 and "warning" not in err.lower(), err
     assert "empty.csv: no samples below the header; allowed: " in err.splitlines()[0]
     assert not (tmp_path / "R.csv").exists()
+
+
+# -- found by the fuzz test -----------------------------------------------------------------------
+@pytest.mark.parametrize("cell", ["\u0664\u0660", "\uff14\uff10", "4_0"])
+def test_digits_that_python_reads_are_not_numbers_in_a_file(tmp_path, cell):
+    """Arabic-Indic, full-width and underscored digits: Python's Decimal reads them as 40, a
+    spreadsheet never writes them. A rate of 40 deg/s written so was fitted as one."""
+    rows = table1_rows()
+    rows[5][rows[0].index("rate_dps")] = cell
+    code, out, err = cli(["fit", write(tmp_path / "U.csv", rows), *FIX])
+    _one_line_error(code, out, err, "fit", "row 5 (line 6), column 'rate_dps'", "ASCII digits only")
+
+
+def test_a_raw_log_with_full_width_digits_names_the_sample(tmp_path):
+    from hse_opt import units
+    from hse_opt.sim import RunSpec, TruthConfig, generate, save_rawlog
+    log = generate(TruthConfig.default(), RunSpec(rate=60 * units.DEG_PER_S, azimuth=0.5, duration=7.0,
+                                                  t_start=60.0), np.random.default_rng(1))
+    object.__setattr__(log, "meta", {"latitude_deg": 28.07, "run": 1})
+    (tmp_path / "logs").mkdir()
+    path = tmp_path / "logs" / "run_1.csv"
+    save_rawlog(log, path)
+    lines = path.read_text().splitlines()
+    cells = lines[101].split(",")
+    cells[4] = "\uff11\uff12"
+    lines[101] = ",".join(cells)
+    path.write_text("\n".join(lines) + "\n")
+    code, out, err = cli(["align", tmp_path / "logs", "-o", tmp_path / "R.csv", "--no-progress"])
+    assert code == 2 and "sample index 100 (line 102), column accel_x_mps" in err and "allowed: " in err, err
+
+
+def test_heading_errors_in_another_unit_are_said(tmp_path):
+    """Table 1's heading errors times 1000 (milliarcseconds written as arcsec) were fitted with
+    exit 0 and no word; the fit now names a scatter 100 times the gyro noise model's."""
+    rows = table1_rows()
+    j = rows[0].index("heading_err_arcsec")
+    for row in rows[1:]:
+        row[j] = repr(float(row[j]) * 1000)
+    code, out, err = cli(["fit", write(tmp_path / "MAS.csv", rows), *FIX, "--json"])
+    assert code == 0, err
+    checks = json.loads(out)["checks"]
+    assert any("times what a gyrocompass alignment" in str(c) and "another unit" in str(c) for c in checks), checks
+    code, out, err = cli(["fit", paper_table1_path(), *FIX, "--json"])
+    assert not any("another unit" in str(c) for c in json.loads(out)["checks"])
+
+
+@pytest.mark.parametrize("text", ["[site]\nlatitude_deg = " + "[" * 5000 + "]" * 5000 + "\n", None])
+def test_a_project_file_nested_deeply_or_endless_is_refused(tmp_path, text):
+    """A project file of arrays nested 5000 deep was a RecursionError traceback; /dev/zero was
+    read for ever."""
+    path = "/dev/zero" if text is None else tmp_path / "P.toml"
+    if text is not None:
+        path.write_text(text)
+    code, out, err = cli(["config", "--config", path])
+    _one_line_error(code, out, err, "config", str(path))

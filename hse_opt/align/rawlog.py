@@ -303,7 +303,7 @@ def _read_csv(path):
                          "values per sample")
     try:
         data = np.loadtxt(lines, delimiter=",", ndmin=2, dtype=float)
-    except ValueError:
+    except ValueError as exc:
         for k, line in enumerate(lines):
             fields = line.split(",")
             if len(fields) != len(header):
@@ -312,11 +312,13 @@ def _read_csv(path):
                                  f"{len(header)}{end}; allowed: one value per column") from None
             for name, v in zip(header, fields):
                 try:
+                    if not v.strip().isascii():  # float() reads '１２': numpy does not
+                        raise ValueError(v)
                     float(v)
                 except ValueError:
                     raise ValueError(f"sample index {k} (line {k + 2}), column {name}: {v.strip()!r} is not a "
                                      "number; allowed: decimal numbers, comma-separated") from None
-        raise
+        raise ValueError(f"{' '.join(str(exc).split())}; allowed: decimal numbers, comma-separated") from None
     if data.shape[1] != len(header):
         raise ValueError(f"{data.shape[1]} values per row, the header {len(header)}; allowed: one value per "
                          "column")
