@@ -317,7 +317,7 @@ def next_runs(runs, model, time_left, *, values=None, free=None, tilt_known=None
 
     # -- where the plan starts -------------------------------------------------------------
     ix = RunInputs.INDEX
-    duration = float(np.median(runs.duration))
+    duration = round(float(np.median(runs.duration)), 1)   # the stand sets it to 0.1 s
     s_new = float(np.median(sigma))
     ends = X[ix["t_start"]] + X[ix["duration"]]
     last = int(np.argmax(ends))
