@@ -340,6 +340,14 @@ def _test_power(lam, q, dof, level):
     return power, lam80
 
 
+def noncentrality_for_power(q, dof, level):
+    """The noncentrality at which the diagnosis's F(q, dof) test at ``level`` has power
+    :data:`POWER_LIMIT` (``inf`` when no test is possible): what a plan must give a missing
+    effect for the diagnosis to detect it (the design's power floors,
+    :mod:`hse_opt.design.protection`)."""
+    return _test_power(0.0, q, dof, level)[1]
+
+
 class _Campaign:
     """The weighted matrices of one campaign: the model's columns (free parameters and the
     unsurveyed positions' constants), orthonormal basis of their span."""
@@ -647,4 +655,4 @@ def describe(budget, values=None):
 
 
 __all__ = ["ALPHA", "AliasBudget", "DEFAULT_TESTS", "EffectRisk", "POWER_LIMIT", "alias_budget", "describe",
-           "effect_power", "resolving_runs"]
+           "effect_power", "noncentrality_for_power", "resolving_runs"]

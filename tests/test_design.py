@@ -373,7 +373,7 @@ def test_bad_design_arguments_are_named(kwargs, match):
     (lambda: Stand(latitude=2.0), "latitude"),
     (lambda: apportion([0.0, 0.0], 3), "weights"),
     (lambda: apportion([1.0], 0), "n = 0"),
-    (lambda: as_criterion("G"), "allowed: D, A, E, c:NAME"),
+    (lambda: as_criterion("G"), "allowed: protect .*D, A, E, c:NAME"),
     (lambda: approximate_design(np.ones((3, 2)), "c:q"), "unknown parameter 'q'"),
 ])
 def test_bad_inputs_raise_value_errors(make, match):
@@ -459,7 +459,8 @@ def test_cli_design_writes_a_plan_and_the_json_contract(tmp_path, capsys):
     assert main(["design", "--budget-h", "4", "--reverse", "--json", "-o", str(out)]) == 0
     d = json.loads(capsys.readouterr().out)  # one JSON object and nothing else
     assert {"criterion", "n_runs", "total_time_h", "predicted_std", "efficiency"} <= set(d)
-    assert d["criterion"] == "c:lambda2" and d["total_time_h"] <= 4.0
+    assert d["criterion"] == "protect:lambda2" and d["total_time_h"] <= 4.0
+    assert {p["effect"] for p in d["protection"] if p["protected"]} >= {"sync_delay"}
     assert d["predicted_std"]["lambda2"]["unit"] == "arcsec"
     plan = load_plan(out)
     assert plan.run.size == d["n_runs"]
@@ -619,7 +620,7 @@ def test_the_plan_is_on_the_stands_resolution_and_recertified(tmp_path):
     assert r.efficiency >= 0.99 and abs(loss_rounded - loss_exact) < 1e-2
 
 
-def test_the_text_output_warns_when_the_criterion_gives_up_parameters(tmp_path, capsys):
+def test_the_text_output_says_what_the_criterion_gives_up(tmp_path, capsys):
     import json
     from hse_opt.cli import main
     opts = ["design", "--budget-h", "5", "--reverse", "--effects", "axis_bias,sync_delay", "--criterion", "c:delay",
@@ -633,8 +634,8 @@ def test_the_text_output_warns_when_the_criterion_gives_up_parameters(tmp_path, 
     assert set(d["sacrificed"]) == given_up and "lambda2" in given_up
     assert main(opts) == 0
     text = capsys.readouterr().out
-    assert "warning: criterion c:delay gives up" in text and "--identify-efficiency" in text
-    assert all(n in text.split("warning:")[1] for n in given_up)
+    assert "trade-off: criterion c:delay buys its goal with" in text and "--identify-efficiency" in text
+    assert all(n in text.split("trade-off:")[1].splitlines()[0] for n in given_up)
 
 
 # ------------------------------------------- canonical ties, time slots, run order (issues 15, 19)

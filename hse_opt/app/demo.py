@@ -236,7 +236,9 @@ class NextPlan:
     Attributes
     ----------
     design : hse_opt.design.DesignResult or None
-        ``c:lambda2`` (the paper's goal) within the paper plan's test time, rates 20-60 deg/s
+        The default criterion (``protect:lambda2``: the paper's goal, sigma of lambda2, with
+        every parameter identified and power against the effects outside the model) within
+        the paper plan's test time, rates 20-60 deg/s
         in one sense (the paper's), the campaign's 0.5-deg tilt fixture allowed; None when
         the design failed (``notes`` gives the solver's status).
     level : hse_opt.design.DesignResult or None
@@ -284,17 +286,18 @@ class NextPlan:
 
 
 def _design(model, kw, notes, label):
-    """``design(model, 'c:lambda2', **kw)``; an IPOPT refinement failure falls back to the
-    rounded design, any other failure returns None; both are noted."""
+    """``design(model, **kw)`` with the default criterion (``protect:lambda2``); an IPOPT
+    refinement failure falls back to the rounded design, any other failure returns None; both
+    are noted."""
     from ..design import DesignError, design
     failures = (DesignError, np.linalg.LinAlgError)   # the latter: a solver's factorisation
     try:
-        return design(model, "c:lambda2", **kw)
+        return design(model, **kw)
     except failures as err:
         if "refinement" in str(err):
             notes.append(f"{label}: {err}; the rounded design on the candidate grid is used.")
             try:
-                return design(model, "c:lambda2", refine=False, **kw)
+                return design(model, refine=False, **kw)
             except failures as err2:
                 err = err2
         notes.append(f"{label}: the design failed: {type(err).__name__}: {err}")
@@ -519,8 +522,10 @@ def report_sections(result):
                      report.fit_section(r.fit_after, r.runs, f"The model with {r.named}")]
     n = r.next_plan
     if n.best is not None:
+        label = ("The optimised plan with the 0.5-deg tilt fixture" if n.best is n.design
+                 else "The optimised plan (the paper's limits, no fixture)")
         sections.append(report.design_section(n.best, n.baseline, "The next plan",
-                                              " ".join(n.notes) or None))
+                                              " ".join(n.notes) or None, label=label))
     else:
         sections.append(report.text_section("The next plan", n.notes))
     return sections

@@ -65,7 +65,7 @@ import sys
 import types
 
 from .approximate import ApproximateDesign, DesignError, approximate_design
-from .criteria import A, C, Criterion, D, Discrimination, E, LackOfFit, as_criterion
+from .criteria import A, C, Criterion, D, Discrimination, E, LackOfFit, Protect, as_criterion
 from .evaluation import DRIFT_UNIT, Evaluation, evaluate
 from .pipeline import DesignResult, design
 from .plans import paper_plan, plan_lines
@@ -74,7 +74,7 @@ from .rounding import apportion
 from .space import Candidates, Costs, DesignSpace, Resolution, Stand
 
 __all__ = ["A", "ApproximateDesign", "C", "Candidates", "Costs", "Criterion", "D", "DRIFT_UNIT", "DesignError",
-           "DesignResult", "DesignSpace", "Discrimination", "E", "Evaluation", "LackOfFit", "Resolution", "SUPPORT_TOL", "Stand",
+           "DesignResult", "DesignSpace", "Discrimination", "E", "Evaluation", "LackOfFit", "Protect", "Resolution", "SUPPORT_TOL", "Stand",
            "apportion", "approximate_design", "as_criterion", "design", "evaluate", "paper_plan", "plan_lines"]
 
 

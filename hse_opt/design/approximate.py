@@ -194,7 +194,7 @@ def polish_weights(prob, w, loss0):
     lin = [S] + ([np.ones((1, m))] if max_runs is not None else [])
     ub = [prob.slot_budget] + ([[max_runs]] if max_runs is not None else [])
     g = ([ca.mtimes(ca.DM(np.vstack(lin)), u)]
-         + [mean_loss_of(gd.rows, gd.spec, CASADI.log_det) for gd in prob.guards])
+         + [mean_loss_of(gd.rows, gd.spec, _concave(gd)) for gd in prob.guards])
     g += [e for e, _ in links]
     x = ca.vertcat(u, *infos)
     solver = ca.nlpsol("weights", "ipopt", {"x": x, "f": (f - loss0) / scale, "g": ca.vertcat(*g)}, {
@@ -214,6 +214,11 @@ def polish_weights(prob, w, loss0):
     out[sup] = np.clip(np.array(sol["x"]).ravel()[:m], 0.0, None)
     lam = np.array(sol["lam_g"]).ravel()[n_lin:n_lin + n_g]
     return out, [max(0.0, -float(v) * scale) for v in lam]
+
+
+def _concave(guard):
+    """The guarded function of one information matrix as a CasADi expression."""
+    return lambda F: -guard.criterion.loss(F, CASADI, guard.spec.names)
 
 
 def _initial_active(prob, size=256):
@@ -258,7 +263,7 @@ def _convex(prob):
 
     ops, spec = CvxOps(), prob.spec
     objective = sum(prob.criterion.loss(F, ops, spec.names) for F in info(prob.rows, spec)) / prob.rows.shape[0]
-    guard_cons = [sum(ops.log_det(F) for F in info(g.rows, g.spec)) / g.rows.shape[0] >= g.bound
+    guard_cons = [-sum(g.criterion.loss(F, ops, g.spec.names) for F in info(g.rows, g.spec)) / g.rows.shape[0] >= g.bound
                   for g in prob.guards]
     problem = cp.Problem(cp.Minimize(objective), cons + ops.constraints + guard_cons)
     status, used = _solve(problem, prob.solver)
@@ -338,7 +343,7 @@ def certificate(prob, loss, h, w, mus, tangent=None):
             raise DesignError(f"equivalence-theorem bound: linprog status {res.status} ({res.message})")
         best = float(-res.fun)
     gap = max(0.0, best - float(h @ w))
-    gap += sum(mu * max(0.0, g.log_det(w) - g.bound) for g, mu in zip(prob.guards, mus))
+    gap += sum(mu * max(0.0, g.level(w) - g.bound) for g, mu in zip(prob.guards, mus))
     crit, k = prob.criterion, prob.spec.k
     if crit.degree == 0:
         return float(np.exp(-gap / k))

@@ -270,6 +270,19 @@ class C(Criterion):
         return (self.name,)
 
 
+class Protect(C):
+    """The default criterion: c-optimality for one parameter (``protect:lambda2``) with every
+    parameter of the model identified (the D-efficiency guard of :func:`design`) and power
+    floors against the catalogue effects outside the model (:mod:`.protection`): the plan
+    protects the calibration against what the model cannot see, where the budget allows."""
+
+    protects = True
+
+    def __init__(self, name="lambda2"):
+        super().__init__(name)
+        self.label = f"protect:{self.name}"
+
+
 class LackOfFit(Criterion):
     """T-optimality on given rows: the last column is the difference of two models'
     predictions, the others the rival's Jacobian (all over the run sigma). The loss is minus
@@ -327,7 +340,8 @@ class Discrimination(LackOfFit):
 
 
 def as_criterion(criterion):
-    """A :class:`Criterion` from an instance or ``'D'``, ``'A'``, ``'E'``, ``'c:NAME'``."""
+    """A :class:`Criterion` from an instance or ``'D'``, ``'A'``, ``'E'``, ``'c:NAME'``,
+    ``'protect'`` / ``'protect:NAME'``."""
     if isinstance(criterion, Criterion):
         return criterion
     text = str(criterion).strip()
@@ -336,8 +350,12 @@ def as_criterion(criterion):
         return simple[text.upper()]()
     if text[:2].lower() == "c:" and text[2:].strip():
         return C(text[2:].strip())
-    raise ValueError(f"criterion {criterion!r} is not allowed; allowed: D, A, E, c:NAME (a parameter "
-                     f"name, e.g. c:lambda2), or a Criterion instance")
+    if text.lower() == "protect":
+        return Protect()
+    if text[:8].lower() == "protect:" and text[8:].strip():
+        return Protect(text[8:].strip())
+    raise ValueError(f"criterion {criterion!r} is not allowed; allowed: protect (the default, protect:lambda2), "
+                     f"protect:NAME, D, A, E, c:NAME (a parameter name, e.g. c:lambda2), or a Criterion instance")
 
 
 def unit_vector(names, name):

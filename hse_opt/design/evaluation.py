@@ -149,7 +149,10 @@ def evaluate(plan, model=None, *, stand=None, tilt_known=True, criterion=None, n
         labels = plan.position if plan.position is not None else np.round(plan.azimuth, 9).astype(str)
         G = (labels[:, None] == np.unique(labels)[None, :]) / np.broadcast_to(sigma, labels.shape)[:, None]
         Q, _ = np.linalg.qr(G)
+        before = np.linalg.norm(Aw, axis=0)
         Aw, drift = Aw - Q @ (Q.T @ Aw), drift - Q @ (Q.T @ drift)
+        # a column constant within every position keeps only rounding: no information
+        Aw[:, np.linalg.norm(Aw, axis=0) <= 1e-9 * before] = 0.0
         keep = np.array([nm != "offset" for nm in mm.names])
         names, units_, Aw = tuple(np.array(names)[keep]), list(np.array(units_)[keep]), Aw[:, keep]
         F0 = None if F0 is None else F0[np.ix_(keep, keep)]
@@ -161,8 +164,14 @@ def evaluate(plan, model=None, *, stand=None, tilt_known=True, criterion=None, n
     label, value = "", float("nan")
     if criterion is not None:
         crit = as_criterion(criterion)
-        spec = criterion_rows(crit, model, tilt_known, [dict(nominal or {})], F0)
-        label, value = crit.label, mean_loss(crit, spec.numeric(X, sigma), spec, np.ones(plan.run.size))
+        if field:  # the information within the positions, as evaluated above
+            if crit.features(model, tilt_known) is not None:
+                raise ValueError(f"criterion {crit.label} builds its own rows: not with a field plan; allowed: "
+                                 "protect:NAME, D, A, E, c:NAME")
+            label, value = crit.label, crit.value(info.fisher, names)
+        else:
+            spec = criterion_rows(crit, model, tilt_known, [dict(nominal or {})], F0)
+            label, value = crit.label, mean_loss(crit, spec.numeric(X, sigma), spec, np.ones(plan.run.size))
     return Evaluation(label, value, model.effect_names, bool(tilt_known), tuple(str(n) for n in names), info.units, info.std,
                       info.covariance, info.correlation, info.condition, int(plan.run.size),
                       float(np.max(plan.t_start + plan.duration)), bias)

@@ -41,8 +41,8 @@ def orders(settings, counts, costs, rng=None, n_random=0, labels=None):
     key = {int(i): tuple(int(v) for v in labels[:, i]) for i in np.flatnonzero(counts > 0)}
 
     def tree(members, depth):
-        if depth == len(labels):
-            return members[0]
+        if depth == len(labels):  # settings alike in every factor (refinement can make them so) run together
+            return members[0] if len(members) == 1 else list(members)
         groups = itertools.groupby(sorted(members, key=lambda i: key[i][depth]), key=lambda i: key[i][depth])
         return [tree(list(g), depth + 1) for _, g in groups]
 

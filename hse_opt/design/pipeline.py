@@ -2,7 +2,7 @@
 pruning, refinement, run order, evaluation -- and returns a :class:`DesignResult`."""
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
@@ -10,17 +10,24 @@ from .. import units
 from ..data import Plan
 from ..information import UnidentifiableError, check_identifiable
 from ..model.composition import Model, as_model
-from .approximate import ApproximateDesign, solve_approximate
+from .approximate import ApproximateDesign, DesignError, solve_approximate
 from .criteria import C, D, NotSmooth, as_criterion, unit_vector
 from .evaluation import Evaluation, evaluate
 from .order import pick_order
 from .problem import Guard, Problem, criterion_rows, model_rows, prior_information, samples_of
+from .protection import describe as describe_protection
+from .protection import Protection, plan_protection, power_floors, raise_floors, threats
 from .refine import refine as refine_plan
 from .reduction import caratheodory
 from .resolution import stand_plan, to_resolution
 from .rounding import prune as prune_plan
 from .rounding import round_design
 from .space import Costs, DesignSpace, Resolution, Stand, positive
+
+
+#: at most this many designs when the rounded plan falls short of a power floor (each raises the
+#: short floors to what the rounded plan needs)
+MAX_FLOOR_ROUNDS = 3
 
 
 @dataclass(frozen=True)
@@ -36,14 +43,14 @@ class DesignResult:
     criterion : str
     efficiency : float
         Against the approximate optimum for the plan's alignment time (with time slots: the
-        plan's alignment time in each slot; rounding, then
-        refinement: above 1 when refinement gains more off the candidate grid than the
-        rounding lost).
+        plan's alignment time in each slot) over the candidates and the plan's own settings
+        (refinement and the stand's steps move them off the grid): at most 1, up to the
+        solvers' tolerance.
     rounding_efficiency : float
         The same before refinement: the rounding alone.
     budget_efficiency : float
-        Against the approximate optimum for the whole budget (time spent on setups counts
-        as lost).
+        Against the approximate optimum for the whole budget, over the same candidates (time
+        spent on setups counts as lost).
     approximate : ApproximateDesign
         The setup-free optimum over the candidates.
     setup_time, alignment_time : float
@@ -54,6 +61,10 @@ class DesignResult:
         Models the plan must also identify: ``effects``, ``d_efficiency`` (against their own
         D-optimal approximate design), ``min_efficiency``, ``std`` (name -> predicted sigma).
     notes : tuple of str
+    protection : tuple of Protection
+        For a protecting criterion (the default ``protect:lambda2``): the power of the
+        diagnosis against each catalogue effect outside the model at its plausible edge, or
+        why the plan does not protect against it (:mod:`.protection`).
     """
 
     plan: Plan
@@ -68,6 +79,7 @@ class DesignResult:
     refinement: str
     guards: tuple = ()
     notes: tuple = ()
+    protection: tuple = ()
 
     @property
     def n_runs(self):
@@ -95,6 +107,7 @@ class DesignResult:
                             "solve_time_s": a.solve_time},
             "setup_time_h": self.setup_time / units.HOUR, "alignment_time_h": self.alignment_time / units.HOUR,
             "refinement": self.refinement, "guards": [dict(g) for g in self.guards], "notes": list(self.notes),
+            "protection": [p.to_dict() for p in self.protection],
         })
         return out
 
@@ -108,16 +121,17 @@ class DesignResult:
                  f"round(s)), {a.support.size} in the support, {a.solver} {a.status} in {a.solve_time:.2f} s, "
                  f"certified efficiency >= {a.certified_efficiency:.6f}",
                  f"exact design: efficiency {self.efficiency:.4f} against the approximate optimum for the same "
-                 f"alignment time (rounding alone {self.rounding_efficiency:.4f}; refinement {self.refinement}); "
+                 f"alignment time over the candidates and the plan's own settings (rounding alone {self.rounding_efficiency:.4f}; refinement {self.refinement}); "
                  f"{self.budget_efficiency:.4f} against the whole budget"]
         lines += self.evaluation.summary()
         for g in self.guards:
             lines.append(f"also identifies {'+'.join(g['effects'])}: D-efficiency {g['d_efficiency']:.3f} "
                          f"(at least {g['min_efficiency']:.3f} required)")
+        lines += describe_protection(self.protection)
         return lines + [f"note: {n}" for n in self.notes]
 
 
-def design(model=None, criterion="c:lambda2", *, budget, space=None, stand=None, costs=None,
+def design(model=None, criterion="protect:lambda2", *, budget, space=None, stand=None, costs=None,
            max_runs=None, tilt_known=True, nominal=None, prior_sample=None, prior=None,
            identify=None, identify_efficiency=0.25, prune=True, refine=True,
            order="trend-robust", rng=None, solver=None, resolution=Resolution()):
@@ -128,9 +142,13 @@ def design(model=None, criterion="c:lambda2", *, budget, space=None, stand=None,
     model : Model, str or sequence of str, optional
         Default: the paper's model (``hse``).
     criterion : Criterion or str
-        ``'D'``, ``'A'``, ``'E'``, ``'c:NAME'`` or a :class:`Criterion` (e.g.
-        :class:`Discrimination`). Default ``c:lambda2``, the paper's goal. A and E depend on
-        the parameters' display units.
+        ``'D'``, ``'A'``, ``'E'``, ``'c:NAME'``, ``'protect:NAME'`` or a :class:`Criterion`
+        (e.g. :class:`Discrimination`). Default ``protect:lambda2``: the smallest sigma of
+        lambda2 (the paper's goal) with every parameter identified and power >= 0.8 of the
+        diagnosis against each catalogue effect outside the model at its plausible edge,
+        where the budget allows; those it cannot protect are named with the reason
+        (``DesignResult.protection``, :mod:`.protection`). A and E depend on the parameters'
+        display units.
     budget : float
         Total test time, s, from power-on to the end of the last alignment.
     space : DesignSpace, optional
@@ -237,29 +255,54 @@ def design(model=None, criterion="c:lambda2", *, budget, space=None, stand=None,
         dopt = solve_approximate(Problem(D(), gspec, grows, **base))
         guards.append(Guard(gm, gspec, grows, -dopt.loss + gspec.k * np.log(identify_efficiency), dopt.loss))
 
-    prob = Problem(crit, spec, rows, tuple(guards), **base)
-    approx = solve_approximate(prob)
-    notes = []
-    if approx.certified_efficiency < 0.999:
-        notes.append(f"the approximate design is certified only to efficiency "
-                     f"{approx.certified_efficiency:.4f}")
-    reduced = caratheodory(prob, approx.runs)
-    exact = round_design(prob, reduced)
-    if prune:
-        exact, note = prune_plan(prob, reduced, exact)
-        notes += [note] if note else []
+    threats_, skipped, floors, notes = (), (), [], []
+    if getattr(crit, "protects", False):
+        threats_, skipped = threats(model, tilt_known, samples, space)
+        n_plan = int(B // cost.min()) if max_runs is None else min(int(B // cost.min()), int(max_runs))
+        floors, more = power_floors(threats_, X, sigma, base, n_plan, len(mm.names), solve_approximate)
+        skipped = tuple(skipped) + tuple(more)
+    # power floors are set for the planned number of runs; when the rounded plan falls short
+    # (fewer runs, rounding), the short floors are raised and the design solved again; floors
+    # still short after that (whole runs and their setups cannot keep them) are dropped, named
+    raises, dropped = 0, {}
+    while True:
+        try:
+            trial = _solve_and_round(Problem(crit, spec, rows, tuple(guards) + tuple(floors), **base), prune)
+        except DesignError as err:
+            if not floors:
+                raise
+            why = f"the convex program with its power floor failed ({err})"
+            short = {g.label for g in floors} if raises == 0 else short
+            dropped.update({e: why for e in short})
+            floors, raises = [g for g in floors if g.label not in short], MAX_FLOOR_ROUNDS
+            continue
+        prob, approx, reduced, exact, notes = trial
+        if not floors:
+            break
+        raised, short = raise_floors(floors, threats_, [g.level(exact.counts) for g in exact.guards[len(guards):]],
+                                     int(exact.counts.sum()), len(mm.names))
+        if not short:
+            break
+        if raises < MAX_FLOOR_ROUNDS - 1:
+            floors, raises = raised, raises + 1
+            continue
+        dropped.update({e: "whole runs and their setups cannot keep its power floor in this budget" for e in short})
+        floors = [g for g in floors if g.label not in short]
+    skipped = tuple(skipped) + tuple(Protection(t.effect, t.sizes, None, False, dropped[t.effect])
+                                     for t in threats_ if t.effect in dropped)
     if not np.isfinite(exact.loss):
         raise UnidentifiableError(f"{int(exact.counts.sum())} whole runs within the budget cannot identify "
                                   f"the model for criterion {crit.label}", spec.names)
 
-    # the approximate optimum for the exact plan's alignment time (in each time slot)
+    # the approximate optimum for the exact plan's alignment time (in each time slot), with the
+    # guards the plan meets (rounding may leave one a little below its bound)
     t_slot = exact.slot_times(costs.run_overhead, prob.n_slots)
     t_align = float(t_slot.sum())
-    if prior is None and max_runs is None and np.ptp(t_slot) <= 1e-9 * t_align:
+    shares = t_slot if prob.n_slots > 1 else None
+    if prior is None and max_runs is None and not prob.guards and np.ptp(t_slot) <= 1e-9 * t_align:
         loss_same = prob.loss(approx.runs * t_align / B)
     else:
-        loss_same = solve_approximate(prob.with_budget(t_align, t_slot if prob.n_slots > 1 else None),
-                                      start=approx.support).loss
+        loss_same = solve_approximate(_met(prob, exact).with_budget(t_align, shares), start=approx.support).loss
     rounding_eff = crit.efficiency(exact.loss, loss_same, spec.k)
 
     status = "off"
@@ -268,16 +311,30 @@ def design(model=None, criterion="c:lambda2", *, budget, space=None, stand=None,
             status = refine_plan(prob, exact, stand, mm, space)
         except NotSmooth as err:
             status = f"none: criterion {crit.label} is not smooth ({err})"
+    loss_refined = exact.loss
     if resolution is not None:
-        before = crit.efficiency(exact.loss, loss_same, spec.k)
         for g in to_resolution(prob, exact, stand, mm, space, resolution):
-            notes.append(f"rounded to the stand's resolution, the plan's D-efficiency for "
+            notes.append(f"rounded to the stand's resolution, the plan's power against {g.label} is below the "
+                         "floor" if g.is_power else
+                         f"rounded to the stand's resolution, the plan's D-efficiency for "
                          f"{'+'.join(g.model.effect_names)} is below the {identify_efficiency:g} required")
-        if crit.efficiency(exact.loss, loss_same, spec.k) < before - 1e-4:
-            notes.append(f"rounding the settings to the stand's resolution lowered the efficiency from "
-                         f"{before:.4f} to {crit.efficiency(exact.loss, loss_same, spec.k):.4f}")
+    loss_full = approx.loss
+    if status != "off" or resolution is not None or prob.guards:
+        # refinement and the stand's steps move settings off the candidate grid: the optimum
+        # the plan is measured against then also has the plan's own settings as candidates,
+        # and the guards the plan meets, so that no plan can beat it (efficiency <= 1 up to
+        # the solvers' tolerance)
+        ext = _met(prob, exact).extended(exact.settings, exact.rows, [g.rows for g in exact.guards],
+                                         exact.settings.duration + costs.run_overhead, exact.slot)
+        start = np.concatenate([approx.support, prob.n + np.arange(exact.counts.size)])
+        loss_same = min(loss_same, solve_approximate(ext.with_budget(t_align, shares), start=start).loss)
+        loss_full = min(loss_full, solve_approximate(ext, start=start).loss)
     efficiency = crit.efficiency(exact.loss, loss_same, spec.k)
-    budget_eff = crit.efficiency(exact.loss, approx.loss, spec.k)
+    budget_eff = crit.efficiency(exact.loss, loss_full, spec.k)
+    before = crit.efficiency(loss_refined, loss_same, spec.k)
+    if resolution is not None and efficiency < before - 1e-4:
+        notes.append(f"rounding the settings to the stand's resolution lowered the efficiency from "
+                     f"{before:.4f} to {efficiency:.4f}")
 
     seq = pick_order(exact, prob, stand, order, rng)
     s = exact.settings.take(seq)
@@ -285,6 +342,12 @@ def design(model=None, criterion="c:lambda2", *, budget, space=None, stand=None,
     plan = stand_plan(s, t_start, space, resolution, space.max_tilt > 0)
     evaluation = evaluate(plan, model, stand=stand, tilt_known=tilt_known, criterion=crit, nominal=nominal,
                           prior=prior)
+    protection = ()
+    if getattr(crit, "protects", False):
+        X_plan = stand.inputs(mm, plan.rate, plan.azimuth, plan.tilt_x if plan.tilt_x is not None else 0.0,
+                              plan.tilt_y if plan.tilt_y is not None else 0.0, plan.duration, plan.t_start)
+        protection = plan_protection(model, threats_, {g.label for g in floors}, skipped, X_plan,
+                                     stand.sigma(plan.duration), nominal, tilt_known)
     guard_out = []
     for g in guards:
         g_plan = g.at(g.spec.numeric(s.inputs(mm, stand), stand.sigma(s.duration)))
@@ -295,12 +358,36 @@ def design(model=None, criterion="c:lambda2", *, budget, space=None, stand=None,
             std = {}
             notes.append(f"the plan does not identify {'+'.join(g.model.effect_names)}: {err}")
         guard_out.append({"effects": list(g.model.effect_names), "min_efficiency": float(identify_efficiency),
-                          "d_efficiency": float(np.exp((g.d_opt + g_plan.log_det(np.ones(seq.size)))
+                          "d_efficiency": float(np.exp((g.d_opt + g_plan.level(np.ones(seq.size)))
                                                        / g.spec.k)),
                           "std": std})
     return DesignResult(plan, evaluation, crit.label, efficiency, rounding_eff, budget_eff, approx,
                         float(costs.setups(s.rate, s.azimuth, s.tilt_x, s.tilt_y).sum()),
-                        float(np.sum(s.duration + costs.run_overhead)), status, tuple(guard_out), tuple(notes))
+                        float(np.sum(s.duration + costs.run_overhead)), status, tuple(guard_out), tuple(notes),
+                        protection)
+
+
+def _met(prob, exact):
+    """``prob`` with each guard's bound lowered to what the plan ``exact`` meets: the plan is
+    then feasible for it, and the optimum it is measured against cannot be worse than it."""
+    return replace(prob, guards=tuple(replace(g, bound=min(g.bound, ge.level(exact.counts)))
+                                      for g, ge in zip(prob.guards, exact.guards)))
+
+
+def _solve_and_round(prob, prune):
+    """Approximate design, reduction, rounding and (``prune``) the setup-aware search:
+    ``(prob, approx, reduced, exact, notes)``."""
+    approx = solve_approximate(prob)
+    notes = []
+    if approx.certified_efficiency < 0.999:
+        notes.append(f"the approximate design is certified only to efficiency "
+                     f"{approx.certified_efficiency:.4f}")
+    reduced = caratheodory(prob, approx.runs)
+    exact = round_design(prob, reduced)
+    if prune:
+        exact, note = prune_plan(prob, reduced, exact)
+        notes += [note] if note else []
+    return prob, approx, reduced, exact, notes
 
 
 def _check_candidates(rows, spec, space, model):

@@ -82,14 +82,24 @@ def samples_of(nominal, prior_sample):
 
 @dataclass(frozen=True)
 class Guard:
-    """A model the plan must also identify: its rows at the candidates, and the bound on the
-    mean log det of its information (D-efficiency against its own D-optimum)."""
+    """A constraint on the plan: a concave function of the information of its own rows at the
+    candidates, kept at or above ``bound``.
+
+    Two kinds: a model the plan must also identify (``criterion`` D: the mean log det of its
+    information, the bound a D-efficiency against its own D-optimum ``d_opt``), and a power
+    floor against an effect outside the model (``criterion``
+    :class:`~hse_opt.design.criteria.LackOfFit` on the rows ``[J_model, J_effect delta] /
+    sigma``: the noncentrality of the diagnosis' test of the effect at size ``delta``,
+    :mod:`~hse_opt.design.protection`; ``d_opt`` nan).
+    """
 
     model: Model
     spec: Rows
     rows: np.ndarray
     bound: float
     d_opt: float
+    criterion: Criterion = D()
+    label: str = ""
 
     def take(self, idx):
         return replace(self, rows=self.rows[:, idx])
@@ -98,8 +108,15 @@ class Guard:
         """The same guard with the rows of other settings."""
         return replace(self, rows=rows)
 
-    def log_det(self, counts):
-        return -mean_loss(D(), self.rows, self.spec, counts)
+    def level(self, counts):
+        """The guarded function (mean over the samples) for run numbers ``counts``: the log
+        det of a D guard, the noncentrality of a power floor."""
+        return -mean_loss(self.criterion, self.rows, self.spec, counts)
+
+    @property
+    def is_power(self):
+        """A power floor (not a model to identify)."""
+        return not isinstance(self.criterion, D)
 
 
 @dataclass(frozen=True)
@@ -178,6 +195,20 @@ class Problem:
                        cost=self.cost[idx], slot=self.slot[idx], rank=self.rank[idx],
                        candidates=None if self.candidates is None else self.candidates.take(idx))
 
+    def extended(self, settings, rows, guard_rows, cost, slot):
+        """The problem with more candidates (e.g. a refined plan's settings, off the grid):
+        their ``settings`` (Candidates), weighted ``rows`` (S, m, k), each guard's rows,
+        ``cost`` and ``slot`` (m,); they rank after the others in ties."""
+        cand = self.candidates
+        if cand is not None:
+            cand = Candidates(*(np.concatenate([getattr(cand, f), getattr(settings, f)])
+                                for f in Candidates._fields()))
+        m = np.size(cost)
+        return replace(self, rows=np.concatenate([self.rows, rows], axis=1),
+                       guards=tuple(g.at(np.concatenate([g.rows, r], axis=1)) for g, r in zip(self.guards, guard_rows)),
+                       cost=np.concatenate([self.cost, cost]), slot=np.concatenate([self.slot, slot]),
+                       rank=np.concatenate([self.rank, self.rank.max() + 1 + np.arange(m)]), candidates=cand)
+
     @property
     def slot_budget(self):
         """Budget of each time slot, shape (n_slots,)."""
@@ -200,12 +231,12 @@ class Problem:
         return mean_loss(self.criterion, self.rows, self.spec, w)
 
     def lagrangian_gradient(self, w, mus, h=None):
-        """Gradient in w of ``-loss + sum mu_j (mean log det_j - bound_j)`` (``h``: the
+        """Gradient in w of ``-loss + sum mu_j (level_j - bound_j)`` (``h``: the
         criterion's part, when given)."""
         h = -directional(self.criterion, self.rows, self.spec, w) if h is None else np.array(h, float)
         for g, mu in zip(self.guards, mus):
             if mu > 0:
-                h -= mu * directional(D(), g.rows, g.spec, w)
+                h -= mu * directional(g.criterion, g.rows, g.spec, w)
         return h
 
 

@@ -44,8 +44,9 @@ def refine(prob, exact, stand, mm, space):
 
     loss0 = exact.loss
     f = mean_over_samples(spec, lambda F: crit.loss(F, CASADI, spec.names))
-    g = [mean_over_samples(gd.spec, CASADI.log_det) for gd in exact.guards]
-    floors = [min(gd.bound, gd.log_det(counts)) for gd in exact.guards]
+    g = [mean_over_samples(gd.spec, lambda F, gd=gd: -gd.criterion.loss(F, CASADI, gd.spec.names))
+         for gd in exact.guards]
+    floors = [min(gd.bound, gd.level(counts)) for gd in exact.guards]
     nlp = {"x": v, "f": f / abs(loss0)}  # order 1, so that IPOPT's barrier starts small against it
     if g:
         nlp["g"] = ca.vertcat(*g)
@@ -67,7 +68,7 @@ def refine(prob, exact, stand, mm, space):
     guards = tuple(gd.at(gd.spec.numeric(X1, sigma)) for gd in exact.guards)
     # (guards to 1e-6 in log det, i.e. 1e-6/k in D-efficiency: IPOPT's tolerance and the clipping to the bounds)
     better = (loss < loss0 - 1e-9 * abs(loss0)
-              and all(gd.log_det(counts) >= f - 1e-6 for gd, f in zip(guards, floors)))
+              and all(gd.level(counts) >= f - 1e-6 for gd, f in zip(guards, floors)))
     status = stats["return_status"]
     if not better:
         if not stats["success"]:

@@ -50,13 +50,13 @@ def to_resolution(prob, exact, stand, mm, space, resolution):
     the nearest steps put a guard below its bound (or below where it was), the other neighbour
     of one rate or azimuth at a time is taken, the change that raises the worst guard most,
     until every guard holds (at most once per value). Returns the guards that still fail."""
-    floors = [min(g.bound, g.log_det(exact.counts)) for g in exact.guards]
+    floors = [min(g.bound, g.level(exact.counts)) for g in exact.guards]
 
     def at(settings):
         X = settings.inputs(mm, stand)
         sigma = stand.sigma(settings.duration)
         guards = tuple(g.at(g.spec.numeric(X, sigma)) for g in exact.guards)
-        margin = min([g.log_det(exact.counts) - f for g, f in zip(guards, floors)], default=0.0)
+        margin = min([g.level(exact.counts) - f for g, f in zip(guards, floors)], default=0.0)
         return settings, X, sigma, guards, margin
 
     best = at(snap(exact.settings, space, resolution)[0])
@@ -86,7 +86,7 @@ def to_resolution(prob, exact, stand, mm, space, resolution):
     exact.rows = prob.spec.numeric(X, sigma)
     exact.loss = mean_loss(prob.criterion, exact.rows, prob.spec, exact.counts)
     exact.guards, exact.settings = guards, settings
-    return [g for g, f in zip(guards, floors) if g.log_det(exact.counts) < f - 1e-9]
+    return [g for g, f in zip(guards, floors) if g.level(exact.counts) < f - 1e-9]
 
 
 def stand_plan(settings, t_start, space, resolution, fixture):

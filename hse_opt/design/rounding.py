@@ -142,7 +142,7 @@ def exchange(prob, counts, fit, max_iter=500, screen=24):
     counts = counts.copy()
     m = counts.size
     run_time = prob.cost
-    floors = [min(g.bound, g.log_det(counts)) for g in guards]
+    floors = [min(g.bound, g.level(counts)) for g in guards]
     best = prob.loss(counts)
     src, dst = (a.ravel() for a in np.meshgrid(np.arange(-1, m), np.arange(m), indexing="ij"))
     src, dst = src[src != dst], dst[src != dst]
@@ -169,7 +169,7 @@ def exchange(prob, counts, fit, max_iter=500, screen=24):
             tried += 1
             loss = prob.loss(c)
             if (loss < best - VALUE_RTOL * (max(1.0, abs(best)) if crit.degree == 0 else abs(best))
-                    and all(g.log_det(c) >= f - 1e-9 for g, f in zip(guards, floors)) and fit(c)):
+                    and all(g.level(c) >= f - 1e-9 for g, f in zip(guards, floors)) and fit(c)):
                 counts, best = c, loss
                 break
             if limit is not None and tried >= limit:

@@ -106,7 +106,7 @@ def _evaluation_blocks(ev, plan, baseline, baseline_note, label):
         _embed(plot_plan(plan, label), f"Each bar is one alignment of {label.lower()}, from its "
                "start to its end.", "the plan's runs over time"),
         _embed(plot_sigmas(ev, baseline, (label.lower(), "paper's plan")),
-               "Predicted 1-sigma of each parameter (log scale)"
+               f"Predicted 1-sigma of each parameter (log scale), {label.lower()}"
                + (" against the paper's plan in the same model; the labels: how many times smaller."
                   if baseline is not None else "."), "predicted sigmas"),
         _table(["parameter", "unit", "predicted sigma", "paper's plan", "ratio",
@@ -115,7 +115,7 @@ def _evaluation_blocks(ev, plan, baseline, baseline_note, label):
     ]
 
 
-def design_section(result, baseline=None, title=None, baseline_note=None):
+def design_section(result, baseline=None, title=None, baseline_note=None, label="The optimised plan"):
     """The report section of an optimised plan: its runs over time, its predicted sigmas
     against a baseline plan's (the paper's), efficiency and times.
 
@@ -128,6 +128,9 @@ def design_section(result, baseline=None, title=None, baseline_note=None):
     baseline_note : str, optional
         Said instead of the comparison when there is no baseline (e.g. the paper's plan
         cannot identify the model).
+    label : str
+        The plan's name in the figures and their legends: say what it has that the baseline
+        has not (e.g. "The optimised plan with the 0.5-deg tilt fixture").
 
     Returns
     -------
@@ -146,7 +149,17 @@ def design_section(result, baseline=None, title=None, baseline_note=None):
              ("refinement", "refinement", html.escape(result.refinement))]
     blocks = [_table(["statistic", "value"], [[lab, v] for lab, _, v in stats],
                      keys=[k for _, k, _ in stats], cls="stats")]
-    blocks += _evaluation_blocks(ev, result.plan, baseline, baseline_note, "The optimised plan")
+    protection = getattr(result, "protection", ())
+    if protection:
+        blocks.append(_paragraph("Protection: the power of the diagnosis against each catalogue effect outside "
+                                 "the model at the edge of its plausible range (target 0.8), or why the plan "
+                                 "does not protect against it."))
+        blocks.append(_table(["effect", "at", "power", "protected"],
+                             [[html.escape(p.effect), html.escape(p.sizes) or "&ndash;",
+                               "&ndash;" if p.power is None else _fmt(p.power, 3),
+                               "yes" if p.protected else html.escape(f"no: {p.reason}")] for p in protection],
+                             keys=[f"power:{p.effect}" for p in protection], cls="protection"))
+    blocks += _evaluation_blocks(ev, result.plan, baseline, baseline_note, label)
     blocks.append(_notes(list(result.notes)))
     data = {"design": _jsonable(result.to_dict()),
             "baseline": None if baseline is None else _jsonable(baseline.to_dict())}

@@ -10,9 +10,14 @@ HELP = "optimise a calibration test plan (PLAN.csv), or evaluate one (--evaluate
 DESCRIPTION = """\
 Choose bias rates, rotation senses, stand azimuths, tilt-fixture settings and repeats that
 minimise a criterion of the model's parameter covariance within a test-time budget, and write
-them as PLAN.csv in execution order with start times (time since power-on). The criterion is
-D (volume of the confidence ellipsoid), A (sum of variances), E (worst direction) or c:NAME
-(the variance of one parameter; default c:lambda2, the paper's goal). Setups cost time: warm-up
+them as PLAN.csv in execution order with start times (time since power-on). The default
+criterion, protect (protect:lambda2), gives the smallest sigma of lambda2 (the paper's goal)
+with every parameter identified and power >= 0.8 of the diagnosis against each catalogue effect
+outside the model at the edge of its plausible range, where the budget allows; it names each
+effect it cannot protect and why (needs a tilt fixture, needs time slots, no signature without
+another effect, out of reach in the budget). Others by name: D (volume of the confidence
+ellipsoid), A (sum of variances), E (worst direction), c:NAME (the variance of one parameter
+alone, e.g. c:lambda2, which leaves rate-dependent effects unseen). Setups cost time: warm-up
 before the first run, changing the azimuth, the rate or sense, the tilt fixture. The report
 gives each parameter's predicted sigma, the efficiency against the approximate optimum, and the
 bias a slow heading drift would cause. With --evaluate an existing PLAN.csv is scored instead;
@@ -37,8 +42,10 @@ def add_arguments(parser):
                         help="test time from power-on to the end of the last run, hours (default 5)")
     parser.add_argument("--max-runs", type=int, metavar="N", help="at most N alignments")
     parser.add_argument("--effects", metavar="a,b", default="", help="catalogue effects to add to 'hse'")
-    parser.add_argument("--criterion", default="c:lambda2", metavar="D|A|E|c:NAME",
-                        help="optimality criterion (default c:lambda2)")
+    parser.add_argument("--criterion", default="protect", metavar="protect|D|A|E|c:NAME",
+                        help="optimality criterion (default protect: sigma(lambda2) with every parameter "
+                             "identified and power >= 0.8 against the effects outside the model; "
+                             "e.g. --criterion c:lambda2 for sigma(lambda2) alone)")
     parser.add_argument("--rates", default="20:60", metavar="LO:HI",
                         help="|bias rate| limits, deg/s (default 20:60)")
     parser.add_argument("--n-rates", type=int, default=5, metavar="N",
@@ -203,7 +210,7 @@ def run(args):
         plan = load_plan(args.evaluate, **input_checks(args))
         try:
             ev = evaluate(plan, model, stand=stand, tilt_known=tilt_known,
-                          criterion=None if args.field else args.criterion,
+                          criterion=args.criterion,
                           nominal=_nominal(args.nominal), prior=prior, field=args.field)
         except UnidentifiableError as err:
             raise UnidentifiableError(f"{args.evaluate}: {err}; allowed: a plan whose runs separate them",
@@ -293,11 +300,11 @@ def run(args):
     else:
         print(f"hse-opt design: {'+'.join(model.effect_names)}, budget {args.budget_h:g} h")
         print("\n".join(result.summary()))
-        print("\n".join(plan_lines(result.plan)))
-        if given_up:
-            print(f"warning: criterion {result.criterion} gives up "
+        if given_up:  # part of what the plan is, said before it: the trade the criterion made
+            print(f"trade-off: criterion {result.criterion} buys its goal with "
                   + ", ".join(f"{n} (sigma {s:.3g} {u}, {s / r:.1f}x the {r:.3g} of the paper's plan or a "
                               f"D-optimal plan)" for n, s, r, u in given_up)
                   + "; to protect every parameter: --identify-efficiency 0.7 (the criterion with a "
                     "D-efficiency bound on the whole model) or --criterion D")
+        print("\n".join(plan_lines(result.plan)))
     return 0
