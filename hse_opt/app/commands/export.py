@@ -10,11 +10,14 @@ and outputs in order with units, the parameters with sigmas and covariance, the 
 validity domain, and for the paper's model the Eq. 14 coefficients lambda2 and K_HSE).
 
   int hse_compensation(const double in[HSE_COMP_N_INPUTS], double *correction_rad, double *sigma_rad);
+  int hse_compensation_systematic(const double in[HSE_COMP_N_INPUTS], double *sigma_sys_rad);
 
 in: bias rate (rad/s, signed), the system's own heading, pitch, roll, latitude (rad), time
 since power-on at the start of the alignment, duration (s), then the model's covariates.
 *correction_rad is ADDED to the alignment's heading; *sigma_rad is its 1-sigma from the
-calibration. The return value is 0 inside the calibration's validity domain - the |rate|
+calibration; *sigma_sys_rad its systematic bound (the largest shift one effect the calibration
+campaign could not rule out would cause: FIT.json's systematic_by through the correction; 0
+without it). The return value (both) is 0 inside the calibration's validity domain - the |rate|
 and senses its runs used, their C23 = -roll cos(heading) + pitch sin(heading) interval (known
 tilt), and time, duration or covariates where the correction depends on them, each widened by
 the margin documented in hse_opt/fit/domain.py - else a bitmask: bit k for input k not finite,
