@@ -42,6 +42,7 @@ reason. :func:`effect_power` is the detectability alone, for a candidate plan (t
 from __future__ import annotations
 
 import functools
+import itertools
 import math
 from dataclasses import dataclass
 
@@ -224,74 +225,82 @@ class AliasBudget:
 def _vertices(edge):
     """The plausible box's vertices up to sign (q, 2^(q-1)): each parameter at +- its edge."""
     q = len(edge)
-    signs = np.array(np.meshgrid(*([[1.0, -1.0]] * q), indexing="ij")).reshape(q, -1)
-    signs = signs[:, signs[0] > 0] if q else signs
+    signs = np.array([[1.0] + list(v) for v in itertools.product((1.0, -1.0), repeat=q - 1)]).T if q else \
+        np.zeros((0, 1))
     return np.asarray(edge, float)[:, None] * signs
-
-
-def _lgamma(x):
-    return np.vectorize(math.lgamma, otypes=[float])(x)
 
 
 def _betacf(a, b, x):
     """The continued fraction of the regularised incomplete beta function (modified Lentz;
-    Press et al., *Numerical Recipes*, 3rd ed., Sec. 6.4), elementwise."""
+    Press et al., *Numerical Recipes*, 3rd ed., Sec. 6.4), scalars."""
     tiny = 1e-300
     qab, qap, qam = a + b, a + 1.0, a - 1.0
-    c = np.ones_like(x)
-    d = 1.0 - qab * x / qap
-    d = 1.0 / np.where(np.abs(d) < tiny, tiny, d)
+    c, d = 1.0, 1.0 - qab * x / qap
+    d = 1.0 / (d if abs(d) > tiny else tiny)
     h = d
-    for m in range(1, 5000):
+    for m in range(1, 100000):
         m2 = 2 * m
-        for aa in (m * (b - m) * x / ((qam + m2) * (a + m2)),
-                   -(a + m) * (qab + m) * x / ((a + m2) * (qap + m2))):
-            d = 1.0 + aa * d
-            d = 1.0 / np.where(np.abs(d) < tiny, tiny, d)
-            c = 1.0 + aa / c
-            c = np.where(np.abs(c) < tiny, tiny, c)
-            step = d * c
-            h = h * step
-        if np.all(np.abs(step - 1.0) < 1e-15):
+        aa = m * (b - m) * x / ((qam + m2) * (a + m2))
+        d = 1.0 + aa * d
+        d = 1.0 / (d if abs(d) > tiny else tiny)
+        c = 1.0 + aa / c
+        c = c if abs(c) > tiny else tiny
+        h *= d * c
+        aa = -(a + m) * (qab + m) * x / ((a + m2) * (qap + m2))
+        d = 1.0 + aa * d
+        d = 1.0 / (d if abs(d) > tiny else tiny)
+        c = 1.0 + aa / c
+        c = c if abs(c) > tiny else tiny
+        step = d * c
+        h *= step
+        if abs(step - 1.0) < 1e-16:
             break
     return h
 
 
+def _log_front(a, b, x):
+    """``log(x^a (1 - x)^b / B(a, b))``."""
+    return math.lgamma(a + b) - math.lgamma(a) - math.lgamma(b) + a * math.log(x) + b * math.log1p(-x)
+
+
 def betainc(a, b, x):
-    """Regularised incomplete beta function ``I_x(a, b)`` (elementwise, numpy only: the fit
-    command does not import scipy, :func:`hse_opt.fit.result.chi2_sf`)."""
-    a, b, x = np.broadcast_arrays(*(np.asarray(v, float) for v in (a, b, x)))
-    out = np.where(x <= 0.0, 0.0, 1.0)
-    inside = (x > 0.0) & (x < 1.0)
-    if not inside.any():
-        return out
-    a, b, x = a[inside], b[inside], x[inside]
-    log_front = _lgamma(a + b) - _lgamma(a) - _lgamma(b) + a * np.log(x) + b * np.log1p(-x)
-    direct = x < (a + 1.0) / (a + b + 2.0)
-    val = np.empty_like(x)
-    if direct.any():
-        i = direct
-        val[i] = np.exp(log_front[i]) * _betacf(a[i], b[i], x[i]) / a[i]
-    if (~direct).any():
-        i = ~direct
-        val[i] = 1.0 - np.exp(log_front[i]) * _betacf(b[i], a[i], 1.0 - x[i]) / b[i]
-    out[inside] = np.clip(val, 0.0, 1.0)
-    return out
+    """Regularised incomplete beta function ``I_x(a, b)`` of scalars (numpy-free: the fit
+    command does not import scipy, as :func:`hse_opt.fit.result.chi2_sf`)."""
+    a, b, x = float(a), float(b), float(x)
+    if x <= 0.0 or x >= 1.0:
+        return 0.0 if x <= 0.0 else 1.0
+    front = math.exp(_log_front(a, b, x))
+    if x < (a + 1.0) / (a + b + 2.0):
+        return min(max(front * _betacf(a, b, x) / a, 0.0), 1.0)
+    return min(max(1.0 - front * _betacf(b, a, 1.0 - x) / b, 0.0), 1.0)
 
 
 def f_sf(f, d1, d2, lam=0.0):
     """``P(F > f)`` for F (noncentral with noncentrality ``lam``) with ``(d1, d2)`` degrees of
     freedom: the Poisson mixture ``sum_j Pois(j; lam/2) I_x(d2/2, d1/2 + j)``,
     ``x = d2 / (d2 + d1 f)`` (Johnson, Kotz & Balakrishnan, *Continuous Univariate
-    Distributions* vol. 2, Eq. 30.6), over the Poisson weights' +-12 sigma window."""
+    Distributions* vol. 2, Eq. 30.6), over the Poisson weights' +-12 sigma window; the beta
+    functions from one continued fraction and the recurrence
+    ``I_x(a, b + 1) = I_x(a, b) + x^a (1 - x)^b / (b B(a, b))`` (positive terms, no
+    cancellation)."""
     x = d2 / (d2 + d1 * float(f))
+    a, b0 = 0.5 * d2, 0.5 * d1
     mu = 0.5 * float(lam)
     if mu <= 0.0:
-        return float(betainc(0.5 * d2, 0.5 * d1, x))
+        return betainc(a, b0, x)
     sd = math.sqrt(mu)
-    j = np.arange(max(0, math.floor(mu - 12.0 * sd - 12.0)), math.ceil(mu + 12.0 * sd + 12.0) + 1, dtype=float)
-    log_w = -mu + j * math.log(mu) - _lgamma(j + 1.0)
-    return float(np.clip(np.sum(np.exp(log_w) * betainc(0.5 * d2, 0.5 * d1 + j, x)), 0.0, 1.0))
+    j0 = max(0, math.floor(mu - 12.0 * sd - 12.0))
+    j = np.arange(j0, math.ceil(mu + 12.0 * sd + 12.0) + 1, dtype=float)
+    b = b0 + j
+    # log(x^a (1-x)^b / (b B(a, b))) for b = b0 + j: lgamma(a + b) - lgamma(b) by cumulative sums
+    step = np.log(a + b[:-1]) - np.log(b[:-1])          # lgamma(a+b+1) - lgamma(b+1) - (same at b)
+    lg = (math.lgamma(a + b[0]) - math.lgamma(b[0])) + np.concatenate([[0.0], np.cumsum(step)])
+    log_term = lg - math.lgamma(a) + a * math.log(x) + b * math.log1p(-x) - np.log(b)
+    inc = np.concatenate([[betainc(a, b[0], x)], np.exp(log_term[:-1])])
+    I = np.minimum(np.cumsum(inc), 1.0)
+    log_w = -mu + j * math.log(mu) - (math.lgamma(j0 + 1.0) + np.concatenate(
+        [[0.0], np.cumsum(np.log(j[1:]))]))
+    return float(np.clip(np.sum(np.exp(log_w) * I), 0.0, 1.0))
 
 
 def _solve(fun, target, lo, hi, rel=1e-9):
@@ -321,7 +330,7 @@ def _critical(q, dof, level):
     """``(F_crit, lam80)``: the F(q, dof) value rejected at ``level`` and the noncentrality at
     which the test's power is :data:`POWER_LIMIT`."""
     # F_crit through x = dof / (dof + q F): I_x(dof/2, q/2) = level, increasing in x
-    x = _solve(lambda t: float(betainc(0.5 * dof, 0.5 * q, t)), level, 0.0, 1.0, rel=1e-13)
+    x = _solve(lambda t: betainc(0.5 * dof, 0.5 * q, t), level, 0.0, 1.0, rel=1e-13)
     crit = dof * (1.0 - x) / (q * x)
     hi = 10.0
     while f_sf(crit, q, dof, hi) < POWER_LIMIT:
@@ -330,14 +339,12 @@ def _critical(q, dof, level):
 
 
 def _test_power(lam, q, dof, level):
-    """Power of the F(q, dof) test at ``level`` for noncentralities ``lam`` (array), and the
-    noncentrality at which it is :data:`POWER_LIMIT` (``inf`` when no test is possible)."""
-    lam = np.asarray(lam, float)
+    """Power of the F(q, dof) test at ``level`` for the noncentrality ``lam``, and the
+    noncentrality at which it is :data:`POWER_LIMIT` (0 and ``inf`` when no test is possible)."""
     if q < 1 or dof < 1:
-        return np.zeros_like(lam), math.inf
+        return 0.0, math.inf
     crit, lam80 = _critical(int(q), int(dof), float(level))
-    power = np.array([f_sf(crit, q, dof, v) if v > 0 else level for v in lam.ravel()]).reshape(lam.shape)
-    return power, lam80
+    return (f_sf(crit, q, dof, lam) if lam > 0 else level), lam80
 
 
 def noncentrality_for_power(q, dof, level):
@@ -372,7 +379,8 @@ class _Campaign:
         d = np.linalg.norm(Z, axis=0)
         if not R.shape[1] or not np.any(d > 0):
             return R, 0
-        s = np.linalg.svd(R[:, d > 0] / d[d > 0], compute_uv=False)
+        # singular values of the (n, q) residual from its q x q triangular factor
+        s = np.linalg.svd(np.linalg.qr(R[:, d > 0] / d[d > 0], mode="r"), compute_uv=False)
         return R, int(np.sum(s > _TOL))
 
 
@@ -385,18 +393,18 @@ def _assess(camp, A_E, V, dof_fit, level, alias=None):
     ``alias(A_E) -> B`` (k, q) or None for no shifts."""
     R, q = camp.residual(A_E)
     lam = np.sum((R @ V) ** 2, axis=0)
-    power, lam80 = _test_power(lam, q, dof_fit - q, level)
+    least = int(np.argmin(lam))     # the least detectable vertex (power grows with lambda)
+    power, lam80 = _test_power(float(lam[least]), q, dof_fit - q, level)
     with np.errstate(divide="ignore"):
         reach = np.where(lam > 0, np.sqrt(lam80 / np.where(lam > 0, lam, 1.0)), math.inf)
     scale = np.minimum(1.0, reach)  # each vertex scaled to the largest size the test misses
-    least = int(np.argmin(power))
     shift = full = worst = None
     if alias is not None:
         BV = np.abs(alias(A_E) @ V)
         scaled = BV * scale[None, :]
         shift, full = scaled.max(axis=1), BV.max(axis=1)
         worst = (V * scale[None, :])[:, np.argmax(scaled, axis=1)].T
-    return float(power[least]), float(reach[least]), shift, full, q, worst
+    return float(power), float(reach[least]), shift, full, q, worst
 
 
 def alias_budget(fit_result, runs, effects=None, *, alpha=ALPHA, level=None, tests=None, jit=None):
@@ -453,7 +461,8 @@ def alias_budget(fit_result, runs, effects=None, *, alpha=ALPHA, level=None, tes
     if extra:
         model = Model(f.model.effects + tuple(extra), f.model.geometry)
         mm = model.measurement(f.tilt_known)
-        X = mm.inputs_from_runs(runs)
+        # catalogue effects add no covariate: the fit's own inputs are the extended model's
+        X = f.inputs if f.inputs is not None and f.inputs.shape[0] == mm.n_x else mm.inputs_from_runs(runs)
         p = mm.nominal.copy()
         for n, v in zip(f.names, f.p):
             if n in mm.names:
