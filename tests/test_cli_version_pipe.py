@@ -34,6 +34,7 @@ def test_closed_pipe_ends_quietly(args):
         out = _run(args, w)
     finally:
         os.close(w)
-    assert out.returncode == 0 and out.stderr == "", out.stderr
+    # quiet: no error, no traceback (the fit's own warnings, e.g. its systematic risks, may stand)
+    assert out.returncode == 0 and all(": warning: " in ln for ln in out.stderr.splitlines()), out.stderr
     # and the same command into an open pipe prints (so the quiet end is not silence always)
     assert _run(args, subprocess.PIPE).stdout.strip()

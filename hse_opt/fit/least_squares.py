@@ -242,10 +242,16 @@ def _fit(runs, model, *, fix, tilt_known, bounds, constraints, prior, robust, hu
     def unidentifiable(err):
         """A solver failure on runs that barely separate some parameters is that, not a
         numerical accident: the error names the confounded group (exit 2, not 1)."""
-        J0 = prob.jacobian(z_start)
+        # the linear parameters at the start (a nonlinear one's column vanishes where its
+        # amplitude starts at 0: no confounding of the data's making)
+        J0 = prob.jacobian(z_start)[:, lin]
         A0 = J0 / sigma[:, None]
-        F0 = blind_out(A0.T @ A0, invisible(J0, prob.ranges)) + L.T @ L
-        groups0 = confounded(F0, np.linalg.pinv(F0), prob.names, advice=advice_for(np.ones(k, bool)))
+        F0 = blind_out(A0.T @ A0, invisible(J0, prob.ranges[lin])) + L[:, lin].T @ L[:, lin]
+        try:
+            C0 = np.linalg.inv(F0)
+        except np.linalg.LinAlgError:
+            return err
+        groups0 = confounded(F0, C0, np.array(prob.names)[lin], advice=advice_for(lin))
         if not groups0:
             return err
         g = groups0[0]
