@@ -113,7 +113,7 @@ __all__ = ["Thresholds", "Finding", "Quality", "LogRefused", "assess", "check_me
 #: channel names in RawLog column order (gyro x, y, z then accelerometer x, y, z)
 CHANNELS = ("gyro_x", "gyro_y", "gyro_z", "accel_x", "accel_y", "accel_z")
 _MAD = 1.4826          # robust 1-sigma of a Gaussian from its median absolute deviation
-_QUANTUM_SAMPLES = 20000
+_QUANTUM_SAMPLES = 4000
 _QUANTUM_CHANGES = 20
 #: thresholds are at least this many quanta of the channel (:func:`_quantum`)
 _QUANTA = 3.0
