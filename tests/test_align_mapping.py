@@ -167,3 +167,31 @@ def test_a_csv_that_does_not_fit_the_mapping_names_line_and_column(tmp_path, cap
     p.write_text("t,gx,gy,gz,ax,ay,enc\n0.002,1,2,3,4,5,0\n")
     with pytest.raises(ValueError, match=r"a.csv: has no column 'az' \(mapping MAP.toml\)"):
         read_mapped(p, m)
+
+
+def test_whitespace_columns_comments_and_a_preamble(native, tmp_path):
+    """A stand writing whitespace-separated columns under a preamble, with comment lines among
+    the data: the rows read are the native log's (increments in arcsec and mm/s, the angle in
+    arcsec)."""
+    m = mapping_from_dict({"file": {"delimiter": "whitespace", "header_line": 3, "comment": "%"},
+                           "time": {"column": "t", "unit": "s"},
+                           "gyro": {"columns": ["dx", "dy", "dz"], "unit": "arcsec"},
+                           "accel": {"columns": ["vx", "vy", "vz"], "unit": "mm/s"},
+                           "encoder": {"column": "angle", "unit": "arcsec"},
+                           "meta": {"latitude_deg": 28.07}}, source="MAP.toml")
+    n = 20_000
+    g, a = native.gyro[:n] / units.ARCSEC, native.accel[:n] * 1e3
+    e = native.encoder[:n] / units.ARCSEC
+    lines = ["stand 3", "% preamble", "t dx dy dz vx vy vz angle"]
+    for k in range(n):
+        if k == 500:
+            lines.append("% operator note: door opened")
+        lines.append(f"{native.t[k]:.17g} {g[k, 0]:.17g} {g[k, 1]:.17g} {g[k, 2]:.17g}   {a[k, 0]:.17g} "
+                     f"{a[k, 1]:.17g} {a[k, 2]:.17g}\t{e[k]:.17g}")
+    p = tmp_path / "ws.txt"
+    p.write_text("\n".join(lines) + "\n")
+    log = read_mapped(p, m).log
+    assert len(log) == n and log.meta["latitude_deg"] == 28.07
+    assert np.allclose(log.gyro, native.gyro[:n], rtol=1e-12, atol=0)
+    assert np.allclose(log.accel, native.accel[:n], rtol=1e-12, atol=0)
+    assert np.allclose(log.encoder, native.encoder[:n], rtol=1e-12, atol=0)

@@ -336,6 +336,7 @@ def test_align_repairs_refuses_and_counts_in_one_batch(clean, tmp_path, capsys):
     bad = [line for line in err if "error" in line]
     assert len(bad) == 1 and f"c_jump.npz: encoder at sample {K} (t = 3900 s): encoder jumps by +20" in bad[0]
     assert "2 of 3 logs aligned" in err[-1] and "1 bad log" in err[-1]
+    assert any("note: 1 log repaired or noted by the quality checks" in line for line in err)
     runs = load_runs(out)
     assert runs.run.tolist() == [1, 2]
     quality = runs.metadata["quality"].tolist()

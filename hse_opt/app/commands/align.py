@@ -185,6 +185,10 @@ def run(args):
         write_report(args, [noise_section([r["noise"] for r in rows], pooled,
                                           names=[os.path.basename(r["log"]) for r in rows])],
                      f"hse-opt align: {len(rows)} log{'s' if len(rows) != 1 else ''}")
+    touched = sum(r.get("quality", "ok") != "ok" for r in rows)
+    if touched:
+        message(f"hse-opt align: note: {touched} log{'s' if touched != 1 else ''} repaired or noted by the quality "
+                "checks before alignment (RUNS.csv column quality says what, at which sample and time)")
     bad = f"; {len(errors)} bad log{'s' if len(errors) != 1 else ''} (above) left out" if errors else ""
     message(f"hse-opt align: {len(runs)} of {len(paths)} logs aligned, written to {args.output}{bad}")
     return 2 if errors else 0
