@@ -88,7 +88,7 @@ def directory(n_logs, jobs, workdir):
     out = os.path.join(workdir, "RUNS.csv")
     print(f"hse-opt align on {n_logs} ten-minute logs, --jobs {jobs} (3 runs; best [median]; CPU of all "
           "processes per log, and the logs/s two such cores would give):")
-    for label, extra in (("filter tuned from the logs (2 passes)", []),
+    for label, extra in (("filter tuned from the logs (a first pass over 8)", []),
                          ("filter tuned by --truth (1 pass)", ["--truth", os.path.join(workdir, "TRUTH.toml")])):
         cmd = [sys.executable, "-m", "hse_opt.cli", "align", logdir, "-o", out, "--jobs", str(jobs), "--no-progress",
                *extra]
