@@ -13,7 +13,8 @@ from hse_opt import units
 from hse_opt.cli import main as cli
 from hse_opt.data import Runs, load_runs, save_runs
 from hse_opt.fit import fit, save_fit
-from hse_opt.fit.domain import C23_BIT, Domain
+from hse_opt.fit.correction import validity_domain
+from hse_opt.fit.domain import C23_BIT
 from hse_opt.model import Model
 
 from test_export import _build, _call, needs_cc
@@ -54,7 +55,7 @@ def test_domain_by_hand(rng):
     model (no parameter depends on them)."""
     runs = _runs(rng)
     calibration = fit(runs)
-    d = Domain.from_fit(calibration)
+    d = validity_domain(calibration)
     assert d.bounded == ("rate", "c23") and d.senses == (1, -1)
     assert d.lower / np.array([units.DEG_PER_S, units.ARCSEC]) == pytest.approx([16.0, -340.0], abs=1e-9)
     assert d.upper / np.array([units.DEG_PER_S, units.ARCSEC]) == pytest.approx([64.0, -236.0], abs=1e-9)
@@ -81,12 +82,12 @@ def test_warmup_bounds_time_and_tilt_unknown_has_no_c23(rng):
     runs = _runs(rng, effects=("hse", "warmup"), truth={"lambda2": 4.2, "warmup_amp": 20.0},
                  c23_arcsec=(-600.0, 200.0, 900.0), repeats=4)
     calibration = fit(runs, "hse,warmup")
-    d = Domain.from_fit(calibration)
+    d = validity_domain(calibration)
     assert d.bounded == ("rate", "c23", "t_start", "duration")
     span = 600.0 * (len(runs) - 1)
     assert d.lower[2] == 0.0 and d.upper[2] == pytest.approx(span + max(0.1 * span, 600.0))
     assert d.lower[3] == pytest.approx(300.0 - 60.0) and d.upper[3] == pytest.approx(300.0 + 60.0)
-    blind = Domain.from_fit(fit(_runs(rng).replace(pitch=None, roll=None), fix={"lambda2*tilt_const": 0.0}))
+    blind = validity_domain(fit(_runs(rng).replace(pitch=None, roll=None), fix={"lambda2*tilt_const": 0.0}))
     assert blind.bounded == ("rate",) and not blind.tilt_known
 
 
@@ -110,7 +111,7 @@ def test_c_status_equals_python_inside_and_outside(tmp_path, rng, monkeypatch):
     X[2, :50] = 3 * units.DEG                     # beyond the model limit
     X[rng.integers(0, 7, 50), rng.integers(50, n, 50)] = np.nan
     status_c = _call(f, X)[0].astype(np.int64)
-    status_py = Domain.from_fit(calibration).status(X)
+    status_py = validity_domain(calibration).status(X)
     assert np.array_equal(status_c, status_py)
     assert 0.05 < np.mean(status_py == 0) < 0.5 and np.any(status_py & (1 << C23_BIT))  # both kinds occur
     assert np.all(status_py[:50] & (1 << 2))

@@ -154,7 +154,8 @@ def diagnose(runs, model=None, *, fix=None, tilt_known=None, alpha=ALPHA, candid
         influential=influential, chi2_test=chi2_test, lack_of_fit=lof, factors=factor_results,
         candidates=tuple(cands), structure=tuple(structure), ambiguous=tuple(ambiguous),
         proposals=proposals, verdict=verdict, n_tests=m,
-        notes=tuple(notes), likelihood=null.scale.text, budget=budget, resolving=resolving)
+        notes=tuple(notes), likelihood=null.scale.text, budget=budget, resolving=resolving,
+        rediagnose=diagnose)
 
 
 

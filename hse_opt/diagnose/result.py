@@ -90,6 +90,9 @@ class Diagnosis:
     #: runs that would resolve the systematic risks (dicts of
     #: :func:`hse_opt.aliasing.resolving_runs`, with the ``effect`` each resolves)
     resolving: tuple = ()
+    #: how this diagnosis was made (:func:`hse_opt.diagnose.diagnose`), for :meth:`add` to make
+    #: the next one: passed in by the pipeline, so this module does not import it
+    rediagnose: object = field(default=None, repr=False, compare=False)
 
     # -- views -------------------------------------------------------------------------------
     @property
@@ -143,8 +146,9 @@ class Diagnosis:
     def add(self, effect):
         """Diagnose again with ``effect`` (a catalogue name, ``covariate:<col>`` or an Effect)
         added to the model; reuses this diagnosis's refit when it has one."""
-        from .pipeline import diagnose
-
+        if self.rediagnose is None:
+            raise TypeError("this Diagnosis was built without its pipeline (rediagnose=None): "
+                            "diagnose(runs, model + effect) instead")
         name = make_effect(effect).name
         if name in self.effects:
             raise ValueError(f"effect {name!r} is already in the model ({', '.join(self.effects)})")
@@ -155,7 +159,7 @@ class Diagnosis:
             # diagnosis weighs the runs by its own noise model, from the refit's estimates
             prior = fit_profiled(self.runs, model, fix={k: v for k, v in self.fix if k in prior.names},
                                  tilt_known=self.fit.tilt_known, start=dict(zip(prior.names, prior.values)))
-        return diagnose(self.runs, prior if prior is not None else model, fix=dict(self.fix),
+        return self.rediagnose(self.runs, prior if prior is not None else model, fix=dict(self.fix),
                         tilt_known=self.fit.tilt_known, alpha=self.alpha, covariates=self.covariates,
                         candidates=[c for c in self.candidate_names if c != name])
 

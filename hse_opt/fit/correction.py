@@ -4,6 +4,8 @@ import numpy as np
 
 from .. import units
 from ..information import propagated_std
+from ..model.inputs import RUN_FIELDS
+from .domain import Domain
 
 #: columns :func:`compensate` adds (arcsec): compensated heading error and its 1-sigma
 COMPENSATED_COLUMN = "heading_err_comp_arcsec"
@@ -135,10 +137,9 @@ def domain_status(runs, fit_result, parameters=None):
     reasons : list of str
         Per run, what is outside and where the domain is (``''`` inside).
     """
-    from .domain import Domain
     if fit_result.inputs is None:
         return np.full(len(runs), -1, dtype=np.int64), ["the calibration carries no run inputs"] * len(runs)
-    domain = Domain.from_fit(fit_result, parameters=parameters)
+    domain = validity_domain(fit_result, parameters=parameters)
     X = fit_result.measurement.inputs_from_runs(runs)
     return domain.status(X), domain.reasons(X)
 
@@ -171,3 +172,33 @@ def compensate(runs, fit_result, parameters=None):
     return runs.replace(**{COMPENSATED_COLUMN: (runs.heading_err - correction) / units.ARCSEC,
                            COMPENSATION_STD_COLUMN: std / units.ARCSEC, COMPENSATION_SYS_COLUMN: sys / units.ARCSEC,
                            **heading, DOMAIN_STATUS_COLUMN: status})
+
+
+def validity_domain(fit_result, inputs=None, parameters=None):
+    """The validity domain (:class:`hse_opt.fit.domain.Domain`) of a
+    :class:`~hse_opt.fit.FitResult` from its runs' inputs (or ``inputs``, (n_x, n)), for the
+    correction of ``parameters`` (default: the compensated ones): bounded in what the
+    correction depends on (:func:`correction_depends`)."""
+    X = fit_result.inputs if inputs is None else inputs
+    if X is None:
+        raise ValueError("no run inputs to set the validity domain from; allowed: a FIT.json written by "
+                         "this version of hse-opt fit -o (it stores them)")
+    mm = fit_result.measurement
+    return Domain.from_inputs(X, RUN_FIELDS + tuple(mm.covariates), fit_result.tilt_known,
+                              correction_depends(fit_result, parameters))
+
+
+def correction_depends(fit_result, parameters=None):
+    """Whether the correction (or its sigma) depends on each input: from the measurement
+    model's graph with the compensated parameters symbolic (numpy bool, shape (n_x,))."""
+    import casadi as ca
+
+    mm = fit_result.measurement
+    use, p = compensation_point(fit_result, parameters)
+    x = ca.SX.sym("x", mm.n_x)
+    q = ca.SX.sym("q", int(use.sum()))
+    p_expr = ca.SX(ca.DM(p))
+    for j, i in enumerate(np.flatnonzero(use)):
+        p_expr[int(i)] = p[i] + q[j] * mm.scale[i]
+    h = mm.h(p_expr, x)
+    return np.array([bool(ca.depends_on(h, x[k])) for k in range(mm.n_x)])

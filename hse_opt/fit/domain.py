@@ -115,18 +115,6 @@ class Domain:
         senses = tuple(s for s in (1, -1) if np.any(np.sign(RunInputs(X).rate) == s))
         return cls(names, bool(tilt_known), tuple(bounded), lo, hi, lower, hi + margin, senses)
 
-    @classmethod
-    def from_fit(cls, fit_result, inputs=None, parameters=None):
-        """The domain of a :class:`~hse_opt.fit.FitResult` from its runs' inputs (or
-        ``inputs``), for the correction of ``parameters`` (default: the compensated ones)."""
-        X = fit_result.inputs if inputs is None else inputs
-        if X is None:
-            raise ValueError("no run inputs to set the validity domain from; allowed: a FIT.json written by "
-                             "this version of hse-opt fit -o (it stores them)")
-        mm = fit_result.measurement
-        return cls.from_inputs(X, RUN_FIELDS + tuple(mm.covariates), fit_result.tilt_known,
-                               correction_depends(fit_result, parameters))
-
     def bit(self, name):
         """The status bit (``1 << k``) of a domain quantity or an input."""
         return 1 << (C23_BIT if name == "c23" else self.names.index(name))
@@ -205,20 +193,3 @@ def _quantities(X, names, bounded):
         else:
             rows.append(X[names.index(nm)])
     return np.array(rows, dtype=float).reshape(len(bounded), X.shape[1])
-
-
-def correction_depends(fit_result, parameters=None):
-    """Whether the correction (or its sigma) depends on each input: from the measurement
-    model's graph with the compensated parameters symbolic (numpy bool, shape (n_x,))."""
-    import casadi as ca
-
-    from .correction import compensation_point
-    mm = fit_result.measurement
-    use, p = compensation_point(fit_result, parameters)
-    x = ca.SX.sym("x", mm.n_x)
-    q = ca.SX.sym("q", int(use.sum()))
-    p_expr = ca.SX(ca.DM(p))
-    for j, i in enumerate(np.flatnonzero(use)):
-        p_expr[int(i)] = p[i] + q[j] * mm.scale[i]
-    h = mm.h(p_expr, x)
-    return np.array([bool(ca.depends_on(h, x[k])) for k in range(mm.n_x)])

@@ -427,7 +427,8 @@ def export_calibration(fit_result, directory, inputs=None, source="a FitResult",
     X = np.asarray(X, dtype=float)
     if X.ndim != 2 or X.shape[0] != mm.n_x or X.shape[1] < 1:
         raise ValueError(f"{source}: run inputs of shape {X.shape}; allowed: ({mm.n_x}, n >= 1)")
-    domain = Domain.from_fit(fit_result, X, parameters)
+    from .correction import validity_domain
+    domain = validity_domain(fit_result, X, parameters)
     function = compensation_function(fit_result, parameters)
     rows = _input_table(fit_result)
     comp = compensated_parameters(fit_result) if parameters is None else tuple(parameters)

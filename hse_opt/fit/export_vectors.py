@@ -79,11 +79,11 @@ def vectors(fit_result, inputs=None):
     """
     from .correction import compensation_at
 
-    from .domain import Domain
+    from .correction import validity_domain
     from ..model.inputs import RunInputs
 
     X0 = np.asarray(fit_result.inputs if inputs is None else inputs, dtype=float)
-    domain = Domain.from_fit(fit_result, X0)
+    domain = validity_domain(fit_result, X0)
     n = X0.shape[1]
     pick = np.unique(np.linspace(0, n - 1, min(n, N_INSIDE)).round().astype(int))
     cols = [X0[:, i] for i in pick]
