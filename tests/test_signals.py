@@ -110,7 +110,8 @@ def _command(name, out, plan):
                     "--report", str(out / "R")],
             "diagnose": ["diagnose", str(paper_table1_path()), *FIX, "--report", str(out / "R")],
             "design": ["design", "-o", str(out / "P.csv"), "--budget-h", "6"],
-            "simulate": ["simulate", str(plan), "-o", str(out / "S.csv"), "--seed", "1"]}[name]
+            "simulate": ["simulate", str(plan), "-o", str(out / "S.csv"), "--seed", "1"],
+            "calibrate": ["calibrate", str(plan.parent / "logs"), "--out", str(out / "CAL"), "--no-progress"]}[name]
 
 
 @pytest.fixture(scope="module")
@@ -119,6 +120,14 @@ def plan(tmp_path_factory):
     rows = ["run,rate_dps,azimuth_deg,t_start_s,duration_s"]
     rows += [f"{k + 1},{(40, -40, 60)[k % 3]},{(k * 37) % 360},{k * 700},600" for k in range(60)]
     path.write_text("\n".join(rows) + "\n")
+    # six 12-s raw logs for calibrate (seconds of work: the signal lands in it)
+    small = path.parent / "SMALL.csv"
+    small.write_text("run,rate_dps,azimuth_deg,t_start_s,duration_s\n" + "".join(
+        f"{k + 1},{60 * (-1) ** k},{45 * k},{600 + 100 * k},12\n" for k in range(6)))
+    (path.parent / "logs").mkdir()
+    with redirect_stderr(io.StringIO()):
+        assert main(["simulate", str(small), "-o", str(path.parent / "R.csv"), "--raw-logs", str(path.parent / "logs"),
+                     "--no-progress"]) == 0
     return path
 
 
@@ -160,20 +169,21 @@ def _check(name, code, err, sig, out):
 
 
 @pytest.mark.slow
-@pytest.mark.parametrize("name", ["demo", "fit", "diagnose", "design", "simulate"])
+@pytest.mark.parametrize("name", ["demo", "calibrate", "fit", "diagnose", "design", "simulate"])
 def test_signals_at_random_delays_stop_every_command_cleanly(tmp_path, plan, name):
     """Each command gets SIGINT or SIGTERM at a delay from a seeded generator (from start-up
     to well into the computation: the demo's IPOPT and report included)."""
     rng = np.random.default_rng(sum(map(ord, name)))
-    cases = [(signal.SIGINT, rng.uniform(0.5, 3.5))] + [(signal.SIGTERM, rng.uniform(0.5, 3.5))] * (name == "demo")
-    if name != "demo" and rng.integers(2):
+    long = name in ("demo", "calibrate")
+    cases = [(signal.SIGINT, rng.uniform(0.5, 3.5))] + [(signal.SIGTERM, rng.uniform(0.5, 3.5))] * long
+    if not long and rng.integers(2):
         cases = [(signal.SIGTERM, cases[0][1])]
     for k, (sig, delay) in enumerate(cases):
         out = tmp_path / f"case{k}"
         out.mkdir()
         code, err = _signal_at(_command(name, out, plan), sig, delay, out)
         outcome = _check(name, code, err, sig, out)
-        assert outcome == "stopped" or name != "demo"  # the demo runs for seconds: the signal lands in it
+        assert outcome == "stopped" or not long  # these run for seconds: the signal lands in them
 
 
 @pytest.mark.slow

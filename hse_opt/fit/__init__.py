@@ -36,6 +36,12 @@ Weights (``FitResult.weighting``)
     ``robust=True`` without ``heading_std``: one sigma from the median absolute deviation of
     the residuals, ``1.4826 MAD``.
 
+Copies of one measurement (:meth:`hse_opt.data.Runs.copies`: rows of one setting whose
+headings agree within 1e-6 arcsec, e.g. rows written twice under new run ids) count once,
+surveyed or field: each of ``c`` copies gets ``sqrt(c)`` times its sigma, the degrees of
+freedom, AIC/BIC and a sigma from the residuals or the pure error count measurements, not
+rows, and a note names the copies (:func:`~hse_opt.fit.weights.multiplicity`).
+
 Robust fits (``robust=True``) minimise Huber's loss (quadratic within ``huber_c`` sigma,
 linear beyond) by iteratively reweighted least squares; runs with weight below 1 are named
 in ``FitResult.downweighted``, and the covariance is Huber's ``H1`` form
