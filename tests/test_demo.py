@@ -205,3 +205,14 @@ def test_the_report_compares_the_fixture_plan_as_such(demo_run):
     assert "the optimised plan with the 0.5-deg tilt fixture against the paper&#x27;s plan" in html \
         or "the optimised plan with the 0.5-deg tilt fixture against the paper's plan" in html
     assert 'data-key="power:sync_delay"' in html   # the plan's protection is in the report
+
+
+def test_the_live_session_steers_the_campaign_and_its_sigma_falls(demo_run):
+    """The demo's live session: one line per log, the runs counted, the next alignment each
+    time; the alignments the session asked for bring lambda2's sigma down."""
+    lines = demo_run[0]["session"]
+    assert len(lines) == demo.SESSION_LOGS
+    for k, line in enumerate(lines, start=1):
+        assert line.startswith(f"[{k} run{'s' if k > 1 else ''}]") and "; next: " in line
+    sigmas = [float(m.group(1)) for m in (re.search(r"\+- ([0-9.e+]+) arcsec", ln) for ln in lines) if m]
+    assert len(sigmas) >= 2 and sigmas[-1] < 0.5 * sigmas[0]

@@ -118,3 +118,11 @@ def test_bad_arguments_are_named():
         next_runs(runs, "hse", 3600.0, target="nope")
     with pytest.raises(ValueError, match="time left"):
         next_runs(runs, "hse", -1.0)
+
+
+def test_a_new_position_gets_a_label_no_position_has():
+    runs = _runs([40], [30], positions=["new1"])          # as the one-run case above: a new position next
+    cont = next_runs(runs, "hse", 3 * units.HOUR, costs=COSTS)
+    new = [r.position for r in cont.runs if r.new_position]
+    assert new and "new1" not in new
+    assert cont.runs[0].new_position and cont.runs[0].position == "new2"

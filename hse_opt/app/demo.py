@@ -44,6 +44,7 @@ plan and compare its predicted sigmas with the paper's plan.
 from __future__ import annotations
 
 import dataclasses
+import os
 import time
 from dataclasses import dataclass, field
 from functools import lru_cache
@@ -380,6 +381,9 @@ class DemoResult:
         The paper's own numbers reproduced with the symbolic model.
     seconds : dict
         Wall time of each step.
+    session : tuple of str
+        The live session (:func:`live_session`): the line ``hse-opt calibrate --watch`` prints
+        after each log.
     """
 
     seed: int
@@ -396,6 +400,7 @@ class DemoResult:
     next_plan: object = None
     paper: object = None
     seconds: dict = field(default_factory=dict)
+    session: tuple = ()
 
     @property
     def found(self):
@@ -430,6 +435,7 @@ class DemoResult:
             "next_plan": None if self.next_plan is None else self.next_plan.to_dict(),
             "paper": None if self.paper is None else dataclasses.asdict(self.paper),
             "seconds": self.seconds,
+            "session": list(self.session),
         }
         return out
 
@@ -488,12 +494,67 @@ def run_demo(seed=0, progress=None):
     next_plan = design_next(final.model, dict(zip(final.names, final.values)))
     seconds["design"] = time.perf_counter() - t0
 
+    t0 = time.perf_counter()
+    starting("live session")
+    session = live_session(truth, int(seed))
+    seconds["session"] = time.perf_counter() - t0
+
     from ..model.paper import reproduce
     noise = float(np.median(runs.heading_std) / units.ARCSEC)
     return DemoResult(seed=int(seed), hidden=hidden, truth=truth, plan=plan, runs=runs,
                       noise_arcsec=noise, fit_before=before, fit_after=after, named=named,
                       diagnosis=diagnosis, diagnosis_after=after_diagnosis, next_plan=next_plan,
-                      paper=reproduce(), seconds=seconds)
+                      paper=reproduce(), seconds=seconds, session=session)
+
+
+#: the live session: the first alignments (position, heading deg, rate deg/s), then the
+#: ones the session asks for, two-minute logs
+SESSION_START = (("A", 20.0, 20.0), ("A", 20.0, 60.0))
+SESSION_LOGS = 7
+SESSION_DURATION_S = 120.0
+
+
+def live_session(truth, seed, n_logs=SESSION_LOGS):
+    """The field session run by run, as ``hse-opt calibrate --watch`` shows it
+    (:mod:`hse_opt.app.session`), on a field campaign of ``truth`` steered by the session: the
+    first alignments are :data:`SESSION_START` (position A, no heading reference); after each
+    log the session gives the next alignment (a position or a new heading, rate, sense) and
+    the simulator runs exactly that one, until ``n_logs`` two-minute raw logs (simulated into
+    a temporary folder, aligned with the system's lab calibration).
+
+    Returns
+    -------
+    tuple of str
+        The line after each log (:meth:`hse_opt.app.session.SessionResult.line`).
+    """
+    import tempfile
+
+    from ..sim import run_campaign
+    from ..sim.campaign import align_config_from_truth
+    from .session import calibrate
+
+    config = align_config_from_truth(truth)
+    headings = {}
+    todo = list(SESSION_START)
+    lines, cache, logs, t = [], {}, [], 3600.0
+    with tempfile.TemporaryDirectory(prefix="hse_opt_session_") as folder:
+        for k in range(1, n_logs + 1):
+            label, heading, rate = todo.pop(0)
+            heading = headings.setdefault(label, heading)
+            plan = Plan.from_columns({"run": [k], "rate_dps": [rate], "azimuth_deg": [heading], "t_start_s": [t],
+                                      "duration_s": [SESSION_DURATION_S], "position": [label]},
+                                     source="demo live session")
+            run_campaign(plan, truth, int(seed) + k, field=True, raw_logs=folder)
+            logs.append(os.path.join(folder, f"run_{k}.npz"))
+            result = calibrate(logs, config=config, cache=cache, time_left_h=2.0)
+            lines.append(result.line())
+            nxt = None if result.continuation is None else result.continuation.next
+            if nxt is None:
+                break
+            t = max(nxt.t_start_s, t + SESSION_DURATION_S)
+            if not todo:  # the session's advice, run as given
+                todo.append((nxt.position, nxt.azimuth_deg, nxt.rate_dps))
+    return tuple(lines)
 
 
 # -- outputs ---------------------------------------------------------------------------------
@@ -528,6 +589,14 @@ def report_sections(result):
                                               " ".join(n.notes) or None, label=label))
     else:
         sections.append(report.text_section("The next plan", n.notes))
+    if r.session:
+        sections.append(report.text_section(
+            "The live session (hse-opt calibrate --watch)",
+            [f"A short field campaign of the same system ({len(r.session)} two-minute alignments, no heading "
+             "reference), steered by the session: two alignments at position A, then each the one the "
+             "session asked for. After each log: lambda2 so far with its total uncertainty, the verdict "
+             "and the next alignment to run."]
+            + list(r.session)))
     return sections
 
 

@@ -23,9 +23,11 @@
    ``systematic`` is the largest shift of an effect the runs would not detect that exceeds its
    statistical sigma. lambda2's total uncertainty is the two in quadrature.
 7. **Verdict**: ``usable`` when the final model is fitted, the diagnosis finds it adequate, no
-   calibrated parameter (those the exported C compensates) carries a systematic risk, and
-   (with ``target_sigma``) the total sigma of lambda2 is at most the target; else ``not yet``
-   with every reason in words.
+   calibrated parameter (those the exported C compensates) carries a systematic risk, the
+   correction is known better than its own size (at the calibration runs, the RMS of its
+   1-sigma below the RMS of the correction: else compensating could add as much error as it
+   removes), and (with ``target_sigma``) the total sigma of lambda2 is at most the target;
+   else ``not yet`` with every reason in words.
 
 :func:`write_outputs` writes the report and the data into a folder (:data:`OUTPUT_FILES`);
 :func:`watch` is the live session (``--watch``): it waits for new logs in a folder and yields
@@ -170,7 +172,7 @@ class SessionResult:
         value, _, _, total, unit = self.target()
         cal = (f"{TARGET} = {value:.3g} +- {total:.2g} {unit}" if value is not None and total is not None
                else f"{TARGET} not yet estimable")
-        why = f" ({self.reasons[0]})" if self.reasons else ""
+        why = f" ({self.reasons[0].split(':')[0]})" if self.reasons else ""
         nxt = self.continuation.next if self.continuation is not None else None
         step = f"; next: {nxt.describe()}" if nxt is not None else "; next: nothing fits the time left"
         return f"[{n} run{'s' if n != 1 else ''}] {cal}; {self.verdict}{why}{step}"
@@ -361,7 +363,7 @@ def calibrate(logs, *, config=None, align_kw=None, suffixes=_SUFFIXES, effects=(
     steps, failure = (), None
     try:
         steps = tuple(refine(runs, model))
-    except (UnidentifiableError, DataError) as err:
+    except (UnidentifiableError, DataError, ValueError) as err:   # runs that cannot identify the model yet
         failure = " ".join(str(err).split())
     seconds["fit and diagnose"] = time.perf_counter() - t0
 
@@ -446,6 +448,13 @@ def _reasons(result):
                                                            if by]):
             if name in calibrated:
                 out.append(f"systematic risk (what this campaign cannot rule out): {line}")
+    from ..fit.correction import compensation_at
+    correction, sigma = compensation_at(r.fit.inputs, r.fit)
+    rms_c, rms_s = (float(np.sqrt(np.mean(np.square(v)))) / units.ARCSEC for v in (correction, sigma))
+    if not rms_s < rms_c:
+        out.append(f"the correction is not yet known better than its own size: at the calibration runs it is "
+                   f"{rms_c:.3g} arcsec RMS with a 1-sigma of {rms_s:.3g} arcsec RMS (compensating could add as "
+                   "much error as it removes)")
     value, std, sys_, total, unit = r.target()
     if value is None or total is None or not np.isfinite(total):
         out.append(f"{TARGET} is not estimated by these runs")

@@ -359,6 +359,8 @@ def next_runs(runs, model, time_left, *, values=None, free=None, tilt_known=None
             for r in options:
                 blocks.append((label, sv_, False, (az,), (r,), col))
         if field or not surveyed_rows.any():
+            new_label = next(f"{NEW_POSITION}{j}" for j in range(new_count + 1, new_count + len(glabels) + 2)
+                             if f"{NEW_POSITION}{j}" not in glabels)   # a label no position has yet
             base = state["azimuth"]
             col = last
             for turn in (90.0, 180.0, 270.0):
@@ -367,7 +369,7 @@ def next_runs(runs, model, time_left, *, values=None, free=None, tilt_known=None
                     r = r * units.DEG_PER_S
                     for pair in ((r, -r), (r * senses[0], max(rates) * units.DEG_PER_S * senses[0])):
                         if pair[0] != pair[1]:
-                            blocks.append((f"{NEW_POSITION}{new_count + 1}", False, True, (az, az), pair, col))
+                            blocks.append((new_label, False, True, (az, az), pair, col))
         # each block's runs as columns, their setup and time
         cols, owner, times, starts = [], [], [], []
         for b, (label, sv_, new, azs, rs, col) in enumerate(blocks):

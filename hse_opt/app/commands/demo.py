@@ -106,6 +106,9 @@ def summary_lines(result, out_dir):
             else:
                 lines.append(f"            no design with {label} (the report says why)")
     data = "RUNS.csv, PLAN.csv, " + ("" if n.best is None else "NEXT_PLAN.csv, ")
+    if r.session:
+        lines.append("  live      a field session steered run by run (hse-opt calibrate --watch), one line per log:")
+        lines += [f"            {ln}" for ln in r.session]
     lines.append(f"  report    {Path(out_dir) / 'report.html'} (data: {data}TRUTH.toml, summary.json)")
     return lines
 
