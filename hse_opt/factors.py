@@ -107,9 +107,15 @@ class Factors:
         if self.constant:
             out.append("Constant over the runs (not plotted): " + "; ".join(f.describe() for f in self.constant)
                        + ".")
-        if self.derived:
-            out.append(f"Derived from the heading error, never a factor: {', '.join(self.derived)} "
+        sensors = [c for c in self.derived if c.startswith(SENSOR_PREFIXES)]
+        heading = [c for c in self.derived if c not in sensors]
+        if heading:
+            out.append(f"Derived from the heading error, never a factor: {', '.join(heading)} "
                        f"(a column whose name begins with '{DERIVED_PREFIX}', or named as derived).")
+        if sensors:
+            out.append(f"Figures of each log's own sensors (hse-opt align: their noise), outcomes of the log, "
+                       f"never a factor: {', '.join(sensors)} (a column whose name begins with "
+                       f"{' or '.join(repr(p) for p in SENSOR_PREFIXES)}).")
         return out
 
 

@@ -181,3 +181,34 @@ def test_simulated_field_campaign_of_the_issue(tmp_path, capsys):
     assert np.array_equal(out.covariates["comp_status"], np.where(turned, 1 << C23_BIT, 0))
     assert np.all(after[turned] > before[turned] + 40)      # compensating there makes it worse
     assert np.all(after[~turned] < 20)                       # inside: the correction holds
+
+
+def test_session_report_states_the_domain_the_c_enforces(tmp_path, rng):
+    """The calibrate report's C interface says where the exported C returns status 0: on the
+    issue's campaign |rate| 16-64 deg/s (of |rate|, both senses), pitch and roll within the
+    2-degree model limit, latitude within 89 deg, and C23 in [-340, -236] arcsec with its bit
+    30 (hand values as in test_domain_by_hand). It said 'any finite value' for pitch, roll and
+    latitude, nothing of C23, and gave the rate's interval as if of the signed rate; with
+    positive rates only it names the one sense."""
+    import html
+    import re
+
+    from hse_opt.fit.export import export_calibration
+    from hse_opt.report.session import interface_section
+
+    def text(section):
+        return html.unescape(re.sub(r"<[^>]+>", " ", " ".join(b for b in section.blocks if isinstance(b, str))))
+
+    runs = _runs(rng)
+    calibration = export_calibration(fit(runs), tmp_path / "nav")
+    shown = re.sub(r"\s+", " ", text(interface_section(calibration)))
+    rate = f"{np.radians(16.0):.6g} .. {np.radians(64.0):.6g} (of |rate|)"
+    assert f"rate rad/s {rate}" in shown
+    assert f"pitch rad |.| <= {np.radians(2.0):.6g} (model limit)" in shown
+    assert f"roll rad |.| <= {np.radians(2.0):.6g} (model limit)" in shown
+    assert f"latitude rad |.| <= {np.radians(89.0):.6g} (model limit)" in shown
+    assert "bit 30 (HSE_COMP_OUT_C23)" in shown and "-340 .. -236 arcsec (the runs': -310 .. -266)" in shown
+    assert "hse_compensation_systematic" in shown
+    forward = export_calibration(fit(runs.subset(runs.rate > 0)), tmp_path / "nav_forward")
+    shown = re.sub(r"\s+", " ", text(interface_section(forward)))
+    assert f"{np.radians(16.0):.6g} .. {np.radians(64.0):.6g} (of |rate|, the positive sense only)" in shown

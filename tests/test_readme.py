@@ -84,3 +84,15 @@ def test_every_skipped_block_says_why():
         marker = m.group(1) or ""
         if "not run:" in marker:
             assert re.search(r"not run: \S.{8,}", marker), marker
+
+
+def test_readme_quotes_what_fit_prints_for_table1(capsys):
+    """The tutorial says what ``hse-opt fit table1.csv`` prints for the heading-sensitive
+    sinusoid; the quote is the command's own line (it said 3.27 where the fit prints 3.28)."""
+    from hse_opt.cli import main as cli
+    from hse_opt.datasets import paper_table1_path
+
+    quote = re.search(r'it prints "(amplitude [^"]+)"', README.read_text(encoding="utf-8")).group(1)
+    assert cli(["fit", str(paper_table1_path())]) == 0
+    out = capsys.readouterr().out
+    assert f"sinusoid lambda2 * C23 (tilt unknown): {quote}" in out

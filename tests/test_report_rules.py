@@ -141,3 +141,22 @@ def test_a_figure_that_cannot_be_drawn_is_explained():
     f = fit(runs, fix={"lambda2*tilt_const": 0.0})
     text = report.fit_section(f, runs).html("s1")
     assert "No calibration line (the paper&#x27;s Fig. 2): every run is at 40 deg/s" in text
+
+
+def test_sensor_noise_columns_are_not_called_derived_from_the_heading_error():
+    """hse-opt align writes each log's noise figures (gyro_arw_dph_rthz, accel_vrw_ug_rthz, ...):
+    computed from the raw gyro and accelerometer samples, not from the heading error. They stay
+    out of the factors, but the report's note said 'Derived from the heading error' of them."""
+    from hse_opt.factors import campaign_factors
+    y = _runs()
+    n = len(y)
+    runs = y.replace(gyro_arw_dph_rthz=np.full(n, 0.012), accel_vrw_ug_rthz=np.full(n, 1.0),
+                     heading_err_comp_arcsec=y.heading_err / units.ARCSEC, temp_c=25 + 0.1 * np.arange(n))
+    facs = campaign_factors(runs)
+    assert set(facs.derived) == {"gyro_arw_dph_rthz", "accel_vrw_ug_rthz", "heading_err_comp_arcsec"}
+    notes = facs.notes()
+    heading = [s for s in notes if s.startswith("Derived from the heading error")]
+    sensors = [s for s in notes if "own sensors" in s]
+    assert len(heading) == 1 and "heading_err_comp_arcsec" in heading[0] and "gyro_" not in heading[0]
+    assert len(sensors) == 1 and "gyro_arw_dph_rthz" in sensors[0] and "accel_vrw_ug_rthz" in sensors[0]
+    assert "temp_c" not in " ".join(notes)

@@ -46,7 +46,7 @@ from .. import units
 from ..model.inputs import RUN_FIELDS, RunInputs
 from ..ranges import RANGES
 
-__all__ = ["Domain", "MARGIN_FRACTION", "MARGIN_FLOOR", "C23_BIT", "MAX_INPUTS"]
+__all__ = ["Domain", "MARGIN_FRACTION", "MARGIN_FLOOR", "C23_BIT", "MAX_INPUTS", "describe_input", "describe_c23"]
 
 #: margin around the calibration runs' interval, as a fraction of that interval ...
 MARGIN_FRACTION = 0.1
@@ -179,6 +179,33 @@ class Domain:
                 "rule": "each bounded quantity within the calibration runs' interval widened by "
                         "max(margin_fraction * interval, floor), SI; the rate's senses those the runs used; "
                         "every input finite; pitch, roll, latitude within their model limits"}
+
+
+def describe_input(row):
+    """One input's validity in words, from a row of ``calibration.json``'s ``inputs`` (what
+    ``hse-opt export`` prints and the session report shows): ``'0.279253 .. 1.11701 (of
+    |rate|)'`` (SI), ``'|.| <= 0.0349066 (model limit)'`` or ``'any finite value'``."""
+    rng = row.get("range")
+    if rng:
+        text = f"{rng['lower']:.6g} .. {rng['upper']:.6g}"
+        of = row.get("range_of")
+        senses = row.get("senses") or ()
+        only = (f", the {'positive' if senses[0] > 0 else 'negative'} sense only" if len(senses) == 1 else "")
+        return text + (f" (of {of}{only})" if of else "")
+    if row.get("limit_abs"):
+        return f"|.| <= {row['limit_abs']:.6g} (model limit)"
+    return "any finite value"
+
+
+def describe_c23(calibration):
+    """The C23 interval in words, from a ``calibration.json`` object: ``'C23 = -roll
+    cos(heading) + pitch sin(heading): -340 .. -236 arcsec (the runs': -310 .. -266)'``;
+    ``None`` when the domain does not bound C23 (tilt unknown, or no tilt dependence)."""
+    for q in calibration["domain"]["quantities"]:
+        if q["name"] == "c23":
+            return (f"C23 = {q['of']}: {q['lower'] / units.ARCSEC:.6g} .. {q['upper'] / units.ARCSEC:.6g} arcsec "
+                    f"(the runs': {q['data_lower'] / units.ARCSEC:.6g} .. {q['data_upper'] / units.ARCSEC:.6g})")
+    return None
 
 
 def _quantities(X, names, bounded):

@@ -111,21 +111,29 @@ def log_table_section(result):
 
 def interface_section(calibration):
     """The C interface of the exported calibration (``calibration.json``'s object)."""
+    from ..fit.domain import C23_BIT, describe_c23, describe_input
     c = calibration
     ep = c["entry_point"]
     rows, keys = [], []
     for row in c["inputs"]:
-        rng = row.get("range")
-        text = "any finite value" if rng is None else f"{rng['lower']:.6g} .. {rng['upper']:.6g}"
-        rows.append([str(row["index"]), html.escape(row["name"]), html.escape(row["unit"]), html.escape(text),
-                     html.escape(row["description"])])
+        rows.append([str(row["index"]), html.escape(row["name"]), html.escape(row["unit"]),
+                     html.escape(describe_input(row)), html.escape(row["description"])])
         keys.append(row["name"])
+    c23 = describe_c23(c)
+    systematic = ep.get("systematic")
     blocks = (
         _paragraph("nav/hse_compensation.c and .h: C99, only libm, no allocation, re-entrant. "
                    f"Signature: {ep['signature']}."),
         _paragraph("*correction_rad is ADDED to the alignment's heading (heading_compensated = heading + "
-                   "correction); *sigma_rad is its 1-sigma from the calibration's covariance. The return "
-                   "value is 0 inside the validity range, else bit k is set for each input k outside it."),
+                   "correction); *sigma_rad is its 1-sigma from the calibration's covariance"
+                   + (f"; {systematic['signature']} gives the correction's systematic bound "
+                      "(what the campaign could not rule out), with the same status" if systematic else "")
+                   + ". The return value is 0 inside the validity domain, else bit k is set for each input k "
+                   "not finite or outside its range below"
+                   + (f", and bit {C23_BIT} (HSE_COMP_OUT_C23) when C23 is outside its interval - {c23}; C23 holds "
+                      "the heading and the tilt together: the same base turned to another heading can be "
+                      "outside" if c23 else "")
+                   + "."),
         _table(["index", "input", "unit", "validity range", "meaning"], rows, keys),
         _paragraph("On the target: cc -std=c99 -O2 -o test_hse_compensation test_hse_compensation.c "
                    "hse_compensation.c -lm && ./test_hse_compensation test_vectors.csv - prints "

@@ -46,7 +46,7 @@ def add_arguments(parser):
 def run(args):
     import os
 
-    from ... import units
+    from ...fit.domain import describe_c23, describe_input
     from ...fit.export import ENTRY_POINT, export_calibration
     from ...fit import load_fit
 
@@ -58,16 +58,10 @@ def run(args):
     else:
         print(f"hse-opt export: {args.fit} -> {args.output}: {out['entry_point']['signature']}")
         for r in out["inputs"]:
-            rng = r["range"]
-            text = (f"{rng['lower']:.6g} .. {rng['upper']:.6g}" + (" (of |rate|)" if r["name"] == "rate" else "")
-                    if rng else f"|.| <= {r['limit_abs']:.6g} (model limit)" if r.get("limit_abs")
-                    else "any finite value")
-            print(f"  in[{r['index']}] {r['name']:<10} {r['unit']:<6} {text}")
-        for q in out["domain"]["quantities"]:
-            if q["name"] == "c23":
-                print(f"  C23 = {q['of']}: {q['lower'] / units.ARCSEC:.6g} .. {q['upper'] / units.ARCSEC:.6g} "
-                      f"arcsec (the runs': {q['data_lower'] / units.ARCSEC:.6g} .. "
-                      f"{q['data_upper'] / units.ARCSEC:.6g})")
+            print(f"  in[{r['index']}] {r['name']:<10} {r['unit']:<6} {describe_input(r)}")
+        c23 = describe_c23(out)
+        if c23:
+            print(f"  {c23}")
         print("  outside the domain the return value is nonzero (bitmask in hse_compensation.h)")
         print("  *correction_rad is ADDED to the alignment's heading; *sigma_rad its 1-sigma; "
               f"{ENTRY_POINT}_systematic(in, &sigma_sys_rad) its systematic bound")
