@@ -370,9 +370,11 @@ def calibrate(logs, *, config=None, align_kw=None, suffixes=_SUFFIXES, effects=(
     t0 = time.perf_counter()
     step("systematic risk")
     budget = None
-    if steps:
-        from ..aliasing import alias_budget
-        budget = alias_budget(steps[-1].fit, runs, tests=steps[-1].n_tests)
+    if steps:   # the diagnosis's own (its test and level), else computed here
+        budget = getattr(steps[-1], "budget", None)
+        if budget is None:
+            from ..aliasing import alias_budget
+            budget = alias_budget(steps[-1].fit, runs, tests=steps[-1].n_tests)
     seconds["systematic risk"] = time.perf_counter() - t0
 
     t0 = time.perf_counter()
