@@ -202,6 +202,11 @@ def test_the_issues_field_campaign_is_never_confidently_wrong(seed):
     assert "sync_delay" in f.systematic_by[i]
     assert any(n.startswith("inconclusive: sync_delay") and "runs that would resolve it" in n for n in last.notes)
     assert any(r["effect"] == "sync_delay" for r in last.resolving)
+    said = [ln for ln in last.cannot_rule_out() if ln.startswith("cannot rule out sync_delay")]
+    assert len(said) == 1 and f"lambda2 by up to {f.systematic_by[i]['sync_delay']:.3g} arcsec" in said[0]
+    assert said[0] in "\n".join(last.summary())
+    from hse_opt import report
+    assert "cannot rule out sync_delay" in report.diagnosis_section(last).html("s1")
 
 
 def test_fit_cli_says_the_systematic_in_words_json_and_fit_json(tmp_path, capsys):
@@ -362,3 +367,29 @@ def test_noncentral_f_without_scipy_matches_scipy():
     crit, lam80 = _critical(2, 40, 0.0025)
     assert crit == pytest.approx(stats.f.isf(0.0025, 2, 40), rel=1e-9)
     assert stats.ncf.sf(crit, 2, 40, lam80) == pytest.approx(POWER_LIMIT, abs=1e-8)
+
+
+def test_the_paper_plan_with_delay_and_axis_bias_names_the_group_in_json(tmp_path, capsys):
+    """The paper's plan (one sense, 20/40/60 deg/s) fitted with sync_delay and axis_bias: before,
+    lambda2 67.7 +- 460 with |r| = 1.000 and nothing in --json; now the group is named, with each
+    sigma's inflation (the closed form sqrt(C_jj F_jj) from numpy on the model's Jacobian)."""
+    from hse_opt.cli import main
+    from hse_opt.data import save_runs
+    from hse_opt.design.plans import paper_plan
+    from hse_opt.model import as_model
+    runs = model_runs(paper_plan(), {**DIAGNOSTIC_BASE, "delay": 100.0, "bias_z": 0.01},
+                      np.random.default_rng(0), base_tilt=DIAGNOSTIC_TILT)
+    save_runs(runs, tmp_path / "RUNS.csv")
+    assert main(["fit", str(tmp_path / "RUNS.csv"), "--effects", "sync_delay,axis_bias", "--json"]) == 0
+    out, err = capsys.readouterr()
+    d = json.loads(out)
+    (g,) = d["confounded"]
+    assert {"lambda2", "delay"} <= set(g["parameters"]) and g["max_abs_correlation"] > 0.999
+    mm = as_model("hse,sync_delay,axis_bias").measurement(True)
+    p = mm.vector({n: v["value"] for n, v in d["parameters"].items()})
+    A = mm.jacobian(p, mm.inputs_from_runs(runs)) * mm.scale / runs.heading_std[:, None]
+    F = A.T @ A
+    vif = np.diag(np.linalg.inv(F)) * np.diag(F)
+    idx = [mm.names.index(n) for n in g["parameters"]]
+    np.testing.assert_allclose(g["inflation"], np.sqrt(vif[idx]), rtol=1e-2)
+    assert "are confounded by these runs" in err

@@ -130,6 +130,20 @@ class Diagnosis:
         ``inconclusive``: the second says what these runs cannot rule out)."""
         return self.verdict in ("adequate", "inconclusive")
 
+    def cannot_rule_out(self):
+        """One line per systematic risk of the fit (:mod:`hse_opt.aliasing`): the effect and
+        the parameters it could move beyond their sigma, unseen; empty when none."""
+        f = self.fit
+        if f.systematic is None:
+            return []
+        by_effect = {}
+        for i, by in enumerate(f.systematic_by):
+            for e, s in by.items():
+                by_effect.setdefault(e, []).append(f"{f.names[i]} by up to {s:.3g} {f.units[i]} "
+                                                   f"(sigma {f.std[i]:.3g})")
+        return [f"cannot rule out {e}: it would go undetected here and could move {', '.join(parts)}"
+                for e, parts in by_effect.items()]
+
     @property
     def best(self):
         """The best significant candidate, or None."""
@@ -222,6 +236,7 @@ class Diagnosis:
             out.append("  lack of fit: not computable (no replicated settings)")
         out.append(f"  verdict: {self.verdict} ({self.n_tests} tests, family-wise alpha "
                    f"{self.alpha:g}, Bonferroni)")
+        out.extend(f"  {line}" for line in self.cannot_rule_out())
         out.append("Where it fails (residual against each factor, most significant first):")
         for t in self.factors:
             line = f"  {t.name:<22} {test_text(t)}" if t.tested else f"  {t.name:<22} not tested: {t.note}"

@@ -139,6 +139,7 @@ def diagnosis_section(diagnosis, title=None, residuals=True, derived=()):
         f'<p class="summary{"" if d.verdict == "adequate" else " warn"}">Verdict: '
         f'<b>{html.escape(d.verdict)}</b>'
         + (f"; best candidate <code>{html.escape(d.best.effect)}</code>" if d.best is not None else "")
+        + "".join(f"<br>{html.escape(line)}" for line in d.cannot_rule_out())
         + "</p>",
         _table(["statistic", "value"], [[lab, v] for lab, _, v in stats],
                keys=[k for _, k, _ in stats], cls="stats"),
