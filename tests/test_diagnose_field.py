@@ -25,3 +25,22 @@ def test_constants_per_position_are_not_missing_effects():
         assert "constant within each position" in untestable[name]
     azimuth = next(t for t in d.factors if t.name == "azimuth")
     assert not azimuth.tested and "constant within each position" in azimuth.note
+
+
+def test_a_signature_the_model_and_positions_absorb_is_not_testable():
+    """One surveyed position (B, 150 deg) and two without a reference: the stand's 2nd azimuth
+    harmonic is a constant at B (the offset's column there) and a constant at A and C (their
+    unknown headings) - checked here by projecting its two columns on those indicators. The
+    candidate was listed as testable with every figure '-' and no reason (dof 0); it is not
+    testable, with the reason."""
+    runs = _campaign(np.random.default_rng(21), surveyed_b=True)
+    labels = np.asarray(runs.position.tolist())
+    psi = np.asarray(runs.azimuth, float)
+    at_b = labels == "B"
+    Z = np.column_stack([np.where(at_b, np.cos(2 * psi), 0.0), np.where(at_b, np.sin(2 * psi), 0.0)])
+    B = np.column_stack([(labels == k).astype(float) for k in ("A", "B", "C")])
+    assert np.abs(Z - B @ np.linalg.lstsq(B, Z, rcond=None)[0]).max() < 1e-12
+    d = diagnose(runs)
+    c = next(c for c in d.candidates if c.effect == "azimuth_harmonic2")
+    assert not c.testable and "cannot tell it apart" in c.reason, c
+    assert "azimuth_harmonic2" in "\n".join(line for line in d.summary() if "not testable" in line)

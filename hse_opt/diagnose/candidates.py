@@ -194,6 +194,12 @@ def _candidate(null, f0, runs, name, fix, refit):
             why = f"{', '.join(err.names)} cannot be told apart from each other by these runs"
         return Candidate(name, description, params, held, False, why), None
     U = null.basis(A1[:, len(free0):])
+    if U.shape[1] == 0:  # jointly identifiable, yet nothing left once the model (and positions) are fitted
+        by = "the model's parameters" + (" and the unknown headings of the positions without a reference"
+                                         if null.positions else "")
+        return Candidate(name, description, params, held, False,
+                         f"its heading signature is fitted already by {by}: these runs cannot tell it "
+                         "apart; runs at other settings (surveyed azimuths, rates, tilts) would"), None
     F, dof, p, logp = null.score(U)
     cand = Candidate(name, description, params, held, True, "", F, dof, p, logp)
     if refit and p is not None:
