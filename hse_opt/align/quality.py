@@ -38,7 +38,9 @@ Checks, rules and thresholds (:class:`Thresholds`; the reasons are physical)
    (repaired) encoder against the median: a window below ``stall`` (0.5) times it is a
    stall; a relative deviation above ``rate_ripple`` (5e-3) plus ``rate_sigmas`` (5) times
    the windows' own noise (the jitter at their edges, from the differences of neighbouring
-   windows: 1e-4 to 6e-4 for 0.5 to 5 arcsec of jitter at 7 deg/s) refuses the log. Reason: the
+   windows: 1e-4 to 6e-4 for 0.5 to 5 arcsec of jitter at 7 deg/s; the multiplier raised to
+   the Bonferroni level of the false-alarm figure below, 5.9 for a 10-minute log's 1200
+   windows) refuses the log. Reason: the
    filter assumes the table-fixed errors turn at one rate; a once-per-revolution ripple of
    1e-2 moves a noise-free 10-minute heading by 2.0 arcsec at 5 deg/s and 0.56 arcsec at
    10 deg/s (4 cycles per revolution: 0.42 and 0.04 arcsec), the paper's stand holds 1e-4.
@@ -58,12 +60,12 @@ Checks, rules and thresholds (:class:`Thresholds`; the reasons are physical)
    time); the fit leaves out the windows whose norms are off, and then those whose
    residuals are. The residuals are pulse quantization (one pulse per window: the counters
    carry their remainders) and noise; a window deviating by more than
-   ``max(channel_sigmas x the channel's robust 1-sigma, floor)`` (the floors: ``gyro_floor``
-   1e-3 arcsec, ``accel_floor`` 1e-7 m/s, one per mille of the paper's pulses, above a
-   noise-free log's model residual; and at least three quanta of the channel, its smallest
-   step between samples: a window sum of a counter that carries its remainder is off by less
-   than one pulse, so quantization alone never reaches it, however its residuals bunch) is
-   a fault:
+   ``max(channel_sigmas x s, z x s + 2 q, floor)`` (``s`` the channel's robust 1-sigma; the
+   floors: ``gyro_floor`` 1e-3 arcsec, ``accel_floor`` 1e-7 m/s, one per mille of the
+   paper's pulses, above a noise-free log's model residual) is a fault. The middle term is
+   the false-alarm design figure (*Noise model and false alarms* below): 0.78-0.81 arcsec
+   for the gyros of the paper-like system at 10 deg/s (0.66 from the 10 sigma alone), 4e-4
+   to 5.5e-4 m/s for its accelerometers. A window:
 
    * all three gyros in one window, in the ratio of their ``beta_j`` and the accelerometers
      not: an encoder jump too small for check 1 (the encoder turned by ``d`` the gyros did
@@ -75,15 +77,42 @@ Checks, rules and thresholds (:class:`Thresholds`; the reasons are physical)
      table's step deviation, matches the residual within the threshold): replaced by the
      neighbours' mean (plus, for a gyro, that share) (*repaired*);
    * otherwise refused: *saturated* (the bad windows hold the channel's extreme value of
-     the log three or more times: a clipped range), *stuck* (the channel repeats one value
-     for ``stuck_samples`` (25) or more samples in the bad windows; the finding names the
+     the log ``saturated_samples`` (3) or more samples in a row, and that value lies beyond
+     what a static base gives the channel: a gyro sample beyond the table's largest step
+     (x 1 + ``gyro_scale``) plus the Earth's rate, an accelerometer sample beyond 9.9 m/s^2
+     over the interval, plus two quanta; a coarse channel touching its observed maximum a
+     few times is not clipping), *stuck* (the channel repeats one value for
+     ``stuck_samples`` (25) or more samples in the bad windows and that run explains the
+     windows' residual: its samples' excess over the fitted values; a coarse channel holding
+     one count while its true value stays within it explains nothing; the finding names the
      run's first sample), or a fault that does not follow the table's turn.
 
-   What passes: a gyro error in one sample below the gyro threshold (0.66 arcsec, 10 x a
-   window's 0.066-arcsec quantization, for the paper-like system) is not seen, and the
-   filter takes an angle error ``d`` like a rate error ``d / T`` over the run: 5 arcsec in
-   gyro_y at mid-run moves a 10-minute heading by 103 arcsec (repaired: 0.2), 0.6 arcsec
-   (passing) by 12 arcsec, 1.5 of its sigmas. A single lost pulse is not detectable.
+   What passes: a gyro error in one sample below the gyro threshold (0.8 arcsec for the
+   paper-like system) is not seen, and the filter takes an angle error ``d`` like a rate
+   error ``d / T`` over the run: 5 arcsec in gyro_y at mid-run moves a 10-minute heading by
+   103 arcsec (repaired: 0.2), 0.6 arcsec (passing) by 12 arcsec, 1.5 of its sigmas, 0.8
+   arcsec by about 16. A single lost pulse is not detectable.
+
+   *Noise model and false alarms.* A window residual is a Gaussian part (the sensors'
+   white noise and the table's jitter summed over the window; its 1-sigma ``s`` from the
+   median absolute deviation, which the quantization below only inflates) plus a bounded
+   quantization part: the window sum of a counter that carries its remainder is off by
+   less than one pulse ``q`` (the channel's smallest step between samples, uniform
+   remainders at both ends: a triangular error on (-q, q)), a gyro's also by ``beta_j``
+   times one encoder count (the window's turn), and the windows' median by as much again:
+   ``2 q`` bounds it. The Gaussian part is tested at ``z``, the Bonferroni level of
+   ``false_alarm`` (1e-4 per log) over the log's windows and eight channels (six sensors,
+   two norms), widened by three standard errors of ``s`` (relative 1.166 / sqrt(m) for m
+   windows): 6.3 for a 10-minute log, 7.9 for 20 s. So a clean log's false-alarm
+   probability is below 1e-4 by construction; the 10-sigma floor keeps the margin for the
+   residual's non-Gaussian part (drifts the quadratic does not follow). Measured on clean
+   simulated logs (``studies/quality_false_alarms.py --seeds 100``: six systems, 20 and
+   60 s, 1,200 logs): 1 log with a finding (6 before the bound above; ``tests/
+   test_align_quality.py``: 0 of 400 short logs of ten systems). The one left is check 1 on
+   a 20-arcsec encoder without jitter whose step is a whole number of counts in the first
+   4,000 samples: the steps' quantum is not seen there, and a later one-count step is taken
+   for a jump. The checks' first version refused 1 in 20 default 20-s logs (a window at the
+   quantization's edge, then called saturation).
 4. **Temperature** (only for a log that carries a temperature channel: ``temperature``;
    a mapping file's ``temp_c`` column). A drift of more than ``temp_drift_c`` (1 degC)
    between the first and the last window is noted (not refused): a gyro bias
@@ -102,10 +131,12 @@ from __future__ import annotations
 import math
 import numbers
 from dataclasses import dataclass
+from statistics import NormalDist
 
 import numpy as np
 
 from hse_opt import units
+from hse_opt.align.rotations import EARTH_RATE
 from hse_opt.align.noise import _block_sums
 
 __all__ = ["Thresholds", "Finding", "Quality", "LogRefused", "assess", "check_metadata"]
@@ -115,8 +146,12 @@ CHANNELS = ("gyro_x", "gyro_y", "gyro_z", "accel_x", "accel_y", "accel_z")
 _MAD = 1.4826          # robust 1-sigma of a Gaussian from its median absolute deviation
 _QUANTUM_SAMPLES = 4000
 _QUANTUM_CHANGES = 20
-#: thresholds are at least this many quanta of the channel (:func:`_quantum`)
+#: the encoder step threshold is at least this many quanta of the steps (:func:`_quantum`)
 _QUANTA = 3.0
+#: the quantization part of a window sum's deviation from the windows' median is below this
+#: many quanta (the sum of a counter that carries its remainder is off by less than one, the
+#: median by less than one more): added to the Gaussian part's bound (:func:`_robust_flags`)
+_QUANT_BOUND = 2.0
 
 
 @dataclass(frozen=True)
@@ -151,7 +186,15 @@ class Thresholds:
     gravity : (float, float)
         The accelerometers' specific force must lie in this band, m/s^2.
     stuck_samples : int
-        A channel repeating one value this many samples in a bad window is stuck.
+        A channel repeating one value this many samples in a bad window is stuck (when the
+        run explains the window's residual).
+    saturated_samples : int
+        A channel holding its extreme value this many consecutive samples, beyond the range
+        a static base allows, is saturated.
+    false_alarm : float
+        The window tests' false-alarm probability per clean log (Bonferroni over the log's
+        windows and channels); ``channel_sigmas`` and ``rate_sigmas`` are raised to its level
+        when that is higher (:func:`_level`).
     temp_drift_c : float
         A temperature drift above this over the run is noted, degC.
     """
@@ -170,6 +213,8 @@ class Thresholds:
     gyro_scale: float = 5e-3
     gravity: tuple = (9.7, 9.9)
     stuck_samples: int = 25
+    saturated_samples: int = 3
+    false_alarm: float = 1e-4
     temp_drift_c: float = 1.0
 
 
@@ -424,7 +469,8 @@ def _check_rate(t, enc, L, m, th, findings):
     # the windows' own noise (the jitter at their edges: white, so it shows in the differences
     # of neighbouring windows, where a ripple over many windows does not) is allowed on top
     noise = _MAD * float(np.median(np.abs(np.diff(rel)))) / math.sqrt(2.0) if rel.size > 2 else 0.0
-    allowed = th.rate_ripple + th.rate_sigmas * noise
+    sigmas = max(th.rate_sigmas, _level(th, m, m))
+    allowed = th.rate_ripple + sigmas * noise
     w = int(np.argmax(np.abs(rel)))
     if rate[w] / med < th.stall or abs(rel[w]) > allowed:
         k = w * L
@@ -432,7 +478,7 @@ def _check_rate(t, enc, L, m, th, findings):
         findings.append(Finding("rate", k, float(t[k]), "refused",
                                 f"{kind}: {rate[w] / units.DEG_PER_S:.6g} deg/s over samples {k}-{k + L} against the "
                                 f"median {med / units.DEG_PER_S:.6g} deg/s ({rel[w]:+.3g}; allowed within "
-                                f"{allowed:.3g}: {th.rate_ripple:g} plus {th.rate_sigmas:g} times the windows' "
+                                f"{allowed:.3g}: {th.rate_ripple:g} plus {sigmas:.3g} times the windows' "
                                 f"own noise, {noise:.2g}; a stall below {th.stall:g} of the rate)"))
     return turn
 
@@ -442,11 +488,24 @@ def _window_sums(x, L, m):
     return _block_sums(x, m * L + 1, m, L).T
 
 
-def _robust_flags(v, sigmas, floor):
+def _level(th, tests, m):
+    """The multiplier of a robust 1-sigma at which ``tests`` two-sided Gaussian tests have a
+    false-alarm probability of ``th.false_alarm`` together (Bonferroni), widened by three
+    standard errors of a 1-sigma from the median absolute deviation of ``m`` values (relative
+    standard error 1.166 / sqrt(m)): e.g. 9.5 for 8 x 1200 tests (a 10-minute log's windows,
+    six channels and two norms), 9.2 for 8 x 40 (20 s)."""
+    z = -NormalDist().inv_cdf(th.false_alarm / (2.0 * tests))
+    return z * (1.0 + 3.0 * 1.166 / math.sqrt(max(m, 1)))
+
+
+def _robust_flags(v, sigmas, floor, quant=0.0, level=0.0):
     """(deviation from the median, threshold, flags) of each column of ``v`` (m, k): a value is
-    flagged beyond ``max(sigmas x robust 1-sigma, floor)``."""
+    flagged beyond ``max(sigmas x s, level x s + quant, floor)`` with ``s`` the robust 1-sigma
+    (``quant``: the bounded quantization part, added to the Gaussian part's bound at the
+    Bonferroni ``level``)."""
     dev = v - np.median(v, axis=0)
-    thr = np.maximum(sigmas * _MAD * np.median(np.abs(dev), axis=0), floor)
+    s = _MAD * np.median(np.abs(dev), axis=0)
+    thr = np.maximum(np.maximum(sigmas * s, level * s + quant), floor)
     return dev, thr, np.abs(dev) > thr
 
 
@@ -485,23 +544,29 @@ def _check_channels(t, enc, gyro, accel, turn, L, m, th, findings):
     norms = np.column_stack([ratio / scale, force / np.median(force)])
     q = np.concatenate([_quantum(gyro[1:]), _quantum(accel[1:])])            # (6,) one pulse
     size = np.array([np.median(np.abs(turn)) * scale, np.median(force)])
-    nfloor = np.maximum(th.norm_floor, _QUANTA * np.sqrt(3.0) * np.array([q[:3].max(), q[3:].max()]) / size)
-    _, _, nbad = _robust_flags(norms, th.channel_sigmas, nfloor)
+    # the encoder's count (the smallest change of its steps) quantizes each window's turn, which
+    # the gyros' ratio and residuals (less beta_j x turn) carry: bounded like their own pulses
+    qe = float(_quantum(np.diff(enc[:_QUANTUM_SAMPLES + 2])[1:]))
+    level = _level(th, 8 * m, m)
+    sigmas = max(th.channel_sigmas, level)
+    nquant = _QUANT_BOUND * np.array([np.sqrt(3.0) * q[:3].max() + qe * scale, np.sqrt(3.0) * q[3:].max()]) / size
+    _, _, nbad = _robust_flags(norms, sigmas, th.norm_floor, nquant, level)
     nbad = nbad.any(axis=1)
     Y = X.copy()
     Y[:, :3] -= np.outer(turn, beta)
     mid = enc[L // 2 + L * np.arange(m)]
     tau = np.linspace(-1.0, 1.0, m)
     A = np.column_stack([np.ones(m), np.cos(mid), np.sin(mid), tau, tau * tau])
-    floor = np.maximum(np.array([th.gyro_floor] * 3 + [th.accel_floor] * 3), _QUANTA * q)
+    floor = np.array([th.gyro_floor] * 3 + [th.accel_floor] * 3)
+    quant = _QUANT_BOUND * (q + np.concatenate([np.abs(beta) * qe, np.zeros(3)]))
     keep = ~nbad
     R = Y - A @ _fit(A, Y, keep)
-    dev, thr, bad = _robust_flags(R, th.channel_sigmas, floor)
+    dev, thr, bad = _robust_flags(R, sigmas, floor, quant, level)
     if bad.any():               # refit without the bad windows (a fault must not bend the fit)
         keep &= ~bad.any(axis=1)
         if keep.sum() >= 8:
             R = Y - A @ _fit(A, Y, keep)
-            dev, thr, bad = _robust_flags(R, th.channel_sigmas, floor)
+            dev, thr, bad = _robust_flags(R, sigmas, floor, quant, level)
     # a window whose norm is off with no channel past its threshold: the worst channel
     alone = nbad & ~bad.any(axis=1)
     if alone.any():
@@ -517,7 +582,8 @@ def _check_channels(t, enc, gyro, accel, turn, L, m, th, findings):
     for j in range(6):
         ws = np.flatnonzero(bad[:, j] & ~handled[:, j])
         if ws.size:
-            _channel_fault(t, enc, arrays[j][:, j % 3], j, beta, ws, dev[:, j], thr[j], L, th, findings)
+            _channel_fault(t, enc, arrays[j][:, j % 3], j, beta, ws, dev[:, j], thr[j], L, th, findings,
+                           fitted=X[:, j] - dev[:, j], bound=_static_range(t, enc, j, q[j], th))
     return gyro, accel, enc
 
 
@@ -553,9 +619,36 @@ def _encoder_windows(t, enc, bad, dev, thr, beta, L, handled, findings):
                                 f"allowed: within {_arcsec(np.max(thr[:3] / np.abs(beta)))})"))
 
 
-def _channel_fault(t, enc, x, j, beta, ws, dev, thr, L, th, findings):
+def _static_range(t, enc, j, q, th):
+    """The largest |sample| channel ``j`` can give on a static base, in its unit: for a gyro
+    the table's largest step (1 + ``gyro_scale``) plus the Earth's rate over the longest
+    interval, for an accelerometer gravity's upper bound (``gravity``) over it; plus two quanta
+    ``q`` (a counter carrying its remainder). A value beyond it is out of what the channel
+    measures there: a clipped range holds it (:func:`_channel_fault`)."""
+    dt = float(np.max(np.diff(t)))
+    if j < 3:
+        return float(np.max(np.abs(np.diff(enc)))) * (1.0 + th.gyro_scale) + EARTH_RATE * dt + 2.0 * q
+    return th.gravity[1] * dt + 2.0 * q
+
+
+def _runs(flags):
+    """(start, length) of the runs of True in a 1-D boolean array (empty arrays when none)."""
+    e = np.diff(np.concatenate(([0], flags.view(np.int8), [0])))
+    starts, ends = np.flatnonzero(e == 1), np.flatnonzero(e == -1)
+    return starts, ends - starts
+
+
+def _channel_fault(t, enc, x, j, beta, ws, dev, thr, L, th, findings, fitted, bound):
     """One channel's bad windows ``ws``: a one-sample spike is repaired in ``x`` (in place);
-    anything else refuses the log (one finding for the channel, its first bad stretch)."""
+    anything else refuses the log (one finding for the channel, its first bad stretch).
+
+    Saturated and stuck are named only on evidence a clean quantized channel cannot give:
+    saturated, the extreme value held ``saturated_samples`` consecutive samples and beyond
+    ``bound`` (:func:`_static_range`: a noisy channel touching its observed maximum a few
+    times is not clipping); stuck, a value repeated ``stuck_samples`` samples whose run
+    explains the stretch's residual (its samples' excess over the fitted window values
+    ``fitted`` / L; a coarse channel holding one count while its true value stays within that
+    count explains nothing). Otherwise the channel does not follow the table's turn."""
     name, unit = CHANNELS[j], ("gyro" if j < 3 else "accel")
     n = x.size
     stretches = _clusters(ws, 1)
@@ -581,17 +674,27 @@ def _channel_fault(t, enc, x, j, beta, ws, dev, thr, L, th, findings):
         k, what = s0, None
         hi, lo = float(x.max()), float(x.min())
         for ext in (hi, lo):
-            at = np.flatnonzero(seg == ext)
-            if at.size >= 3:
+            if abs(ext) <= bound:
+                continue
+            at, length = _runs(seg == ext)
+            if at.size and length.max() >= th.saturated_samples:
                 k = s0 + int(at[0])
-                what = f"{name} saturated: {at.size} samples at its extreme {_value(ext, unit)} (a clipped range)"
+                what = (f"{name} saturated: {int(length.sum())} samples at its extreme {_value(ext, unit)} (a "
+                        f"clipped range: beyond the {_value(bound, unit)} a static base gives, held up to "
+                        f"{int(length.max())} samples in a row)")
                 break
         if what is None:
             change = np.flatnonzero(np.diff(seg) != 0.0)
             starts = np.concatenate(([0], change + 1))
             runs = np.diff(np.concatenate((starts, [seg.size])))
             r = int(np.argmax(runs))
-            if runs[r] >= th.stuck_samples:
+            a = int(starts[r])
+            # the run's excess over the fitted values against the stretch's residual
+            w_of = (a + np.arange(int(runs[r]))) // L + w1
+            excess = float(np.sum(seg[a:a + int(runs[r])] - fitted[w_of] / L))
+            total = float(np.sum(dev[w1:w2 + 1]))
+            explains = abs(excess - total) <= max(thr * math.sqrt(w2 - w1 + 1), 0.5 * abs(total))
+            if runs[r] >= th.stuck_samples and explains:
                 a = s0 + int(starts[r])
                 v = x[a]
                 b = a + int(runs[r])
