@@ -160,3 +160,18 @@ def test_sensor_noise_columns_are_not_called_derived_from_the_heading_error():
     assert len(heading) == 1 and "heading_err_comp_arcsec" in heading[0] and "gyro_" not in heading[0]
     assert len(sensors) == 1 and "gyro_arw_dph_rthz" in sensors[0] and "accel_vrw_ug_rthz" in sensors[0]
     assert "temp_c" not in " ".join(notes)
+
+
+def test_fit_report_states_the_tilt_unknown_sinusoid_amplitude():
+    """Table 1 (no tilts): the heading-sensitive sinusoid's amplitude, which the README quotes
+    from hse-opt fit ('amplitude 3.28 +- 1.1 arcsec*mrad', tests/test_readme.py), is in the
+    fit report too (it was on the command line only); a fit with known tilt has no such line."""
+    from pathlib import Path
+    readme = (Path(__file__).resolve().parents[1] / "README.md").read_text(encoding="utf-8")
+    quote = re.search(r'it prints "(amplitude [^"]+)"', readme).group(1)
+    runs = paper_table1()
+    section = report.fit_section(fit(runs, fix={"lambda2*tilt_const": 0.0}), runs)
+    assert f"lambda2 * C23 (tilt unknown): {quote}" in " ".join(b for b in section.blocks if isinstance(b, str))
+    y = _runs()
+    known = report.fit_section(fit(y), y)
+    assert "tilt unknown" not in " ".join(b for b in known.blocks if isinstance(b, str))

@@ -286,6 +286,13 @@ class FitResult:
             out[base] = (a, float(np.sqrt(max(g @ C @ g, 0.0))), self.units[i])
         return out
 
+    def tilt_amplitude_lines(self):
+        """The sinusoids of :meth:`tilt_amplitudes` in words, one line each (the text summary
+        and the report say the same): ``'heading-sensitive sinusoid lambda2 * C23 (tilt
+        unknown): amplitude 3.28 +- 1.1 arcsec*mrad'``."""
+        return [f"heading-sensitive sinusoid {base} * C23 (tilt unknown): amplitude {a:.3g} +- {sa:.2g} {unit}"
+                for base, (a, sa, unit) in self.tilt_amplitudes().items()]
+
     def high_correlations(self, threshold=0.9):
         """``(name_a, name_b, r)`` for free-parameter pairs with ``|r| > threshold``."""
         out = []
@@ -319,9 +326,7 @@ class FitResult:
             fit_line += f" (p = {chi2_sf(self.chi2, self.dof):.3g})"
         else:
             fit_line += " (sigma from the residuals: no goodness-of-fit test)"
-        for base, (a, sa, unit) in self.tilt_amplitudes().items():
-            lines.append(f"  heading-sensitive sinusoid {base} * C23 (tilt unknown): amplitude {a:.3g} +- "
-                         f"{sa:.2g} {unit}")
+        lines += [f"  {text}" for text in self.tilt_amplitude_lines()]
         lines += [fit_line, f"  AIC {self.aic:.4g}, BIC {self.bic:.4g}, residual RMS "
                             f"{self.rms_arcsec:.4g} arcsec, condition number {self.condition:.3g}"]
         lines.append(f"  bounds that bind: {', '.join(self.binding) or 'none'}")

@@ -99,7 +99,8 @@ def fit_section(fit, runs, title=None, derived=()):
         + _table(["statistic", "value"], [[lab, v] for lab, _, v in stats],
                  keys=[k for _, k, _ in stats], cls="stats") + "</div>",
         _correlation_table(fit),
-        _notes(list(fit.notes) + [f"bound binds: {b}" for b in fit.binding] + facs.notes()),
+        _notes(fit.tilt_amplitude_lines() + list(fit.notes) + [f"bound binds: {b}" for b in fit.binding]
+               + facs.notes()),
         _embed(line, FIELD_LINE_CAPTION if field else slope_caption(parts), "heading error against bias rate")
         if line is not None
         else _missing_figure("calibration line (the paper's Fig. 2)", _one_rate_text(runs)),
