@@ -1,6 +1,6 @@
 """Experiment-design benchmark (issue 19, items 1-2): every criterion, model and design space.
 
-The matrix criteria {D, A, E, c:lambda2} x models {hse, hse+axis_bias, hse+axis_bias+sync_delay,
+The matrix criteria {D, A, E, c:lambda2, protect (the default)} x models {hse, hse+axis_bias, hse+axis_bias+sync_delay,
 hse+warmup} x spaces {the paper's limits (20-60 deg/s, one sense, no fixture), both senses, both
 senses with a 0.5-deg tilt fixture}, each at 10,368 candidate runs, budget 5 h. Each cell prints
 the time of the whole design (candidate Jacobians, approximate design with its certificate,
@@ -13,6 +13,7 @@ what else runs.
 
     taskset -c 0 python benchmarks/design.py
     taskset -c 0 python benchmarks/design.py --criteria E --models hse,axis_bias --timeout 120
+    taskset -c 0 python benchmarks/design.py --criteria protect --spaces paper --models hse   (the default design)
 
 The candidate grids (10,368 each): paper's limits 144 rates x 72 azimuths; both senses
 2 x 72 rates x 72 azimuths; tilt fixture 2 x 8 rates x 72 azimuths x 9 settings. For
@@ -26,7 +27,7 @@ from hse_opt import units
 from hse_opt.design import DesignSpace, design
 
 MODELS = ("hse", "hse,axis_bias", "hse,axis_bias,sync_delay", "hse,warmup")
-CRITERIA = ("D", "A", "E", "c:lambda2")
+CRITERIA = ("D", "A", "E", "c:lambda2", "protect")
 SPACES = ("paper", "senses", "tilt")
 WARMUP = {"warmup_amp": -90.0, "warmup_tau": 1500.0}
 

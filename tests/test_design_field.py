@@ -66,3 +66,94 @@ def test_design_field_command_writes_a_plan_that_evaluates_the_same(tmp_path, ca
     import json
     ev = json.loads(capsys.readouterr().out)
     assert f"{ev['predicted_std']['lambda2']['value']:.4g}" in printed
+
+
+# -- continuing a field campaign (issue 24, item 4) ------------------------------------------------
+def _field_runs_so_far(seed=0):
+    """Four 10-minute field runs at two positions (20 and 60 deg/s each), their headings hidden,
+    heading errors from the measurement model with lambda2 = 4.2 arcsec."""
+    from hse_opt.data import Plan, Runs
+    from hse_opt.validation.synthetic import model_runs
+    rng = np.random.default_rng(seed)
+    rows = [(f"A{k + 1}", h, r) for k, h in enumerate((30.0, 200.0)) for r in (20.0, 60.0)]
+    n = len(rows)
+    t = 3600.0 + 700.0 * np.arange(n)
+    plan = Plan(run=np.arange(1, n + 1), rate=np.array([r[2] for r in rows]) * units.DEG_PER_S,
+                azimuth=np.radians([r[1] for r in rows]), t_start=t, duration=np.full(n, 600.0))
+    truth = model_runs(plan, {"lambda2": 4.2}, rng, base_tilt=(-150 * units.ARCSEC, 40 * units.ARCSEC))
+    return Runs.from_columns({
+        "run": list(plan.run), "rate_dps": list(plan.rate / units.DEG_PER_S), "azimuth_deg": [None] * n,
+        "heading_deg": list(np.degrees(plan.azimuth + truth.heading_err)), "latitude_deg": [28.07] * n,
+        "duration_s": [600.0] * n, "t_start_s": list(t), "pitch_arcsec": list(truth.pitch / units.ARCSEC),
+        "roll_arcsec": list(truth.roll / units.ARCSEC), "heading_std_arcsec": list(truth.heading_std / units.ARCSEC),
+        "position": [r[0] for r in rows]}, source="<field runs so far>")
+
+
+def test_continuing_a_campaign_counts_the_runs_so_far():
+    """Its predicted sigma is that of the union plan evaluated directly (runs so far with their
+    measured tilts, then the new runs), smaller than the runs so far alone, and the new runs fit
+    the time left after the last run."""
+    from hse_opt.data import Plan
+    from hse_opt.fit.field import continue_campaign
+    runs = _field_runs_so_far()
+    left = 2 * units.HOUR
+    c = continue_campaign(runs, "hse", left)
+    end_so_far = float(np.max(runs.t_start + runs.duration))
+    assert c.plan.t_start.min() >= end_so_far and np.max(c.plan.t_start + c.plan.duration) <= end_so_far + left
+    assert c.plan.run.min() == runs.run.max() + 1
+    # the union by hand: measured tilts as offsets from the stand's, each position its constant
+    stand = Stand()
+    before = Plan(run=runs.run, rate=runs.rate, azimuth=runs.azimuth, t_start=runs.t_start, duration=runs.duration,
+                  tilt_x=runs.roll - stand.tilt[0], tilt_y=runs.pitch - stand.tilt[1], position=runs.position)
+    cat = lambda f: np.concatenate([getattr(before, f), getattr(c.plan, f)])  # noqa: E731
+    union = Plan(**{f: cat(f) for f in ("run", "rate", "azimuth", "t_start", "duration", "tilt_x", "tilt_y",
+                                        "position")})
+    direct = evaluate(union, "hse", field=True)
+    assert c.evaluation.std_of("lambda2") == pytest.approx(direct.std_of("lambda2"), rel=1e-12)
+    assert direct.n_runs == len(runs) + len(c.plan)
+    alone = evaluate(before, "hse", field=True).std_of("lambda2")
+    assert c.evaluation.std_of("lambda2") < alone
+    # the measured tilts enter: the runs so far at another tilt give another sigma
+    other = continue_campaign(runs.replace(pitch=runs.pitch + 600 * units.ARCSEC), "hse", left)
+    assert other.evaluation.std_of("lambda2") != pytest.approx(c.evaluation.std_of("lambda2"), rel=1e-6)
+
+
+def test_design_field_cli_continues_a_campaign_with_prior_and_report(tmp_path, capsys):
+    import json
+    from hse_opt.data import save_runs
+    from hse_opt.fit.field import continue_campaign
+    from hse_opt.fit.file import load_fit
+    runs = _field_runs_so_far()
+    save_runs(runs, tmp_path / "RUNS.csv")
+    before = (tmp_path / "RUNS.csv").read_bytes()
+    out = tmp_path / "NEXT.csv"
+    assert main(["design", "--field", "--runs", str(tmp_path / "RUNS.csv"), "--budget-h", "2", "--json",
+                 "-o", str(out), "--report", str(tmp_path / "rep")]) == 0
+    d = json.loads(capsys.readouterr().out)
+    assert d["runs_so_far"] == 4 and (tmp_path / "rep" / "report.html").exists()
+    assert (tmp_path / "RUNS.csv").read_bytes() == before
+    lib = continue_campaign(runs, "hse", 2 * units.HOUR)
+    assert d["predicted_std"]["lambda2"]["value"] == pytest.approx(lib.evaluation.std_of("lambda2"), rel=1e-9)
+    assert load_plan(out).run.size == d["n_runs"] == lib.plan.run.size
+    # --prior: an earlier calibration lowers the predicted sigma (before: silently ignored)
+    assert main(["fit", str(tmp_path / "RUNS.csv"), "--json", "-o", str(tmp_path / "FIT.json")]) == 0
+    capsys.readouterr()
+    assert main(["design", "--field", "--budget-h", "3", "--json", "-o", str(tmp_path / "F.csv")]) == 0
+    plain = json.loads(capsys.readouterr().out)["predicted_std"]["lambda2"]["value"]
+    assert main(["design", "--field", "--budget-h", "3", "--json", "--prior", str(tmp_path / "FIT.json"),
+                 "-o", str(tmp_path / "F2.csv")]) == 0
+    with_prior = json.loads(capsys.readouterr().out)["predicted_std"]["lambda2"]["value"]
+    prior_sd = load_fit(tmp_path / "FIT.json").value("lambda2")[1]
+    assert with_prior < plain and with_prior == pytest.approx((plain ** -2 + prior_sd ** -2) ** -0.5, rel=0.2)
+
+
+def test_runs_without_field_and_without_times_are_named(tmp_path, capsys):
+    from hse_opt.data import save_runs
+    runs = _field_runs_so_far()
+    save_runs(runs, tmp_path / "RUNS.csv")
+    assert main(["design", "--runs", str(tmp_path / "RUNS.csv"), "-o", str(tmp_path / "P.csv")]) == 2
+    assert "--field" in capsys.readouterr().err
+    save_runs(runs.replace(t_start=None), tmp_path / "R2.csv")
+    assert main(["design", "--field", "--runs", str(tmp_path / "R2.csv"), "-o", str(tmp_path / "P.csv")]) == 2
+    err = capsys.readouterr().err
+    assert "t_start_s" in err and len(err.strip().splitlines()) == 1 and not (tmp_path / "P.csv").exists()

@@ -78,6 +78,15 @@ __all__ = ["A", "ApproximateDesign", "C", "Candidates", "Costs", "Criterion", "D
            "apportion", "approximate_design", "as_criterion", "design", "evaluate", "paper_plan", "plan_lines"]
 
 
+def __getattr__(name):
+    """``continue_campaign``: the rest of a field campaign (:func:`hse_opt.fit.field.continue_campaign`,
+    which sits above this package: imported when asked for)."""
+    if name == "continue_campaign":
+        from ..fit.field import continue_campaign
+        return continue_campaign
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+
+
 class _CallableModule(types.ModuleType):
     """``hse_opt.design(model, criterion, budget=...)`` calls :func:`design`: the package
     exports this module under the function's name."""

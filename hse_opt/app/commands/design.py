@@ -22,7 +22,7 @@ before the first run, changing the azimuth, the rate or sense, the tilt fixture.
 gives each parameter's predicted sigma, the efficiency against the approximate optimum, and the
 bias a slow heading drift would cause. With --evaluate an existing PLAN.csv is scored instead;
 a plan that cannot identify the model stops (exit 2) naming the parameters."""
-INPUTS = ("evaluate", "prior")
+INPUTS = ("evaluate", "prior", "runs")
 OUTPUTS = {"output": FILE, "report": REPORT}
 EXAMPLE = """\
 examples:
@@ -31,6 +31,7 @@ examples:
   hse-opt design --budget-h 4.5 --reverse --max-tilt-arcsec 1800 --identify axis_bias,sync_delay -o PLAN.csv
   hse-opt design --evaluate PLAN.csv --effects axis_bias,sync_delay --json
   hse-opt design --field --budget-h 3 --azimuth-change-s 1800 -o FIELD_PLAN.csv
+  hse-opt design --field --runs RUNS.csv --budget-h 2 --prior FIT.json -o NEXT_PLAN.csv   (the rest of a campaign)
   hse-opt design --budget-h 4.5 --reverse -o PLAN.csv --report design_report   (HTML report)"""
 
 
@@ -100,6 +101,11 @@ def add_arguments(parser):
                              "its azimuths) gives the positions; without, the number of positions, rate "
                              "pattern and repeats with the smallest sigma of lambda2 in --budget-h, a move "
                              "between positions costing --azimuth-change-s")
+    parser.add_argument("--runs", metavar="RUNS.csv",
+                        help="with --field: the campaign's runs so far (with t_start_s, pitch/roll): plan the "
+                             "rest for --budget-h, the time left after the last run, with these runs counted in "
+                             "the information (their positions, measured tilts, times since power-on); e.g. "
+                             "hse-opt design --field --runs RUNS.csv --budget-h 2 -o NEXT_PLAN.csv")
     parser.add_argument("--json", action="store_true", help="print one JSON object on stdout")
     add_report_argument(parser)
 
@@ -236,22 +242,48 @@ def run(args):
                                     ("--seed", args.seed, ">= 0", lambda v: v >= 0)):
         if not (np.isfinite(value) and ok(value)):
             raise ValueError(f"{opt} {value:g} is not allowed; allowed: {allowed}")
+    if args.runs and not args.field:
+        raise ValueError("--runs RUNS.csv continues a field campaign; allowed: with --field")
     if args.field:
-        from ...fit.field import design_field
-        fd = design_field(args.budget_h * units.HOUR, model, costs=costs, stand=stand,
-                          duration=float(args.durations_s.split(",")[0]))
-        save_plan(fd.plan, args.output)
+        from ...fit.field import continue_campaign, design_field
+        duration = float(args.durations_s.split(",")[0])
+        if args.runs:
+            from ...data import load_runs
+            runs = load_runs(args.runs, **input_checks(args))
+            try:
+                fd = continue_campaign(runs, model, args.budget_h * units.HOUR, prior=prior, costs=costs,
+                                       stand=stand, duration=duration)
+            except ValueError as err:
+                raise ValueError(f"--runs {args.runs} with --budget-h {args.budget_h:g} (the time left): {err}") from None
+        else:
+            fd = design_field(args.budget_h * units.HOUR, model, costs=costs, stand=stand, duration=duration,
+                              prior=prior)
+        save_plan(fd.plan, args.tx.path("output"))
         message(f"hse-opt design: wrote {args.output} ({fd.plan.run.size} runs)")
+        if args.report:
+            from ... import report as rep
+            title = "The rest of the field campaign" if fd.before is not None else "Field campaign plan"
+            note = ("Field campaign: no position has a heading reference, so only the differences within a "
+                    "position count; the paper's surveyed plan is no baseline for it."
+                    + (f" The sigmas are those of the {fd.before.run.size} runs so far ({args.runs}) and the "
+                       f"{fd.plan.run.size} new runs together." if fd.before is not None else "")
+                    + (f" Prior information: {args.prior}." if args.prior else ""))
+            write_report(args, [rep.evaluation_section(fd.evaluation, fd.plan, None, title, note)],
+                         f"hse-opt design --field {args.output}")
         summary = {"criterion": "c:lambda2", "field": True, "n_runs": int(fd.plan.run.size),
                    "positions": fd.positions, "pattern_dps": list(fd.pattern_dps), "repeats": fd.repeats,
                    **{k: v for k, v in fd.evaluation.to_dict().items() if k in ("total_time_h", "predicted_std")},
-                   "output": args.output}
+                   "runs_so_far": 0 if fd.before is None else int(fd.before.run.size),
+                   "stay_at_last_position": bool(fd.stay), "prior": args.prior, "output": args.output}
         if args.json:
             print_json(summary)
         else:
+            so_far = "" if fd.before is None else (
+                f" with the {fd.before.run.size} runs so far" + (" (staying at the last position first)"
+                                                                 if fd.stay else ""))
             print(f"hse-opt design --field: {fd.positions} position(s) x rates {fd.pattern_dps} deg/s x "
-                  f"{fd.repeats}, sigma(lambda2) {fd.evaluation.std_of('lambda2'):.4g} arcsec, "
-                  f"{summary['total_time_h']:.3f} h")
+                  f"{fd.repeats}{so_far}, sigma(lambda2) {fd.evaluation.std_of('lambda2'):.4g} arcsec, "
+                  f"{summary['total_time_h']:.3f} h from power-on")
             print("\n".join(plan_lines(fd.plan)))
         return 0
     lo, hi = _pair(args.rates, "--rates", sep=":")
