@@ -205,17 +205,23 @@ class SessionResult:
 
 
 def log_paths(items, suffixes=_SUFFIXES):
-    """Raw-log files: files as given, a folder -> its raw logs (names ending in ``suffixes``,
-    not starting with ``.``), sorted by name. ValueError naming what is missing."""
+    """Raw-log files: files as given, a folder -> its raw logs (regular files whose names end
+    in ``suffixes`` and do not start with ``.``), sorted by name. ValueError naming a missing
+    item or a folder without raw logs (``hse-opt align`` and ``calibrate``)."""
+    suffixes = tuple(suffixes)
     paths = []
     for item in items:
         item = os.fspath(item)
         if os.path.isdir(item):
-            paths += sorted(os.path.join(item, f) for f in os.listdir(item)
-                            if f.endswith(tuple(suffixes)) and not f.startswith(".")
-                            and os.path.isfile(os.path.join(item, f)))
+            found = sorted(os.path.join(item, f) for f in os.listdir(item)
+                           if f.endswith(suffixes) and not f.startswith(".")
+                           and os.path.isfile(os.path.join(item, f)))
+            if not found:
+                raise ValueError(f"{item}: no raw logs ({', '.join(suffixes)}) in the directory; allowed: a "
+                                 f"directory of raw logs ({', '.join(suffixes)})")
+            paths += found
         elif not os.path.exists(item):
-            raise ValueError(f"{item}: no such file or directory; allowed: raw-log files or folders of them")
+            raise ValueError(f"{item}: no such file or directory; allowed: raw-log files or directories")
         else:
             paths.append(item)
     return paths

@@ -87,21 +87,10 @@ def add_processor_arguments(parser):
 
 
 def _expand(items, suffixes=_SUFFIXES):
-    """Files as given; a directory -> its raw logs (``suffixes``), sorted by name."""
-    paths = []
-    for item in items:
-        if os.path.isdir(item):
-            found = sorted(os.path.join(item, f) for f in os.listdir(item)
-                           if f.endswith(suffixes) and not f.startswith("."))
-            if not found:
-                raise ValueError(f"{item}: no raw logs ({', '.join(suffixes)}) in the directory; allowed: a "
-                                 f"directory of raw logs ({', '.join(suffixes)})")
-            paths += found
-        elif not os.path.exists(item):
-            raise ValueError(f"{item}: no such file or directory; allowed: raw-log files or directories")
-        else:
-            paths.append(item)
-    return paths
+    """Files as given; a directory -> its raw logs (``suffixes``), sorted by name
+    (:func:`hse_opt.app.session.log_paths`)."""
+    from ..session import log_paths
+    return log_paths(items, suffixes)
 
 
 def processor(args):
