@@ -111,6 +111,21 @@ def test_clean_short_logs_of_five_systems_have_no_false_alarm():
     assert found == []
 
 
+def test_the_false_alarm_study_runs_at_ci_size_and_meets_the_design_figure():
+    """studies/quality_false_alarms.py at 3 seeds a case (36 logs): its table has the six
+    systems at both durations, and its binomial check against 1e-4 a log passes."""
+    import re
+    import subprocess
+    import sys
+    from pathlib import Path
+    study = Path(__file__).resolve().parents[1] / "studies" / "quality_false_alarms.py"
+    out = subprocess.run([sys.executable, str(study), "--seeds", "3"], capture_output=True, text=True, timeout=300)
+    assert out.returncode == 0, out.stdout[-2000:] + out.stderr[-2000:]
+    rows = re.findall(r"^(\S.*?)\s+(20|60)s\s+3\s+(\d+) ", out.stdout, flags=re.M)
+    assert len(rows) == 12 and "OK: consistent with at most 0.0001" in out.stdout
+    assert re.search(r"^all: (\d+) of 36 clean logs", out.stdout, flags=re.M)
+
+
 def test_the_20s_seed_4_log_is_clean_and_an_offset_at_its_extreme_is_not_called_saturation():
     """The default system's 20-s log at 40 deg/s, seed 4: the checks' first version refused
     it as 'accel_x saturated' (a window test fired, and the channel, quantized to 1e-4 m/s,
