@@ -258,3 +258,25 @@ def test_watch_stops_at_the_target(campaigns, tmp_path):
     assert done.returncode == 0, done.stderr
     assert len(done.stdout.splitlines()) == 1 and "usable" in done.stdout
     assert "the target is reached" in done.stderr
+
+
+def test_calibrate_on_a_dask_scheduler_writes_what_one_local_process_writes(campaigns, tmp_path, capsys):
+    """``--dask ADDRESS`` (issue 26 item 4): a scheduler with worker processes, reached by its
+    address; RUNS.csv, FIT.json and summary.json are byte-identical to ``--jobs 1``'s."""
+    distributed = pytest.importorskip("distributed")
+    logs = campaigns["mixed"]
+    status, _, err = _calibrate([logs, "--out", tmp_path / "serial", "--jobs", "1", "--time-left-h", "1"], capsys)
+    assert status == 0, err
+    with distributed.LocalCluster(n_workers=2, processes=True, threads_per_worker=1,
+                                  dashboard_address=None) as cluster:
+        status, _, err = _calibrate([logs, "--out", tmp_path / "remote", "--dask", cluster.scheduler_address,
+                                     "--time-left-h", "1"], capsys)
+    assert status == 0, err
+    for name in ("RUNS.csv", "FIT.json", "NEXT_PLAN.csv"):
+        assert (tmp_path / "remote" / name).read_bytes() == (tmp_path / "serial" / name).read_bytes(), name
+    # the summary too, but for where it was written and how long each stage took
+    a, b = (json.loads((tmp_path / d / "summary.json").read_text()) for d in ("serial", "remote"))
+    for d in (a, b):
+        for key in ("report", "out", "seconds"):
+            d.pop(key)
+    assert a == b
