@@ -28,7 +28,7 @@ with the alignments' own 1-sigma as weights.
 
 (c) The optimised field plan against the paper's single-position plan in the same time: the
     paper's step 1 (3 alignments at each of 20, 40, 60 deg/s, 10 min each, one position)
-    against :func:`hse_opt.field.design_field` (how many positions, which rates and senses,
+    against :func:`hse_opt.design.field.design_field` (how many positions, which rates and senses,
     how many repeats; a move between positions costs 30 min, a rate or sense change 1 min,
     1 h of warm-up) for the same time from power-on, both at the heading where the system's
     base tilt gives the largest |C23| (the paper's best case). Predicted sigma(lambda2) with
@@ -64,7 +64,7 @@ import numpy as np
 from hse_opt import units
 from hse_opt.design import Costs, Stand, evaluate
 from hse_opt.diagnose import refine
-from hse_opt.field import design_field, field_plan as plan_of
+from hse_opt.design.field import design_field, field_plan as plan_of
 from hse_opt.fit import fit
 from hse_opt.sim import TruthConfig, run_campaign
 

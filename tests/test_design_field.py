@@ -11,7 +11,7 @@ from hse_opt import units
 from hse_opt.cli import main
 from hse_opt.data import load_plan
 from hse_opt.design import Costs, Stand, evaluate
-from hse_opt.field import design_field, field_plan
+from hse_opt.design.field import design_field, field_plan
 from hse_opt.information import UnidentifiableError
 from hse_opt.model import closed_form as cf
 
@@ -94,7 +94,7 @@ def test_continuing_a_campaign_counts_the_runs_so_far():
     measured tilts, then the new runs), smaller than the runs so far alone, and the new runs fit
     the time left after the last run."""
     from hse_opt.data import Plan
-    from hse_opt.fit.field import continue_campaign
+    from hse_opt.design.field import continue_campaign
     runs = _field_runs_so_far()
     left = 2 * units.HOUR
     c = continue_campaign(runs, "hse", left)
@@ -121,7 +121,7 @@ def test_continuing_a_campaign_counts_the_runs_so_far():
 def test_design_field_cli_continues_a_campaign_with_prior_and_report(tmp_path, capsys):
     import json
     from hse_opt.data import save_runs
-    from hse_opt.fit.field import continue_campaign
+    from hse_opt.design.field import continue_campaign
     from hse_opt.fit.file import load_fit
     runs = _field_runs_so_far()
     save_runs(runs, tmp_path / "RUNS.csv")

@@ -67,6 +67,7 @@ import types
 from .approximate import ApproximateDesign, DesignError, approximate_design
 from .criteria import A, C, Criterion, D, Discrimination, E, LackOfFit, Protect, as_criterion
 from .evaluation import DRIFT_UNIT, Evaluation, evaluate
+from .field import FieldDesign, continue_campaign, design_field, field_plan
 from .pipeline import DesignResult, design
 from .plans import paper_plan, plan_lines
 from .reduction import SUPPORT_TOL
@@ -74,17 +75,9 @@ from .rounding import apportion
 from .space import Candidates, Costs, DesignSpace, Resolution, Stand
 
 __all__ = ["A", "ApproximateDesign", "C", "Candidates", "Costs", "Criterion", "D", "DRIFT_UNIT", "DesignError",
-           "DesignResult", "DesignSpace", "Discrimination", "E", "Evaluation", "LackOfFit", "Protect", "Resolution", "SUPPORT_TOL", "Stand",
-           "apportion", "approximate_design", "as_criterion", "design", "evaluate", "paper_plan", "plan_lines"]
-
-
-def __getattr__(name):
-    """``continue_campaign``: the rest of a field campaign (:func:`hse_opt.fit.field.continue_campaign`,
-    which sits above this package: imported when asked for)."""
-    if name == "continue_campaign":
-        from ..fit.field import continue_campaign
-        return continue_campaign
-    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+           "DesignResult", "DesignSpace", "Discrimination", "E", "Evaluation", "FieldDesign", "LackOfFit", "Protect", "Resolution", "SUPPORT_TOL", "Stand",
+           "apportion", "approximate_design", "as_criterion", "continue_campaign", "design", "design_field", "evaluate",
+           "field_plan", "paper_plan", "plan_lines"]
 
 
 class _CallableModule(types.ModuleType):

@@ -25,7 +25,7 @@ in the information:
   - a new position ("move to a new heading"): two runs there (one position constant is
     eliminated, so one run alone tells nothing), the system's heading turned by 90, 180 or
     270 deg from the last position and its measured tilt in b0 kept (the system's own tilt on
-    its vehicle; the convention of :func:`hse_opt.field.design_field`). On sloping ground
+    its vehicle; the convention of :func:`hse_opt.design.field.design_field`). On sloping ground
     the slope's own tilt does not turn with the vehicle: choose a place whose slope differs.
 
 * **Time.** A candidate costs its alignment(s) plus the setup from the last run

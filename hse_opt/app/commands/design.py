@@ -245,7 +245,7 @@ def run(args):
     if args.runs and not args.field:
         raise ValueError("--runs RUNS.csv continues a field campaign; allowed: with --field")
     if args.field:
-        from ...fit.field import continue_campaign, design_field
+        from ...design.field import continue_campaign, design_field
         duration = float(args.durations_s.split(",")[0])
         if args.runs:
             from ...data import load_runs
