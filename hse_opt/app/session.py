@@ -205,17 +205,18 @@ class SessionResult:
 
 
 def log_paths(items, suffixes=_SUFFIXES):
-    """Raw-log files: files as given, a folder -> its raw logs (regular files whose names end
-    in ``suffixes`` and do not start with ``.``), sorted by name. ValueError naming a missing
-    item or a folder without raw logs (``hse-opt align`` and ``calibrate``)."""
+    """Raw-log files: files as given, a folder -> its raw logs (entries whose names end in
+    ``suffixes`` and do not start with ``.``), sorted by name. An entry that is not a regular
+    file (a folder, a FIFO) is kept: the loader refuses it by its kind, naming it, without
+    opening it (a FIFO would block), so it is never passed over in silence. ValueError naming
+    a missing item or a folder without raw logs (``hse-opt align`` and ``calibrate``)."""
     suffixes = tuple(suffixes)
     paths = []
     for item in items:
         item = os.fspath(item)
         if os.path.isdir(item):
             found = sorted(os.path.join(item, f) for f in os.listdir(item)
-                           if f.endswith(suffixes) and not f.startswith(".")
-                           and os.path.isfile(os.path.join(item, f)))
+                           if f.endswith(suffixes) and not f.startswith("."))
             if not found:
                 raise ValueError(f"{item}: no raw logs ({', '.join(suffixes)}) in the directory; allowed: a "
                                  f"directory of raw logs ({', '.join(suffixes)})")
