@@ -103,13 +103,15 @@ Checks, rules and thresholds (:class:`Thresholds`; the reasons are physical)
    ``2 q`` bounds it. The Gaussian part is tested at ``z``, the Bonferroni level of
    ``false_alarm`` (1e-4 per log) over the log's windows and eight channels (six sensors,
    two norms), widened by three standard errors of ``s`` (relative 1.166 / sqrt(m) for m
-   windows): 6.3 for a 10-minute log, 7.9 for 20 s. So a clean log's false-alarm
-   probability is below 1e-4 by construction; the 10-sigma floor keeps the margin for the
+   windows): 6.3 for a 10-minute log, 7.9 for 20 s. So the window tests' false-alarm
+   probability on a clean log is below 1e-4 by construction; the 10-sigma floor keeps the margin for the
    residual's non-Gaussian part (drifts the quadratic does not follow). Measured on clean
-   simulated logs (``studies/quality_false_alarms.py --seeds 100``: six systems, 20 and
-   60 s, 1,200 logs): 1 log with a finding (6 before the bound above; ``tests/
-   test_align_quality.py``: 0 of 400 short logs of ten systems). The one left is check 1 on
-   a 20-arcsec encoder without jitter whose step is a whole number of counts in the first
+   simulated logs (``studies/quality_false_alarms.py --full``: six systems, 20 s, 2 and
+   10 minutes, 10-60 deg/s both senses, 3,600 logs): 2 with a finding (14 before the bounds
+   above, all of the 20-arcsec jitter-free encoder: 2-3 % of its logs; ``--seeds 100``, 20
+   and 60 s: 1 of 1,200, 6 before; ``tests/test_align_quality.py``: 0 of 400 short logs of
+   ten systems). The ones left are check 1 (per sample, not a window test) on a 20-arcsec
+   encoder without jitter whose step is a whole number of counts in the first
    4,000 samples: the steps' quantum is not seen there, and a later one-count step is taken
    for a jump. The checks' first version refused 1 in 20 default 20-s logs (a window at the
    quantization's edge, then called saturation).
@@ -492,8 +494,9 @@ def _level(th, tests, m):
     """The multiplier of a robust 1-sigma at which ``tests`` two-sided Gaussian tests have a
     false-alarm probability of ``th.false_alarm`` together (Bonferroni), widened by three
     standard errors of a 1-sigma from the median absolute deviation of ``m`` values (relative
-    standard error 1.166 / sqrt(m)): e.g. 9.5 for 8 x 1200 tests (a 10-minute log's windows,
-    six channels and two norms), 9.2 for 8 x 40 (20 s)."""
+    standard error 1.166 / sqrt(m)): e.g. 6.3 for 8 x 1200 tests (a 10-minute log's windows,
+    six channels and two norms), 7.9 for 8 x 40 (20 s); 5.9 for a 10-minute log's 1200 rate
+    windows."""
     z = -NormalDist().inv_cdf(th.false_alarm / (2.0 * tests))
     return z * (1.0 + 3.0 * 1.166 / math.sqrt(max(m, 1)))
 
