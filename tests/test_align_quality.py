@@ -88,7 +88,7 @@ def test_clean_logs_raise_no_finding(name):
 FALSE_ALARM_LOGS = 400
 
 
-def test_clean_short_logs_of_five_systems_have_no_false_alarm():
+def test_400_clean_short_logs_of_ten_systems_have_no_false_alarm():
     """400 clean logs (20 s to 1 minute, 10-60 deg/s both senses, the ten systems above: the
     default, coarse pulses, noise-free, ideal, high angle random walk, ...) raise no finding. Binomial bound:
     were the per-log false-alarm rate 1 % (the first version of the checks refused 1 of 20
