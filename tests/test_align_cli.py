@@ -201,3 +201,18 @@ def test_a_dask_address_that_does_not_connect_names_the_option(logdir, tmp_path,
     err = capsys.readouterr().err
     assert status == 2 and "--dask not an address" in err and "allowed:" in err, err
     assert not (tmp_path / "out.csv").exists()
+
+
+def test_the_quality_column_align_writes_is_no_news_to_the_fit(logdir, tmp_path, capsys):
+    """RUNS.csv from ``hse-opt align`` carries its own ``quality`` text column: kept as
+    metadata without the 'column is text' note (which a user's own text column still gets)."""
+    d, _ = logdir
+    out = tmp_path / "RUNS.csv"
+    assert main(["align", str(d), "-o", str(out), "--no-progress"]) == 0
+    runs = load_runs(out)
+    assert "quality" in runs.metadata
+    assert not [n for n in runs.notes if "'quality'" in n]
+    text = out.read_text().splitlines()
+    other = tmp_path / "OTHER.csv"
+    other.write_text("\n".join([text[0] + ",operator"] + [line + ",ann" for line in text[1:]]) + "\n")
+    assert [n for n in load_runs(other).notes if "'operator' is text" in n]

@@ -17,6 +17,12 @@ from .errors import DataError
 DEFAULT_MIN_RATE_DPS = 5.0
 
 
+
+#: text columns hse-opt itself writes (``hse-opt align``'s ``quality``: what the log-quality
+#: checks repaired or noted): kept as metadata like any text column, without the note a
+#: user's own text column gets
+OWN_TEXT_COLUMNS = ("quality",)
+
 class _Col(NamedTuple):
     name: str        # column name in the file, with its unit
     attr: str        # SI attribute
@@ -305,6 +311,8 @@ class _Table:
         columns kept as text."""
         out = tuple(note for attr, note in self._NOTES.items() if getattr(self, attr) is None)
         for name, text in self.metadata.items():
+            if name in OWN_TEXT_COLUMNS:    # hse-opt's own text: no news to its user
+                continue
             cells = text.tolist()
             i = _first_not_number(cells)
             out += (f"column '{name}' is text (row {i + 1}: {cells[i]!r} is not a number): kept as "
