@@ -146,7 +146,7 @@ def judge(runs):
     steps = refine(runs)
     last = steps[-1]
     value, std = last.fit.value("lambda2")
-    systematic = getattr(last.fit, "systematic", None)
+    systematic = last.fit.systematic          # None: the fit carries no budget
     sys_l2 = 0.0 if systematic is None else float(systematic[last.fit.names.index("lambda2")])
     return {"verdict": last.verdict, "effects": tuple(last.effects), "value": float(value), "std": float(std),
             "systematic": sys_l2}
