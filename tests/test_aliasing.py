@@ -200,8 +200,10 @@ def test_the_issues_field_campaign_is_never_confidently_wrong(seed):
     assert abs(value - 4.2) <= std + f.systematic[i]
     assert last.verdict == "inconclusive"
     assert "sync_delay" in f.systematic_by[i]
-    assert any(n.startswith("inconclusive: sync_delay") and "runs that would resolve it" in n for n in last.notes)
-    assert any(r["effect"] == "sync_delay" for r in last.resolving)
+    # alike C23 everywhere: no run at these positions separates the delay from lambda2
+    assert any(n.startswith("inconclusive: sync_delay") and "positions at other headings may" in n
+               for n in last.notes)
+    assert not any(r["effect"] == "sync_delay" for r in last.resolving)
     said = [ln for ln in last.cannot_rule_out() if ln.startswith("cannot rule out sync_delay")]
     assert len(said) == 1 and f"lambda2 by up to {f.systematic_by[i]['sync_delay']:.3g} arcsec" in said[0]
     assert said[0] in "\n".join(last.summary())

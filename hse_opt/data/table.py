@@ -373,6 +373,26 @@ class _Table:
         return dataclasses.replace(self, **take, covariates={k: v[idx] for k, v in self.covariates.items()},
                                    metadata={k: v[idx] for k, v in self.metadata.items()})
 
+    def append(self, other):
+        """This table's rows followed by ``other``'s, as a new, validated table (run ids must stay
+        unique). Both must carry the same optional columns, covariates and text columns."""
+        if type(other) is not type(self):
+            raise TypeError(f"cannot append a {type(other).__name__} to a {type(self).__name__}")
+        attrs = (*(c.attr for c in self._COLUMNS), *self._ROW_FIELDS)
+        differ = [a for a in attrs if (getattr(self, a) is None) != (getattr(other, a) is None)]
+        differ += [f"covariates {sorted(set(self.covariates) ^ set(other.covariates))}"
+                   if set(self.covariates) != set(other.covariates) else ""]
+        differ += [f"text columns {sorted(set(self.metadata) ^ set(other.metadata))}"
+                   if set(self.metadata) != set(other.metadata) else ""]
+        if any(differ):
+            raise ValueError(f"tables with different columns ({', '.join(d for d in differ if d)}); allowed: "
+                             "the same optional columns in both")
+        take = {a: np.concatenate([getattr(self, a), getattr(other, a)]) for a in attrs
+                if getattr(self, a) is not None}
+        return dataclasses.replace(
+            self, **take, covariates={k: np.concatenate([v, other.covariates[k]]) for k, v in self.covariates.items()},
+            metadata={k: np.concatenate([v, other.metadata[k]]) for k, v in self.metadata.items()})
+
     def replace(self, **changes):
         """A new, validated table with some attributes (SI) or covariates (file unit) replaced.
 

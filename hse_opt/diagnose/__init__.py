@@ -52,12 +52,13 @@ import types
 from .candidates import Candidate
 from .discrimination import discriminating_runs
 from .pipeline import diagnose, refine
+from .resolution import ResolvingPlan, resolving_plan
 from .result import Comparison, Diagnosis, compare
 from .statistics import ALPHA, Test
 from .structure import Term
 
-__all__ = ["ALPHA", "Candidate", "Comparison", "Diagnosis", "Term", "Test", "compare", "diagnose",
-           "diagnostic_plan", "discriminating_runs", "model_runs", "refine"]
+__all__ = ["ALPHA", "Candidate", "Comparison", "Diagnosis", "ResolvingPlan", "Term", "Test", "compare", "diagnose",
+           "diagnostic_plan", "discriminating_runs", "model_runs", "refine", "resolving_plan"]
 
 
 def __getattr__(name):

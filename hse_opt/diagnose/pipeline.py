@@ -8,13 +8,14 @@ import dataclasses
 import numpy as np
 from scipy import stats
 
-from ..aliasing import alias_budget, resolving_runs
+from ..aliasing import alias_budget
 from ..fit import FitResult, fit_profiled
 from ..fit.checks import zero_scatter
 from ..model import as_model
 from .candidates import (AMBIGUOUS_DELTA_BIC, ambiguity, candidate_names, covariate_columns, rank,
                          test_candidates)
 from .discrimination import discriminating_runs
+from .resolution import resolving_plan
 from .factors import factor_tests
 from .result import Diagnosis
 from .statistics import ALPHA, Null, Test, flag_runs, lack_of_fit
@@ -167,7 +168,7 @@ def _inconclusive(f0, runs, budget, cands, alpha, level, chi2_test):
     family-wise level; else ``('adequate', notes, ())``. The notes also say why a chi-square
     test that rejects alone at ``alpha`` leaves the verdict adequate (it is one test of the
     family)."""
-    notes, resolving = [], []
+    notes, resolving, resolved = [], [], 0
     if chi2_test is not None and level <= chi2_test.p_value < alpha:
         notes.append(f"the chi-square test alone rejects at {alpha:g} (p = {chi2_test.p_value:.3g}; hse-opt fit "
                      f"prints this p), but not at the family-wise level {level:.3g} = {alpha:g} / {round(alpha / level)} "
@@ -187,13 +188,22 @@ def _inconclusive(f0, runs, budget, cands, alpha, level, chi2_test):
         risk = budget.effect(e)
         hit = [f"{f0.names[i]} by up to {f0.systematic_by[i][e]:.3g} {f0.units[i]} (its sigma {f0.std[i]:.3g})"
                for i in at_risk if e in f0.systematic_by[i]]
-        runs_e = resolving_runs(f0, runs, risk)
-        useful = [r for r in runs_e if r["signal"] > 1e-6]
-        resolving += [dict(r, effect=e) for r in useful]
-        plan = (f"runs that would resolve it: {'; '.join(r['text'] for r in useful)}" if useful
-                else "no run varying rate, sense, azimuth, start time or tilt would resolve it")
-        notes.append(f"inconclusive: {e}, {risk.threshold_text()}, could move {', '.join(hit)}; {plan}")
+        plan = resolving_plan(f0, runs, [e], level=level)
+        if plan is not None and plan.resolved:
+            resolving += [dict(r, effect=e) for r in plan.runs]
+            resolved += 1
+        notes.append(f"inconclusive: {e}, {risk.threshold_text()}, could move {', '.join(hit)}; {_plan_text(plan, runs)}")
+    if len(effects) > 1 and resolved == len(effects):
+        plan = resolving_plan(f0, runs, effects, level=level)
+        notes.append(f"inconclusive: all of {', '.join(effects)} together: {_plan_text(plan, runs)}")
     return ("inconclusive" if effects or strong else "adequate"), notes, tuple(resolving)
+
+
+def _plan_text(plan, runs):
+    """What it takes to resolve a risk, in words (:class:`.resolution.ResolvingPlan`)."""
+    if plan is None:
+        return "no run varying rate, sense, azimuth, start time or tilt would resolve it"
+    return plan.text(field=runs.surveyed is not None and not np.all(runs.surveyed))
 
 
 def _unexplained(term, cands, bases, null):

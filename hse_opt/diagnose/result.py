@@ -87,8 +87,8 @@ class Diagnosis:
     likelihood: str = ""
     #: what these runs cannot rule out (:class:`hse_opt.aliasing.AliasBudget` of ``fit``)
     budget: object = None
-    #: runs that would resolve the systematic risks (dicts of
-    #: :func:`hse_opt.aliasing.resolving_runs`, with the ``effect`` each resolves)
+    #: runs that would resolve the systematic risks (the runs of each effect's
+    #: :func:`hse_opt.diagnose.resolving_plan` that resolves it, with ``effect`` and ``count``)
     resolving: tuple = ()
     #: how this diagnosis was made (:func:`hse_opt.diagnose.diagnose`), for :meth:`add` to make
     #: the next one: passed in by the pipeline, so this module does not import it
