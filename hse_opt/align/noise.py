@@ -125,6 +125,11 @@ _POWERS = np.arange(-2, 2)
 _FLICKER = 2.0 * math.log(2.0) / math.pi
 #: every non-empty set of active terms, (15, 4) bool
 _SUBSETS = np.array([s for s in itertools.product((False, True), repeat=4) if any(s)])
+#: the entries of each set's normal matrix, (15, 4, 4) bool, and the identity that fills the rest
+_SUBSETS_BOTH = _SUBSETS[:, :, None] & _SUBSETS[:, None, :]
+_EYE4 = np.eye(4)
+for _a in (_SUBSETS, _SUBSETS_BOTH, _EYE4):
+    _a.flags.writeable = False
 
 #: RUNS.csv columns written by ``hse-opt align``: name -> description (the unit in the name)
 NOISE_COLUMNS = {
@@ -383,9 +388,10 @@ def _short_allan(log, residual, sizes, segments=SEGMENTS, length=SEGMENT_SAMPLES
     samples of ``segments`` stretches of ``length`` samples spread evenly over the log (each
     starting at a block edge), fully overlapping within each: the fitted deterministic part
     is taken off every sample (its angle by the angle-addition series from the block edge's;
-    the rule's error over one sample, ``d alpha^2 / 24``, is below 1e-6), the cumulative
-    sums differenced as in :func:`allan_deviation`. Returns ``(tau, adev (6, k), clusters)``,
-    ``clusters = min(n, segments x length) / m``."""
+    the rule's error over one sample, ``d alpha^2 / 24``, is below 1e-6), the Allan
+    difference of two adjacent sums of ``m`` samples (``sizes``: powers of two, the sums by
+    doubling). Returns ``(tau, adev (6, k), clusters)``, ``clusters = min(n, segments x
+    length) / m``."""
     t, enc = np.asarray(log.t, dtype=float), np.asarray(log.encoder, dtype=float)
     n = t.shape[0] - 1                                            # increments: rows 1..n
     dt = (t[-1] - t[0]) / n
@@ -400,25 +406,35 @@ def _short_allan(log, residual, sizes, segments=SEGMENTS, length=SEGMENT_SAMPLES
     cd, sd = _cos_sin_small(a[:, :-1] + 0.5 * da - enc[start * block])
     ce, se = residual.edge_cos[start], residual.edge_sin[start]
     X = np.stack([h, (ce * cd - se * sd) * h, (se * cd + ce * sd) * h, da - residual.rate * h])
-    rows = edges[:, 1:]
     r = np.empty((6, count, length))
-    r[:3] = np.take(np.asarray(log.gyro).T, rows, axis=1)
-    r[3:] = np.take(np.asarray(log.accel).T, rows, axis=1)
+    for j, s0 in enumerate(first.tolist()):                      # rows s0 + 1 .. s0 + length
+        r[:3, j] = np.asarray(log.gyro)[s0 + 1:s0 + 1 + length].T
+        r[3:, j] = np.asarray(log.accel)[s0 + 1:s0 + 1 + length].T
     r -= np.tensordot(residual.coefficients.T, X, axes=1)
     # sums of m consecutive samples by doubling (sizes are powers of two): cheaper than the
-    # cumulative sum; the Allan difference is then of two adjacent sums
-    adev, clusters = np.empty((6, len(sizes))), np.empty(len(sizes))
-    sums, width = r, 1
+    # cumulative sum; the Allan difference is then of two adjacent sums. The 6 x count rows
+    # are doubled as one flat array in two buffers (a sum that straddles two rows is never
+    # read: each row's first length - 2m + 1 differences are)
+    rows = 6 * count
+    flat = r.reshape(-1)
+    bufs, d = np.empty((2, flat.size)), np.empty(flat.size)
+    ss, clusters = np.empty((rows, len(sizes))), np.empty(len(sizes))
+    sums, size, width = flat, flat.size, 1
     for i, m in enumerate(sizes):
         while width < m:
-            sums = sums[:, :, width:] + sums[:, :, :-width]
-            width *= 2
+            nxt = bufs[width.bit_length() % 2, :size - width]
+            np.add(sums[width:], sums[:size - width], out=nxt)
+            sums, size, width = nxt, size - width, 2 * width
         if width != m:
             raise ValueError(f"short cluster sizes must be powers of two, got {m}")
-        d = sums[:, :, m:] - sums[:, :, :-m]
-        adev[:, i] = np.sqrt(np.einsum("csl,csl->c", d, d) / (2.0 * d[0].size)) / (m * dt)
+        np.subtract(sums[m:], sums[:size - m], out=d[:size - m])
+        valid = np.lib.stride_tricks.as_strided(d, shape=(rows, length - 2 * m + 1), strides=(length * d.itemsize,
+                                                                                              d.itemsize))
+        np.einsum("sl,sl->s", valid, valid, out=ss[:, i])
         clusters[i] = count * length / m
-    return np.asarray(sizes) * dt, adev, clusters
+    sizes = np.asarray(sizes)
+    adev = np.sqrt(ss.reshape(6, count, -1).sum(axis=1) / (2.0 * count * (length - 2 * sizes + 1))) / (sizes * dt)
+    return sizes * dt, adev, clusters
 
 
 def cluster_sizes(n, steps_per_octave=2):
@@ -455,20 +471,40 @@ def allan_deviation(increments, tau0, *, max_terms=MAX_TERMS, sizes=None):
     """
     x = np.atleast_2d(np.asarray(increments, dtype=float))
     c, n = x.shape
-    theta = np.zeros((c, n + 1))
+    theta = np.empty((c, n + 1))
+    theta[:, 0] = 0.0
     np.cumsum(x, axis=1, out=theta[:, 1:])
     ms = cluster_sizes(n) if sizes is None else np.asarray(sizes, dtype=np.int64)
     if ms.size == 0 or ms.min() < 1 or ms.max() > n // 2:
         raise ValueError(f"cluster sizes must lie in 1..{n // 2} for {n} intervals")
-    adev = np.empty((c, ms.size))
+    # the start points k = 0, s, 2s, ... of theta_k, theta_{k+m}, theta_{k+2m} are read from
+    # contiguous copies of theta taken every s-th entry from each phase (a strided operand
+    # costs numpy five times a contiguous one; a few phases serve every cluster time)
+    phases = {}
+
+    def every(step, first, cnt):
+        if step == 1:
+            return theta[:, first:first + cnt]
+        p, q = first % step, first // step
+        if (step, p) not in phases:
+            phases[step, p] = np.ascontiguousarray(theta[:, p::step])
+        return phases[step, p][:, q:q + cnt]
+
+    ss = np.empty((ms.size, c))
     clusters = np.empty(ms.size)
+    d = np.empty(c * (n + 1))
     for i, m in enumerate(ms.tolist()):
         span = n + 1 - 2 * m
         step = max(1, span // max_terms)
         cnt = (span - 1) // step + 1
-        d = theta[:, 2 * m::step][:, :cnt] - 2.0 * theta[:, m::step][:, :cnt] + theta[:, :span:step]
-        adev[:, i] = np.sqrt(np.einsum("ij,ij->i", d, d) / (2.0 * cnt)) / (m * tau0)
+        di = d[:c * cnt].reshape(c, cnt)
+        np.multiply(every(step, m, cnt), 2.0, out=di)
+        np.subtract(every(step, 2 * m, cnt), di, out=di)
+        di += every(step, 0, cnt)
+        np.einsum("ij,ij->i", di, di, out=ss[i])
+        ss[i] /= 2.0 * cnt
         clusters[i] = min(n / m, cnt)
+    adev = np.sqrt(ss.T) / (ms * tau0)
     return ms * tau0, adev, clusters
 
 
@@ -491,23 +527,25 @@ def fit_allan(tau, adev, clusters, *, iterations=3):
     """
     tau = np.asarray(tau, dtype=float)
     avar = np.atleast_2d(np.asarray(adev, dtype=float)) ** 2
+    c = avar.shape[0]
     rel = np.sqrt(2.0 / np.maximum(np.asarray(clusters, dtype=float) - 1.0, 1.0))
-    coef, std, chi2 = _weighted_fit(tau, avar, rel, iterations)
-    misfit = chi2 > MISFIT
-    if misfit.any():
-        coef_m, std_m, _ = _weighted_fit(tau, avar[misfit], np.sqrt(rel ** 2 + MODEL_ERROR ** 2), iterations)
-        coef[misfit], std[misfit] = coef_m, std_m
-    return coef, std
+    # the fit and its refit with the model's own error (taken where the fit misses its points
+    # by far more than their scatter) in one batched pass: rows c.. are the refit's
+    rels = np.empty((2, c, tau.size))
+    rels[0] = rel
+    rels[1] = np.sqrt(rel ** 2 + MODEL_ERROR ** 2)
+    coef, std, chi2 = _weighted_fit(tau, np.concatenate([avar, avar]), rels.reshape(2 * c, -1), iterations)
+    pick = np.where(chi2[:c] > MISFIT, np.arange(c, 2 * c), np.arange(c))
+    return coef[pick], std[pick]
 
 
 def _weighted_fit(tau, avar, rel, iterations):
     """The non-negative weighted least squares of :func:`fit_allan` with relative 1-sigma
-    ``rel`` (k,) of each variance; returns ``(coef, std, chi2)``, ``chi2`` (c,) the weighted
+    ``rel`` (c, k) of each variance; returns ``(coef, std, chi2)``, ``chi2`` (c,) the weighted
     residual sum of squares per degree of freedom."""
     T = tau[:, None] ** _POWERS[None, :]                     # (k, 4)
-    mask = _SUBSETS                                           # (15, 4)
-    both = mask[:, :, None] & mask[:, None, :]                # (15, 4, 4)
-    eye = np.eye(4)
+    mask, both, eye = _SUBSETS, _SUBSETS_BOTH, _EYE4          # (15, 4), (15, 4, 4), (4, 4)
+    rows = np.arange(avar.shape[0])
     model = avar
     for _ in range(iterations):
         s = np.maximum(model, 1e-300) * rel                   # (c, k) 1-sigma of each variance
@@ -525,12 +563,12 @@ def _weighted_fit(tau, avar, rel, iterations):
         # the weighted residual sum of squares less b'b: -h_S' G_SS^-1 h_S at each set's solution
         cost = np.where(feasible, -np.einsum("csj,csj->cs", x, hm), np.inf)
         best = np.argmin(cost, axis=1)
-        none = ~np.isfinite(cost[np.arange(cost.shape[0]), best])
-        xs = x[np.arange(x.shape[0]), best]
+        none = ~np.isfinite(cost[rows, best])
+        xs = x[rows, best]
         xs[none] = 0.0
         coef = np.where(mask[best], xs, 0.0) / scale
         model = coef @ T.T
-    cov = np.linalg.inv(Gm[np.arange(Gm.shape[0]), best])
+    cov = np.linalg.inv(Gm[rows, best])
     std = np.sqrt(np.maximum(np.diagonal(cov, axis1=1, axis2=2), 0.0)) / scale
     std = np.where(mask[best] & ~none[:, None], std, np.nan)
     chi2 = np.sum(((avar - model) / (np.maximum(model, 1e-300) * rel)) ** 2, axis=1) / max(tau.size - 4, 1)
