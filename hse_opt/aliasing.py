@@ -516,10 +516,11 @@ def _blank(r, n_p, level):
     return replace(r, shift=np.zeros(n_p), full_shift=np.zeros(n_p), level=level)
 
 
-def effect_power(model, X, effect, size=1.0, *, sigma, p=None, tilt_known=True, positions=None,
-                 alpha=ALPHA, level=None, tests=None, dof=None, jit=None):
-    """Power of the diagnosis's test against a catalogue ``effect`` missing from ``model`` on
-    the runs ``X`` (a candidate plan), as :func:`alias_budget` defines it.
+def effect_test(model, X, effect, size=1.0, *, sigma, p=None, tilt_known=True, positions=None,
+                alpha=ALPHA, level=None, tests=None, dof=None, jit=None):
+    """The diagnosis's test against a catalogue ``effect`` missing from ``model`` on the runs
+    ``X`` (a candidate plan), as :func:`alias_budget` defines it: its power and degrees of
+    freedom.
 
     Parameters
     ----------
@@ -542,7 +543,9 @@ def effect_power(model, X, effect, size=1.0, *, sigma, p=None, tilt_known=True, 
         Whether the runs carry pitch/roll.
     positions : array_like of int, shape (n,), optional
         For a field plan: each run's position without a heading reference (0 .. P-1), -1 for a
-        surveyed run; each position's unknown constant is part of the model.
+        surveyed run; each position's unknown constant is part of the model (and a model
+        parameter constant within every position, the ``offset`` without a surveyed run, is
+        held fixed, as the fit holds it).
     alpha, level, tests
         As :func:`alias_budget`.
     dof : int, optional
@@ -551,9 +554,10 @@ def effect_power(model, X, effect, size=1.0, *, sigma, p=None, tilt_known=True, 
 
     Returns
     -------
-    float
-        The probability that the diagnosis's test rejects (0 .. 1); the test's level itself
-        when the effect has no signature beyond the model here.
+    EffectTest
+        ``power``: the probability that the diagnosis's test rejects (0 .. 1; the test's
+        level itself when the effect's signature beyond the model is zero at ``size``, 0 when
+        it has no direction beyond the model or too few runs are left for the test).
 
     Raises
     ------
@@ -586,6 +590,12 @@ def effect_power(model, X, effect, size=1.0, *, sigma, p=None, tilt_known=True, 
         n_pos = int(pos.max()) + 1 if pos.size and pos.max() >= 0 else 0
         if n_pos:
             G = (pos[:, None] == np.arange(n_pos)[None, :]) / sig[:, None]
+            # a column constant within every position (the offset of a campaign without a
+            # reference) is in the constants' span: the fit holds it fixed, so must the test
+            Gq = np.linalg.qr(G)[0]
+            A_M = A_all[:, cols]
+            inside = np.linalg.norm(A_M - Gq @ (Gq.T @ A_M), axis=0) <= 1e-9 * np.linalg.norm(A_M, axis=0)
+            cols = [c for c, drop in zip(cols, inside) if not drop]
     camp = _Campaign(A_all[:, cols], G)
     idx = [mm.parameter_index(q.name) for q in params]
     edge = np.array([max(abs(RANGES[q.name][0]), abs(RANGES[q.name][1])) for q in params])
@@ -598,8 +608,34 @@ def effect_power(model, X, effect, size=1.0, *, sigma, p=None, tilt_known=True, 
         V = _vertices(float(size) * edge)
     k = camp.Q.shape[1]
     dof_fit = n - k if dof is None else int(dof)
-    power = _assess(camp, A_all[:, idx], V, dof_fit, level)[0]
-    return power
+    power, _, _, _, q, _ = _assess(camp, A_all[:, idx], V, dof_fit, level)
+    return EffectTest(power, q, dof_fit - q)
+
+
+@dataclass(frozen=True)
+class EffectTest:
+    """The diagnosis's test of one missing effect on a plan (:func:`effect_test`).
+
+    Attributes
+    ----------
+    power : float
+        Probability that it rejects (:func:`effect_power`).
+    q : int
+        Its numerator degrees of freedom: the effect's directions beyond the model's span
+        (0: the effect has no signature the model and the positions' constants do not have).
+    dof : int
+        Its denominator degrees of freedom (< 1: too few runs for the test).
+    """
+
+    power: float
+    q: int
+    dof: int
+
+
+def effect_power(model, X, effect, size=1.0, **kw):
+    """Power of the diagnosis's test against a catalogue ``effect`` missing from ``model`` on
+    the runs ``X``: :func:`effect_test` (same arguments) without its degrees of freedom."""
+    return effect_test(model, X, effect, size, **kw).power
 
 
 def resolving_runs(fit_result, runs, risk, k=3):
@@ -663,5 +699,5 @@ def describe(budget, values=None):
     return ["no systematic risk: every assessed effect would be detected at its plausible size"]
 
 
-__all__ = ["ALPHA", "AliasBudget", "DEFAULT_TESTS", "EffectRisk", "POWER_LIMIT", "alias_budget", "describe",
-           "effect_power", "noncentrality_for_power", "resolving_runs"]
+__all__ = ["ALPHA", "AliasBudget", "DEFAULT_TESTS", "EffectRisk", "EffectTest", "POWER_LIMIT", "alias_budget",
+           "describe", "effect_power", "effect_test", "noncentrality_for_power", "resolving_runs"]

@@ -4,9 +4,13 @@
 positions: how many positions, which rates and senses, how many repeats, scored by the
 predicted sigma of lambda2 with every position's heading unknown
 (:func:`hse_opt.design.evaluate` with ``field=True``); :func:`continue_campaign` plans the
-rest of one under way, the runs so far counted. What a fit of such a campaign says at each
-position is :mod:`hse_opt.fit.field`.
+rest of one under way, the runs so far counted. The default criterion ``protect:lambda2``
+chooses among these candidates the smallest sigma with power >= 0.8 of the diagnosis against
+each catalogue effect outside the model at its plausible edge, and names those no candidate
+can protect (:mod:`hse_opt.design.field_protection`); ``c:lambda2`` is the smallest sigma
+alone. What a fit of such a campaign says at each position is :mod:`hse_opt.fit.field`.
 """
+import dataclasses
 from dataclasses import dataclass
 
 import numpy as np
@@ -14,6 +18,8 @@ import numpy as np
 from .. import units
 from ..data import Plan
 from .evaluation import evaluate
+from .field_protection import choose, field_criterion
+from .protection import describe as describe_protection
 from .space import Costs, Stand
 
 __all__ = ["FieldDesign", "field_plan", "design_field", "continue_campaign", "runs_as_plan", "RATE_PATTERNS_DPS"]
@@ -63,6 +69,16 @@ class FieldDesign:
         the runs so far and ``plan`` together, and ``plan`` holds the new runs only.
     stay : bool
         The new runs start at the last position of the runs so far (no move).
+    criterion : str
+        ``protect:NAME`` (the default) or ``c:NAME``.
+    protection : tuple of hse_opt.design.protection.Protection
+        With ``protect:NAME``: the power of the diagnosis against each catalogue effect
+        outside the model at its plausible edge on this plan (with the runs so far), and why
+        an effect is not protected (:mod:`hse_opt.design.field_protection`); else empty.
+    unprotected_std : float or None
+        The smallest predicted sigma of the target among all candidates (display unit): what
+        ``c:NAME`` would give, the price of the protection being ``evaluation``'s sigma
+        against it.
     """
 
     plan: Plan
@@ -73,23 +89,59 @@ class FieldDesign:
     tried: tuple
     before: Plan | None = None
     stay: bool = False
+    criterion: str = "protect:lambda2"
+    protection: tuple = ()
+    unprotected_std: float | None = None
+
+    @property
+    def target(self):
+        """The parameter whose sigma the criterion minimises."""
+        return self.criterion.split(":", 1)[1]
+
+    def summary(self):
+        """Report lines: the sigma of the target, the price of the protection and each
+        effect's power (never the one without the other)."""
+        s = self.evaluation.std_of(self.target)
+        unit = self.evaluation.units[self.evaluation.names.index(self.target)]
+        lines = [f"criterion {self.criterion}: sigma({self.target}) {s:.4g} {unit}"]
+        if self.protection:
+            guarded = [p.effect for p in self.protection if p.protected]
+            what = f"protects {', '.join(guarded)}" if guarded else "protects none of the effects outside the model"
+            price = (f"at no cost in sigma({self.target})" if s <= self.unprotected_std * (1 + 1e-9) else
+                     f"at sigma({self.target}) {s:.4g} against {self.unprotected_std:.4g} {unit} of the "
+                     f"unprotected best (--criterion c:{self.target})")
+            lines.append(f"the plan {what} {price}")
+            lines += describe_protection(self.protection)
+        return lines
+
+    def to_dict(self):
+        """The JSON keys of ``design --field`` that describe the choice."""
+        return {"criterion": self.criterion, "positions": self.positions, "pattern_dps": list(self.pattern_dps),
+                "repeats": self.repeats, "protection": [p.to_dict() for p in self.protection],
+                "unprotected_std": self.unprotected_std}
 
 
-def design_field(budget, model="hse", *, costs=None, stand=None, duration=600.0, max_positions=4,
-                 patterns_dps=RATE_PATTERNS_DPS, heading0=0.0, prior=None):
-    """The field campaign with the smallest predicted sigma of lambda2 within a time budget.
+def design_field(budget, model="hse", *, criterion="protect:lambda2", costs=None, stand=None, duration=600.0,
+                 max_positions=4, patterns_dps=RATE_PATTERNS_DPS, heading0=0.0, prior=None):
+    """The field campaign with the smallest predicted sigma of lambda2 within a time budget,
+    protected against the effects outside the model where the budget allows.
 
     Searched: 1 to ``max_positions`` positions at headings spread evenly from ``heading0``
     (rad; their true headings are unknown to the campaign, only their spread matters through
     C23), every rate pattern of ``patterns_dps`` at all of them, repeated as often as the
     budget allows. The time counts the warm-up, every alignment, every rate or sense change
-    and every move between positions (``costs.azimuth_change``).
+    and every move between positions (``costs.azimuth_change``). Among these candidates the
+    criterion chooses (:mod:`hse_opt.design.field_protection`).
 
     Parameters
     ----------
     budget : float
         Time from power-on to the end of the last alignment, s.
     model : Model, str or sequence of str
+    criterion : str
+        ``'protect:lambda2'`` (default): the smallest sigma among the plans with power >= 0.8
+        of the diagnosis against each catalogue effect outside the model that some candidate
+        protects; ``'c:lambda2'``: the smallest sigma alone (``NAME`` another parameter).
     costs : hse_opt.design.Costs, optional
     stand : hse_opt.design.Stand, optional
         The stand's own tilt stands for every placement's.
@@ -108,24 +160,38 @@ def design_field(budget, model="hse", *, costs=None, stand=None, duration=600.0,
         No plan fits the budget, or none identifies lambda2.
     """
 
-    costs = costs or Costs()
-    best, tried = None, []
+    costs, stand, crit = costs or Costs(), stand or Stand(), field_criterion(criterion)
+    cands, tried = [], []
     for n_pos in range(1, int(max_positions) + 1):
         headings = [heading0 + 2 * np.pi * k / n_pos for k in range(n_pos)]
         for pattern in patterns_dps:
             for rep, plan, ev, end in _by_repeats(
                     lambda rep: field_plan([pattern] * n_pos, [rep] * n_pos, headings, costs, duration), budget,
                     lambda plan: evaluate(plan, model, stand=stand, field=True, prior=prior)):
-                s = ev.std_of("lambda2")
+                s = _target_std(ev, crit.target)
                 tried.append((n_pos, tuple(pattern), rep, s, end / units.HOUR))
-                if best is None or s < best[0]:
-                    best = (s, FieldDesign(plan, ev, n_pos, rep, tuple(pattern), ()))
-    if best is None:
-        raise ValueError(f"budget {budget / units.HOUR:g} h: no field plan fits it and identifies lambda2; "
+                cands.append((s, plan, FieldDesign(plan, ev, n_pos, rep, tuple(pattern), ())))
+    if not cands:
+        raise ValueError(f"budget {budget / units.HOUR:g} h: no field plan fits it and identifies {crit.target}; "
                          f"allowed: at least the warm-up ({costs.warmup / units.HOUR:g} h) and two alignments "
                          "at different rates")
-    d = best[1]
-    return FieldDesign(d.plan, d.evaluation, d.positions, d.repeats, d.pattern_dps, tuple(tried))
+    return _chosen(cands, tried, model, crit, stand)
+
+
+def _target_std(ev, target):
+    """The predicted sigma of ``target``; ValueError naming the field evaluation's parameters."""
+    if target not in ev.names:
+        raise ValueError(f"criterion parameter {target!r} is not estimable in a field campaign of "
+                         f"{'+'.join(ev.effects)}; allowed: {', '.join(ev.names)}")
+    return ev.std_of(target)
+
+
+def _chosen(cands, tried, model, crit, stand):
+    """The candidate ``(sigma, plan the diagnosis tests, FieldDesign)`` the criterion picks,
+    with its protection and the tried list."""
+    k, protection, unprotected = choose([(s, plan) for s, plan, _ in cands], model, crit, stand)
+    return dataclasses.replace(cands[k][2], tried=tuple(tried), criterion=crit.label, protection=protection,
+                               unprotected_std=unprotected)
 
 
 def runs_as_plan(runs, stand=None):
@@ -149,10 +215,11 @@ def runs_as_plan(runs, stand=None):
                 tilt_y=ty, position=pos, source=runs.source)
 
 
-def continue_campaign(runs_so_far, model="hse", time_left=None, *, prior=None, costs=None, stand=None,
-                      duration=600.0, max_positions=3, patterns_dps=RATE_PATTERNS_DPS):
+def continue_campaign(runs_so_far, model="hse", time_left=None, *, criterion="protect:lambda2", prior=None,
+                      costs=None, stand=None, duration=600.0, max_positions=3, patterns_dps=RATE_PATTERNS_DPS):
     """The rest of a field campaign: the new runs that, with the runs so far, give the
-    smallest predicted sigma of lambda2 in the time left.
+    smallest predicted sigma of lambda2 in the time left, protected as :func:`design_field`
+    protects (the diagnosis's power on the runs so far and the new runs together).
 
     Searched: stay at the last position of the runs so far (its measured tilt and heading,
     no move) or not, then 0 to ``max_positions`` new positions (headings spread evenly from
@@ -170,6 +237,8 @@ def continue_campaign(runs_so_far, model="hse", time_left=None, *, prior=None, c
     model : Model, str or sequence of str
     time_left : float
         s, from the end of the last run so far.
+    criterion : str
+        As :func:`design_field`.
     prior : FitResult, Prior or numpy.ndarray, optional
         An earlier calibration (not of these runs) as prior information.
     costs, stand, duration, max_positions, patterns_dps
@@ -186,10 +255,7 @@ def continue_campaign(runs_so_far, model="hse", time_left=None, *, prior=None, c
     ValueError
         No new run fits the time left (named), or the runs lack ``t_start_s``.
     """
-    import dataclasses
-
-
-    costs, stand = costs or Costs(), stand or Stand()
+    costs, stand, crit = costs or Costs(), stand or Stand(), field_criterion(criterion)
     if time_left is None or not np.isfinite(time_left) or time_left <= 0:
         raise ValueError(f"time_left = {time_left!r}; allowed: the time left after the last run, s > 0")
     before = runs_as_plan(runs_so_far, stand)
@@ -199,7 +265,7 @@ def continue_campaign(runs_so_far, model="hse", time_left=None, *, prior=None, c
     at_last = before.position == last_pos
     last_tilt = (float(np.mean(before.tilt_x[at_last])), float(np.mean(before.tilt_y[at_last])))
     first_id = int(np.max(before.run)) + 1
-    best, tried = None, []
+    cands, tried = [], []
     for stay in (True, False):
         for n_new in range(0 if stay else 1, int(max_positions) + 1):
             headings = ([last_az] if stay else []) + [last_az + 2 * np.pi * k / (n_new + 1) for k in range(1, n_new + 1)]
@@ -220,14 +286,14 @@ def continue_campaign(runs_so_far, model="hse", time_left=None, *, prior=None, c
                 for rep, new, ev, end in _by_repeats(
                         make, t_end + time_left + 1e-6,
                         lambda new: evaluate(_concat(before, new), model, stand=stand, field=True, prior=prior)):
-                    sd = ev.std_of("lambda2")
+                    sd = _target_std(ev, crit.target)
                     tried.append((len(headings), tuple(pattern), rep, sd, (end - t_end) / units.HOUR))
-                    if best is None or sd < best[0]:
-                        best = (sd, FieldDesign(new, ev, len(headings), rep, tuple(pattern), (), before, stay))
-    if best is None:
+                    cands.append((sd, _concat(before, new),
+                                  FieldDesign(new, ev, len(headings), rep, tuple(pattern), (), before, stay)))
+    if not cands:
         raise ValueError(f"time left {time_left / units.HOUR:g} h: no new run fits it and, with the runs so far, "
-                         f"identifies lambda2; allowed: at least one alignment ({duration:g} s) and its setup")
-    return dataclasses.replace(best[1], tried=tuple(tried))
+                         f"identifies {crit.target}; allowed: at least one alignment ({duration:g} s) and its setup")
+    return _chosen(cands, tried, model, crit, stand)
 
 
 def _by_repeats(make, end_limit, score):

@@ -45,6 +45,8 @@ from .problem import Guard, Problem, Rows, own
 
 #: the diagnosis' level the floors are set for (the alias budget's default)
 LEVEL = ALPHA / DEFAULT_TESTS
+#: why an effect a plan could show is not protected: no plan of the budget reaches the target
+OUT_OF_REACH = "power 0.8 is out of reach in this budget"
 #: the floors ask this much more noncentrality than power 0.8 needs at the planned number of
 #: runs: rounding to whole runs and to the stand's steps loses a little of it
 MARGIN = 1.1
@@ -112,19 +114,11 @@ def threats(model, tilt_known, samples, space):
         if name in have:
             continue
         eff = cls()
-        missing = [n for n in eff.needs if n not in have]
-        if missing:
-            skipped.append(Protection(name, "", None, False, f"no heading signature without "
-                                      f"{', '.join(missing)} in the model (it acts only with it)"))
-            continue
-        if eff.level == "thermal" and space.time_slots < 2:
-            skipped.append(Protection(name, "", None, False, "it changes with time since power-on, which is "
-                                      "not a factor of this plan: allowed time_slots >= 2 (--time-slots N)"))
+        never = unassessable(eff, have, space.time_slots >= 2)
+        if never is not None:
+            skipped.append(never)
             continue
         ranged = [q for q in eff.params if q.name not in eff.nonlinear]
-        if not ranged or any(q.name not in RANGES for q in ranged):
-            skipped.append(Protection(name, "", None, False, "no plausible range declared"))
-            continue
         ext = as_model(list(model.effect_names) + [name])
         mm, me = model.measurement(tilt_known), ext.measurement(tilt_known)
         idx = [me.names.index(n) for n in mm.names]
@@ -134,15 +128,44 @@ def threats(model, tilt_known, samples, space):
         base = J[:, idx] * ca.DM(np.asarray(me.scale)[idx]).T
         J_e = J[:, jdx] * ca.DM(np.asarray(me.scale)[jdx]).T
         ps = [me.vector(own(s, me)) for s in samples]
-        edge = np.array([max(abs(v) for v in RANGES[q.name]) for q in ranged])
+        edge = plausible_edge(eff)
         specs = []
         for v in _vertices(edge).T:
             fn = ca.Function("threat_rows", [p, x], [ca.horzcat(base, ca.mtimes(J_e, ca.DM(v)))])
             label = ", ".join(f"{q.name} {a:+g}" for q, a in zip(ranged, v))
             specs.append(Rows(mm.names + (f"{name} at {label}",), fn, ps))
-        sizes = ", ".join(f"{q.name} {e:g} {q.unit}" for q, e in zip(ranged, edge))
-        out.append(Threat(name, sizes, len(ranged), tuple(specs)))
+        out.append(Threat(name, plausible_sizes(eff), len(ranged), tuple(specs)))
     return out, skipped
+
+
+def unassessable(eff, have, timed):
+    """The :class:`Protection` (not protected, with the reason) of a catalogue effect ``eff``
+    (an :class:`~hse_opt.model.effects.Effect`) outside a model of the effects ``have`` when no
+    plan can show it whatever its runs: it acts only with an effect the model lacks, it
+    changes with time since power-on and ``timed`` (time a factor of the plan) is False, or
+    it has no plausible range; None when a plan could show it."""
+    missing = [n for n in eff.needs if n not in have]
+    if missing:
+        return Protection(eff.name, "", None, False, f"no heading signature without "
+                          f"{', '.join(missing)} in the model (it acts only with it)")
+    if eff.level == "thermal" and not timed:
+        return Protection(eff.name, "", None, False, "it changes with time since power-on, which is "
+                          "not a factor of this plan: allowed time_slots >= 2 (--time-slots N)")
+    ranged = [q for q in eff.params if q.name not in eff.nonlinear]
+    if not ranged or any(q.name not in RANGES for q in ranged):
+        return Protection(eff.name, "", None, False, "no plausible range declared")
+    return None
+
+
+def plausible_edge(eff):
+    """The plausible edge of each of ``eff``'s linear parameters, display units, shape (q,)."""
+    return np.array([max(abs(v) for v in RANGES[q.name]) for q in eff.params if q.name not in eff.nonlinear])
+
+
+def plausible_sizes(eff):
+    """The plausible edges of ``eff`` in words (``"delay 500 us"``)."""
+    ranged = [q for q in eff.params if q.name not in eff.nonlinear]
+    return ", ".join(f"{q.name} {e:g} {q.unit}" for q, e in zip(ranged, plausible_edge(eff)))
 
 
 def _vertices(edge):
@@ -178,8 +201,8 @@ def power_floors(threats_, X, sigma, base, n_runs, k, solve):
                                       f"not be computed ({err})"))
             continue
         if min(reach) < MARGIN * need:
-            skipped.append(Protection(t.effect, t.sizes, None, False, "power 0.8 is out of reach in this budget "
-                                      f"even with every run spent on it{_hint(t)}"))
+            skipped.append(Protection(t.effect, t.sizes, None, False, f"{OUT_OF_REACH} even with every run "
+                                      f"spent on it{_hint(t)}"))
             continue
         guards += [Guard(None, s, r, MARGIN * need, float("nan"), LackOfFit(), t.effect)
                    for s, r in zip(t.specs, rows)]

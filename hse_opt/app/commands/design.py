@@ -20,7 +20,11 @@ ellipsoid), A (sum of variances), E (worst direction), c:NAME (the variance of o
 alone, e.g. c:lambda2, which leaves rate-dependent effects unseen). Setups cost time: warm-up
 before the first run, changing the azimuth, the rate or sense, the tilt fixture. The report
 gives each parameter's predicted sigma, the efficiency against the approximate optimum, and the
-bias a slow heading drift would cause. With --evaluate an existing PLAN.csv is scored instead;
+bias a slow heading drift would cause. With --field (no heading reference) the plan is chosen
+among positions x rate patterns x repeats by the same criterion: protect keeps power >= 0.8
+against each effect some plan in the budget can show (a field plan cannot show an effect that
+is constant at a position, e.g. axis_bias), c:lambda2 takes the smallest sigma alone. With
+--evaluate an existing PLAN.csv is scored instead;
 a plan that cannot identify the model stops (exit 2) naming the parameters."""
 INPUTS = ("evaluate", "prior", "runs")
 OUTPUTS = {"output": FILE, "report": REPORT}
@@ -100,11 +104,16 @@ def add_arguments(parser):
                              "within a position count); with --evaluate, PLAN.csv's position column (else "
                              "its azimuths) gives the positions; without, the number of positions, rate "
                              "pattern and repeats with the smallest sigma of lambda2 in --budget-h, a move "
-                             "between positions costing --azimuth-change-s")
+                             "between positions costing --azimuth-change-s, among the plans with power >= 0.8 "
+                             "of the diagnosis against each effect outside the model that some plan in the "
+                             "budget protects (the others named with the reason; --criterion c:lambda2: the "
+                             "smallest sigma alone); e.g. hse-opt design --field --budget-h 3 -o FIELD_PLAN.csv")
     parser.add_argument("--runs", metavar="RUNS.csv",
                         help="with --field: the campaign's runs so far (with t_start_s, pitch/roll): plan the "
                              "rest for --budget-h, the time left after the last run, with these runs counted in "
-                             "the information (their positions, measured tilts, times since power-on); e.g. "
+                             "the information (their positions, measured tilts, times since power-on) and in "
+                             "the protection (it moves to new positions when those so far cannot tell an effect "
+                             "from lambda2); e.g. "
                              "hse-opt design --field --runs RUNS.csv --budget-h 2 -o NEXT_PLAN.csv")
     parser.add_argument("--json", action="store_true", help="print one JSON object on stdout")
     add_report_argument(parser)
@@ -246,18 +255,23 @@ def run(args):
         raise ValueError("--runs RUNS.csv continues a field campaign; allowed: with --field")
     if args.field:
         from ...design.field import continue_campaign, design_field
+        from ...design.field_protection import field_criterion
+        try:
+            field_criterion(args.criterion)
+        except ValueError as err:
+            raise ValueError(f"--criterion {args.criterion}: {err}") from None
         duration = float(args.durations_s.split(",")[0])
         if args.runs:
             from ...data import load_runs
             runs = load_runs(args.runs, **input_checks(args))
             try:
-                fd = continue_campaign(runs, model, args.budget_h * units.HOUR, prior=prior, costs=costs,
-                                       stand=stand, duration=duration)
+                fd = continue_campaign(runs, model, args.budget_h * units.HOUR, criterion=args.criterion,
+                                       prior=prior, costs=costs, stand=stand, duration=duration)
             except ValueError as err:
                 raise ValueError(f"--runs {args.runs} with --budget-h {args.budget_h:g} (the time left): {err}") from None
         else:
-            fd = design_field(args.budget_h * units.HOUR, model, costs=costs, stand=stand, duration=duration,
-                              prior=prior)
+            fd = design_field(args.budget_h * units.HOUR, model, criterion=args.criterion, costs=costs, stand=stand,
+                              duration=duration, prior=prior)
         save_plan(fd.plan, args.tx.path("output"))
         message(f"hse-opt design: wrote {args.output} ({fd.plan.run.size} runs)")
         if args.report:
@@ -267,11 +281,10 @@ def run(args):
                     "position count; the paper's surveyed plan is no baseline for it."
                     + (f" The sigmas are those of the {fd.before.run.size} runs so far ({args.runs}) and the "
                        f"{fd.plan.run.size} new runs together." if fd.before is not None else "")
-                    + (f" Prior information: {args.prior}." if args.prior else ""))
+                    + (f" Prior information: {args.prior}." if args.prior else "") + " " + " ".join(fd.summary()))
             write_report(args, [rep.evaluation_section(fd.evaluation, fd.plan, None, title, note)],
                          f"hse-opt design --field {args.output}")
-        summary = {"criterion": "c:lambda2", "field": True, "n_runs": int(fd.plan.run.size),
-                   "positions": fd.positions, "pattern_dps": list(fd.pattern_dps), "repeats": fd.repeats,
+        summary = {**fd.to_dict(), "field": True, "n_runs": int(fd.plan.run.size),
                    **{k: v for k, v in fd.evaluation.to_dict().items() if k in ("total_time_h", "predicted_std")},
                    "runs_so_far": 0 if fd.before is None else int(fd.before.run.size),
                    "stay_at_last_position": bool(fd.stay), "prior": args.prior, "output": args.output}
@@ -284,6 +297,7 @@ def run(args):
             print(f"hse-opt design --field: {fd.positions} position(s) x rates {fd.pattern_dps} deg/s x "
                   f"{fd.repeats}{so_far}, sigma(lambda2) {fd.evaluation.std_of('lambda2'):.4g} arcsec, "
                   f"{summary['total_time_h']:.3f} h from power-on")
+            print("\n".join(fd.summary()))
             print("\n".join(plan_lines(fd.plan)))
         return 0
     lo, hi = _pair(args.rates, "--rates", sep=":")
