@@ -168,7 +168,7 @@ def _inconclusive(f0, runs, budget, cands, alpha, level, chi2_test):
     family-wise level; else ``('adequate', notes, ())``. The notes also say why a chi-square
     test that rejects alone at ``alpha`` leaves the verdict adequate (it is one test of the
     family)."""
-    notes, resolving, resolved = [], [], 0
+    notes, resolving, plans = [], [], []
     if chi2_test is not None and level <= chi2_test.p_value < alpha:
         notes.append(f"the chi-square test alone rejects at {alpha:g} (p = {chi2_test.p_value:.3g}; hse-opt fit "
                      f"prints this p), but not at the family-wise level {level:.3g} = {alpha:g} / {round(alpha / level)} "
@@ -191,10 +191,14 @@ def _inconclusive(f0, runs, budget, cands, alpha, level, chi2_test):
         plan = resolving_plan(f0, runs, [e], level=level)
         if plan is not None and plan.resolved:
             resolving += [dict(r, effect=e) for r in plan.runs]
-            resolved += 1
-        notes.append(f"inconclusive: {e}, {risk.threshold_text()}, could move {', '.join(hit)}; {_plan_text(plan, runs)}")
-    if len(effects) > 1 and resolved == len(effects):
-        plan = resolving_plan(f0, runs, effects, level=level)
+            plans.append(plan)
+        notes.append(f"inconclusive: {e}, {risk.threshold_text()}, could move {', '.join(hit)}; "
+                     f"{_plan_text(plan, runs)}")
+    if len(effects) > 1 and len(plans) == len(effects):
+        # greedy for all at once, and each effect's own plan completed: the shorter
+        both = [resolving_plan(f0, runs, effects, level=level), resolving_plan(f0, runs, effects, level=level,
+                                                                               start=plans)]
+        plan = min((p for p in both if p is not None), key=lambda p: (not p.resolved, p.n_runs))
         notes.append(f"inconclusive: all of {', '.join(effects)} together: {_plan_text(plan, runs)}")
     return ("inconclusive" if effects or strong else "adequate"), notes, tuple(resolving)
 

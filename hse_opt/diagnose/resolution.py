@@ -80,13 +80,14 @@ class ResolvingPlan:
         """One sentence: how many runs, which, how long; or why none would do (``field``: a
         campaign whose runs are at positions of unknown heading)."""
         what = "; ".join(r["text"] + (f" x{r['count']}" if r["count"] > 1 else "") for r in self.runs)
+        it = "it" if len(self.effects) == 1 else "them"
         if self.resolved:
-            return f"{self.n_runs} runs would resolve it (about {self.hours:.2g} h of alignments): {what}"
+            return f"{self.n_runs} runs would resolve {it} (about {self.hours:.2g} h of alignments): {what}"
         left = f"{self.n_runs} more would leave it at {self.ratio_after:.2g} sigma, from {self.ratio_before:.2g}"
         if field:
-            return (f"runs at the positions so far cannot resolve it ({left}); positions at other headings may: "
+            return (f"runs at the positions so far cannot resolve {it} ({left}); positions at other headings may: "
                     "hse-opt design --field --runs RUNS.csv plans them")
-        return (f"runs varying rate, sense, azimuth or start time cannot resolve it ({left}); fit it with the "
+        return (f"runs varying rate, sense, azimuth or start time cannot resolve {it} ({left}); fit {it} with the "
                 f"model on a campaign designed for both (hse-opt design --effects {','.join(self.effects)})")
 
     def to_dict(self):
@@ -99,8 +100,15 @@ class _Normal:
     """The normal matrix of one campaign with a risk: model columns (free parameters, then the
     positions' constants) and each effect's columns; :meth:`ratios` evaluates a stack of them."""
 
-    def __init__(self, k, n_pos, blocks, vertices, lam80):
-        self.k, self.n_pos, self.blocks, self.vertices, self.lam80 = k, n_pos, blocks, vertices, lam80
+    def __init__(self, k, n_pos, blocks, vertices, level):
+        self.k, self.n_pos, self.blocks, self.vertices, self.level = k, n_pos, blocks, vertices, level
+        self.lam80 = None
+
+    def at_dof(self, dof):
+        """Set the fit's residual degrees of freedom (each effect's test has ``dof - q``)."""
+        self.lam80 = [noncentrality_for_power(b.stop - b.start, max(dof - (b.stop - b.start), 1), self.level)
+                      for b in self.blocks]
+        return self
 
     def ratios(self, N):
         """Worst shift / sigma over parameters and effects, per matrix in ``N`` (c, d, d)."""
@@ -108,19 +116,19 @@ class _Normal:
         C = np.linalg.inv(N[:, :m, :m])
         std = np.sqrt(np.clip(np.diagonal(C, axis1=1, axis2=2)[:, :self.k], 0.0, None))
         worst = np.zeros(N.shape[0])
-        for sl, V in zip(self.blocks, self.vertices):
+        for sl, V, lam80 in zip(self.blocks, self.vertices, self.lam80):
             N_ME = N[:, :m, sl]
             B = C @ N_ME
             S = N[:, sl, sl] - np.swapaxes(N_ME, 1, 2) @ B
             lam = np.einsum("qv,cqr,rv->cv", V, S, V)
-            reach = np.where(lam > 0, np.sqrt(self.lam80 / np.where(lam > 0, lam, 1.0)), np.inf)
+            reach = np.where(lam > 0, np.sqrt(lam80 / np.where(lam > 0, lam, 1.0)), np.inf)
             shift = np.abs(B[:, :self.k, :] @ V) * np.minimum(1.0, reach)[:, None, :]
             r = shift.max(axis=2) / np.where(std > 0, std, np.inf)
             worst = np.maximum(worst, r.max(axis=1))
         return worst
 
 
-def resolving_plan(fit_result, runs, effects, *, level, max_runs=MAX_RUNS):
+def resolving_plan(fit_result, runs, effects, *, level, max_runs=MAX_RUNS, start=()):
     """The shortest greedy plan that resolves ``effects``' risks to ``fit_result`` (module docstring).
 
     Parameters
@@ -134,6 +142,9 @@ def resolving_plan(fit_result, runs, effects, *, level, max_runs=MAX_RUNS):
         The diagnosis's test level.
     max_runs : int
         The most runs to add.
+    start : sequence of ResolvingPlan
+        Plans whose runs are added first (counted in ``max_runs``): e.g. each effect's own
+        plan, before the greedy steps for all of them together.
 
     Returns
     -------
@@ -153,8 +164,8 @@ def resolving_plan(fit_result, runs, effects, *, level, max_runs=MAX_RUNS):
     for eff in effs:
         params = [q for q in eff.params if q.name not in eff.nonlinear]
         idx = [mm.parameter_index(q.name) for q in params]
-        start = len(cols) + len(ecols)
-        blocks.append(slice(start, start + len(idx)))
+        first = len(cols) + len(ecols)
+        blocks.append(slice(first, first + len(idx)))
         vertices.append(_vertices([max(abs(RANGES[q.name][0]), abs(RANGES[q.name][1])) for q in params]))
         ecols += idx
     group, positions = runs.reference_groups()
@@ -179,22 +190,25 @@ def resolving_plan(fit_result, runs, effects, *, level, max_runs=MAX_RUNS):
     vary_t = len({info[i]["t_start_s"] for i in keep}) > 1
     Ac = Ac[keep]
     info = [dict(info[i], text=info[i]["text"] if vary_t else info[i]["text"].split(",")[0]) for i in keep]
-    q = max(b.stop - b.start for b in blocks)
     dof0 = int(f.dof)
     N = A0.T @ A0
     outer = Ac[:, :, None] * Ac[:, None, :]
-    # the test's power per added run: its denominator dof grows by one each time
-    normal = _Normal(k, n_pos, blocks, vertices, noncentrality_for_power(q, max(dof0 - q, 1), level))
-    before = float(normal.ratios(N[None])[0])
+    normal = _Normal(k, n_pos, blocks, vertices, level)
+    before = float(normal.at_dof(dof0).ratios(N[None])[0])
     counts = np.zeros(len(Ac), int)
-    ratio = before
-    for step in range(max_runs):
-        if ratio <= 1.0:
-            break
-        normal.lam80 = noncentrality_for_power(q, max(dof0 + step + 1 - q, 1), level)
-        r = normal.ratios(N[None] + outer)
+    key = {_key(d): i for i, d in enumerate(info)}
+    for plan in start:
+        for d in plan.runs:
+            i = key.get(_key(d))
+            if i is not None:
+                counts[i] += d["count"]
+    N = N + np.einsum("c,cij->ij", counts, outer)
+    ratio = float(normal.at_dof(dof0 + int(counts.sum())).ratios(N[None])[0])
+    while ratio > 1.0 and counts.sum() < max_runs:
+        # the test's denominator dof grows by one with each run
+        r = normal.at_dof(dof0 + int(counts.sum()) + 1).ratios(N[None] + outer)
         best = int(np.argmin(r))
-        if not r[best] < ratio - 1e-12 and step == 0:
+        if not counts.any() and not r[best] < ratio - 1e-12:
             return None
         N = N + outer[best]
         counts[best] += 1
@@ -204,6 +218,10 @@ def resolving_plan(fit_result, runs, effects, *, level, max_runs=MAX_RUNS):
     picked = tuple(sorted(picked, key=lambda r: -r["count"]))
     hours = n * float(np.median(runs.duration)) / 3600.0
     return ResolvingPlan(tuple(e.name for e in effs), picked, n, ratio <= 1.0, before, ratio, hours)
+
+
+def _key(d):
+    return (round(d["rate_dps"], 9), round(d["azimuth_deg"], 9), round(d["t_start_s"], 6), d.get("position"))
 
 
 def _candidates(runs, group, positions):
@@ -253,7 +271,8 @@ def _candidates(runs, group, positions):
         where = f"at {pl[4]}" if pl[4] is not None else f"at azimuth {d['azimuth_deg']:.4g} deg"
         if pl[4] is not None:
             d["position"] = pl[4]
-        d["text"] = f"{d['rate_dps']:+.4g} deg/s {where}" + (f", {t / 60:.0f} min after power-on" if vary_t else "")
+        when = (f", {t / 60:.0f} min after power-on" if t > 0 else ", at power-on") if vary_t else ""
+        d["text"] = f"{d['rate_dps']:+.4g} deg/s {where}{when}"
         info.append(d)
     return table, np.array([x[1][3] for x in rows], int), info
 
