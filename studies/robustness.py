@@ -62,7 +62,7 @@ import numpy as np
 
 from hse_opt import units
 from hse_opt.data import Plan, Runs
-from hse_opt.diagnose import refine
+from hse_opt.diagnose import refine, resolving_plan
 from hse_opt.model import CATALOGUE
 from hse_opt.model.plausible import RANGES
 from hse_opt.validation.synthetic import model_runs
@@ -148,8 +148,15 @@ def judge(runs):
     value, std = last.fit.value("lambda2")
     systematic = last.fit.systematic          # None: the fit carries no budget
     sys_l2 = 0.0 if systematic is None else float(systematic[last.fit.names.index("lambda2")])
+    # what it would take to end each risk: the diagnosis's shortest plan of added runs, or the
+    # effect fitted on these runs (lambda2's sigma then below its statistical + systematic now)
+    risks = [r.effect for r in last.budget.risks] if last.budget is not None else []
+    plans = [resolving_plan(last.fit, runs, [e], level=last.budget.level) for e in risks]
+    by_runs = [p.n_runs for p in plans if p is not None and p.resolved]
+    by_fit = sum(1 for p in plans if p is not None and not p.resolved and any(
+        n == "lambda2" and w < sd + sys_l2 for n, _, sd, w in p.fitted))
     return {"verdict": last.verdict, "effects": tuple(last.effects), "value": float(value), "std": float(std),
-            "systematic": sys_l2}
+            "systematic": sys_l2, "risks": len(risks), "by_runs": by_runs, "by_fit": by_fit}
 
 
 def score(answer, truth):
@@ -168,7 +175,8 @@ def run(campaigns, seed, kinds=("stand", "field"), effects=None, report=print):
     for kind in kinds:
         for effect in effects or names:
             tally = {"kind": kind, "effect": effect, "n": 0, "before": 0, "after": 0, "adequate": 0,
-                     "inconclusive": 0, "found": 0, "covered": 0, "half_width": []}
+                     "inconclusive": 0, "found": 0, "covered": 0, "half_width": [], "risks": 0, "by_runs": [],
+                     "by_fit": 0}
             for c in range(campaigns):
                 rng = np.random.default_rng([seed, kinds.index(kind), (names.index(effect) - 1) % 99, c])
                 runs, truth = campaign(kind, effect, rng)
@@ -183,13 +191,19 @@ def run(campaigns, seed, kinds=("stand", "field"), effects=None, report=print):
                 width = K_SIGMA * answer["std"] + answer["systematic"]
                 tally["covered"] += abs(answer["value"] - truth["lambda2"]) <= width
                 tally["half_width"].append(width)
+                tally["risks"] += answer["risks"]
+                tally["by_runs"] += answer["by_runs"]
+                tally["by_fit"] += answer["by_fit"]
             tally["half_width"] = float(np.median(tally["half_width"]))
             rows.append(tally)
             report(f"  {kind:<5} {effect:<19} {tally['n']:>3} campaigns: confidently wrong before "
                    f"{tally['before']:>3}, after {tally['after']:>3}; adequate {tally['adequate']:>3}, "
                    f"inconclusive {tally['inconclusive']:>3}; hidden effect added {tally['found']:>3}; "
                    f"interval covers lambda2 {tally['covered']:>3}, median half-width "
-                   f"{tally['half_width']:.3g} arcsec")
+                   f"{tally['half_width']:.3g} arcsec; risks {tally['risks']:>3}: ended by added runs "
+                   f"{len(tally['by_runs']):>3}" + (f" (median {np.median(tally['by_runs']):.0f} runs)"
+                                                    if tally["by_runs"] else "")
+                   + f", by fitting the effect {tally['by_fit']:>3}")
     return rows
 
 
@@ -206,6 +220,13 @@ def main(argv=None):
     n = sum(r["n"] for r in rows)
     before = sum(r["before"] for r in rows)
     after = sum(r["after"] for r in rows)
+    risks = sum(r["risks"] for r in rows)
+    by_runs = [k for r in rows for k in r["by_runs"]]
+    by_fit = sum(r["by_fit"] for r in rows)
+    print(f"systematic risks {risks}: ended by added runs at the azimuths or positions so far {len(by_runs)} "
+          f"(median {np.median(by_runs) if by_runs else float('nan'):.0f} runs), by fitting the effect on "
+          f"these runs (lambda2's sigma below its statistical + systematic now) {by_fit}, neither "
+          f"{risks - len(by_runs) - by_fit}")
     print(f"in all: {n} campaigns; confidently wrong before {before} ({100 * before / n:.1f} %), "
           f"after {after} ({100 * after / n:.1f} %); target <= 5 % after "
           f"({time.process_time() - t0:.0f} s CPU)")

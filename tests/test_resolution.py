@@ -95,3 +95,25 @@ def test_runs_append_is_the_inverse_of_a_split():
         a.append(b.replace(heading_std=None))
     with pytest.raises(Exception, match="run id"):
         a.append(a)
+
+
+@pytest.mark.parametrize("campaign, effect", [("field", "sync_delay"), ("stand", "scale_nonlinearity")])
+def test_the_sigma_fitted_with_the_effect_is_a_real_fits(campaign, effect):
+    """The other way out, fit the effect: the plan's sigma of each parameter at risk against
+    hse-opt's own fit with the effect added."""
+    if campaign == "field":
+        sys.path.insert(0, str(Path(__file__).resolve().parent))
+        from test_aliasing import _field_campaign
+        runs = _field_campaign(0)
+    else:
+        runs = _stand_campaign(1)
+    d = diagnose(runs)
+    plan = resolving_plan(d.fit, runs, [effect], level=d.budget.level)
+    assert not plan.resolved and plan.fitted
+    g = fit(runs, list(d.fit.model.effect_names) + [effect])
+    for name, _, now, with_effect in plan.fitted:
+        assert now == pytest.approx(d.fit.value(name)[1], rel=1e-9)
+        assert with_effect == pytest.approx(g.value(name)[1], rel=0.02)
+        assert with_effect > now
+    note = next(n for n in d.notes if n.startswith(f"inconclusive: {effect}"))
+    assert f"hse-opt fit --effects {effect}" in note

@@ -66,6 +66,10 @@ class ResolvingPlan:
         The worst undetectable shift in sigmas before and after.
     hours : float
         The alignments' time (``n_runs`` runs of the campaign's median duration), h.
+    fitted : tuple of (name, unit, sigma now, sigma fitted)
+        The other way to end the risks, without runs: fit the effects with the model on these
+        runs. Per parameter at risk, its statistical sigma now and with the effects fitted
+        (display units; ``inf`` when these runs cannot fit them together).
     """
 
     effects: tuple
@@ -75,6 +79,7 @@ class ResolvingPlan:
     ratio_before: float
     ratio_after: float
     hours: float
+    fitted: tuple = ()
 
     def text(self, field=False):
         """One sentence: how many runs, which, how long; or why none would do (``field``: a
@@ -85,10 +90,18 @@ class ResolvingPlan:
             return f"{self.n_runs} runs would resolve {it} (about {self.hours:.2g} h of alignments): {what}"
         left = f"{self.n_runs} more would leave it at {self.ratio_after:.2g} sigma, from {self.ratio_before:.2g}"
         if field:
-            return (f"runs at the positions so far cannot resolve {it} ({left}); positions at other headings may: "
+            text = (f"runs at the positions so far cannot resolve {it} ({left}); positions at other headings may: "
                     "hse-opt design --field --runs RUNS.csv plans them")
-        return (f"runs varying rate, sense, azimuth or start time cannot resolve {it} ({left}); fit {it} with the "
-                f"model on a campaign designed for both (hse-opt design --effects {','.join(self.effects)})")
+        else:
+            text = f"runs varying rate, sense, azimuth or start time cannot resolve {it} ({left})"
+        if self.fitted and all(np.isfinite(w) for _, _, _, w in self.fitted):
+            sig = ", ".join(f"{n} +- {w:.3g} {u} (now {s:.3g} statistical)" for n, u, s, w in self.fitted)
+            return (f"{text}; fitted with the model, these runs would give {sig}: hse-opt fit --effects "
+                    f"{','.join(self.effects)}")
+        if field:
+            return text
+        return (f"{text}; fit {it} with the model on a campaign designed for both (hse-opt design --effects "
+                f"{','.join(self.effects)})")
 
     def to_dict(self):
         return {"effects": list(self.effects), "runs": [dict(r) for r in self.runs], "n_runs": self.n_runs,
@@ -192,6 +205,7 @@ def resolving_plan(fit_result, runs, effects, *, level, max_runs=MAX_RUNS, start
     info = [dict(info[i], text=info[i]["text"] if vary_t else info[i]["text"].split(",")[0]) for i in keep]
     dof0 = int(f.dof)
     N = A0.T @ A0
+    fitted = _fitted(f, N, k, n_pos, blocks, np.array(f.names)[free], [e.name for e in effs])
     outer = Ac[:, :, None] * Ac[:, None, :]
     normal = _Normal(k, n_pos, blocks, vertices, level)
     before = float(normal.at_dof(dof0).ratios(N[None])[0])
@@ -217,7 +231,25 @@ def resolving_plan(fit_result, runs, effects, *, level, max_runs=MAX_RUNS, start
     picked = tuple(dict(info[i], count=int(counts[i])) for i in np.flatnonzero(counts))
     picked = tuple(sorted(picked, key=lambda r: -r["count"]))
     hours = n * float(np.median(runs.duration)) / 3600.0
-    return ResolvingPlan(tuple(e.name for e in effs), picked, n, ratio <= 1.0, before, ratio, hours)
+    return ResolvingPlan(tuple(e.name for e in effs), picked, n, ratio <= 1.0, before, ratio, hours, fitted)
+
+
+def _fitted(f, N, k, n_pos, blocks, names, effects):
+    """Per parameter at risk: (name, unit, sigma now, sigma with the effects fitted), from the
+    normal matrix of these runs; ``inf`` when the extended model is singular here."""
+    at_risk = [n for n, by in zip(f.names, f.systematic_by or ()) if set(by) & set(effects)]
+    cols = np.r_[np.arange(k + n_pos), np.concatenate([np.arange(b.start, b.stop) for b in blocks])]
+    M = N[np.ix_(cols, cols)]
+    d = np.sqrt(np.clip(np.diag(M), 1e-300, None))
+    s = np.linalg.svd(M / np.outer(d, d), compute_uv=False)
+    with_std = (np.sqrt(np.clip(np.diag(np.linalg.inv(M))[:k], 0.0, None)) if s[-1] > 1e-12 * s[0]
+                else np.full(k, np.inf))
+    out = []
+    for j, name in enumerate(names):
+        if name in at_risk:
+            i = list(f.names).index(name)
+            out.append((str(name), f.units[i], float(f.std[i]), float(with_std[j])))
+    return tuple(out)
 
 
 def _key(d):
