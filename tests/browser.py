@@ -26,7 +26,7 @@ window.addEventListener('load', () => {
   const out = {images: imgs.length,
     decoded: imgs.filter(i => i.complete && i.naturalWidth > 0 && i.naturalHeight > 0).length,
     rects: imgs.map(rect), sections: document.querySelectorAll('section').length,
-    height: document.documentElement.scrollHeight};
+    height: document.documentElement.scrollHeight, width: document.documentElement.scrollWidth};
   const p = document.createElement('pre'); p.id = 'probe'; p.textContent = JSON.stringify(out);
   document.body.appendChild(p);
 });
@@ -55,7 +55,8 @@ def render(page, workdir):
     -------
     probe : dict
         ``images`` (count), ``decoded`` (images the browser decoded, non-zero size),
-        ``rects`` (each image's [left, top, width, height], CSS px), ``sections``, ``height``.
+        ``rects`` (each image's [left, top, width, height], CSS px), ``sections``, ``height``,
+        ``width`` (the page's scroll width, CSS px: more than ``WIDTH`` when something overflows).
     pixels : numpy.ndarray, shape (height, WIDTH, 3), uint8
         A screenshot of the whole page.
     """

@@ -197,6 +197,46 @@ def test_the_report_renders_in_chromium_with_the_verdict_first(campaigns, tmp_pa
     assert probe["sections"] >= 6
 
 
+def test_the_next_plans_sigma_says_its_model_and_the_report_fits_the_page(tmp_path, capsys):
+    """The README's session (three positions, only A surveyed, 2 h left): the plan's sigma of
+    lambda2 is in a model with a systematic risk estimated too, so the line names it and the
+    fit's own statistical sigma it differs from (summary.json's); the raw-log table lists
+    run_1 ... run_12 in natural order; nothing in the report is wider than the browser's page."""
+    import re
+
+    from browser import WIDTH
+
+    truth = TruthConfig.default()
+    rows = [(r, h, p) for p, h in (("A", 0.0), ("B", 131.0), ("C", 250.0)) for r in (20.0, 60.0, -40.0, -60.0)]
+    rate, az, pos = zip(*rows)
+    plan = Plan.from_columns({"run": np.arange(1, 13), "rate_dps": rate, "azimuth_deg": az,
+                              "t_start_s": 3600.0 + 200.0 * np.arange(12), "duration_s": np.full(12, 120.0),
+                              "position": list(pos)}, source="README plan")
+    logs = tmp_path / "logs"
+    logs.mkdir()
+    run_campaign(plan, truth, 2, field=True, surveyed=("A",), raw_logs=logs)
+    save_calibration(lab_calibration(truth), tmp_path / "CAL.toml")
+    out = tmp_path / "s"
+    status = cli.main(["calibrate", str(logs), "--out", str(out), "--calibration", str(tmp_path / "CAL.toml"),
+                       "--time-left-h", "2", "--no-progress"])
+    stdout = capsys.readouterr().out
+    assert status == 0
+    summary = json.loads((out / "summary.json").read_text())
+    extra = [e for e in summary["next"]["effects"] if e not in summary["effects"]]
+    assert extra, summary["next"]["effects"]        # the case: the plan's model is not the fit's
+    std = summary["parameters"]["lambda2"]["std"]
+    line = next(ln for ln in stdout.splitlines() if "takes sigma(lambda2)" in ln)
+    assert f"with {', '.join(extra)} - a systematic risk now - estimated too" in line, line
+    assert f"the fit above, without it, gives +- {std:.2g} arcsec" in line, line
+    assert f"+- {std:.2g} arcsec (statistical, 1-sigma)" in stdout
+    page = (out / "report.html").read_text()
+    logs_section = page[page.index("<h2>Raw logs"):]
+    keys = re.findall(r'data-key="(run_\d+)\.npz"', logs_section[:logs_section.index("</table>")])
+    assert keys == [f"run_{i}" for i in range(1, 13)]
+    probe, _ = render(out / "report.html", tmp_path)
+    assert probe["width"] <= WIDTH, probe["width"]
+
+
 # -- the live session -------------------------------------------------------------------------
 def _readline(proc, timeout):
     """One line of ``proc``'s stdout within ``timeout`` s (None at the end)."""

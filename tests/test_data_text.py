@@ -47,9 +47,11 @@ def test_text_columns_are_metadata_passed_through(tmp_path):
     sheet, out = _rows(src), _rows(tmp_path / "OUT.csv")
     for name in ("date", "operator", "serial", "remark"):
         assert [r[name] for r in out] == [r[name] for r in sheet]
-    # subsets keep them row by row; the weights came from the replicates
+    # subsets keep them row by row; 4 replicate degrees of freedom are too few for a pure-error
+    # sigma (fewer than 8): the sigma comes from the residuals, and the replicates test the fit
     assert load_runs(tmp_path / "OUT.csv").subset([3, 0]).metadata["operator"].tolist() == ["Wu", "Yu"]
-    assert fit(runs, fix={"lambda2*tilt_const": 0.0}).weighting == "pure-error"
+    f = fit(runs, fix={"lambda2*tilt_const": 0.0})
+    assert f.weighting == "residual" and f.lack_of_fit.dof == (1, 4)
 
 
 def test_plan_text_columns_reach_the_simulated_runs(tmp_path):
@@ -88,9 +90,13 @@ def test_reference_sigma_enters_the_weights():
 def test_reference_sigma_from_the_file_and_pure_error(tmp_path):
     src = tmp_path / "SHEET.csv"
     lines = SHEET.splitlines()
-    src.write_text("\n".join([lines[0] + ",azimuth_std_arcsec"] + [ln + ",3" for ln in lines[1:]]) + "\n")
+    # most of the sheet measured twice more (18 replicate degrees of freedom: a pure-error sigma)
+    again = [ln.split(",") for ln in lines[1:] if '"' not in ln]
+    more = [",".join([str(8 * k + int(c[0]))] + c[1:5] + [f"{float(c[5]) + (-1) ** k * 0.5 * k:g}"] + c[6:])
+            for k in (1, 2) for c in again]
+    src.write_text("\n".join([lines[0] + ",azimuth_std_arcsec"] + [ln + ",3" for ln in lines[1:] + more]) + "\n")
     runs = load_runs(src)
-    assert runs.azimuth_std == pytest.approx(np.full(8, 3 * units.ARCSEC))
+    assert runs.azimuth_std == pytest.approx(np.full(len(runs), 3 * units.ARCSEC)) and len(runs) == 22
     f = fit(runs, fix={"lambda2*tilt_const": 0.0})
     plain = fit(runs.replace(azimuth_std=None), fix={"lambda2*tilt_const": 0.0})
     assert f.weighting == plain.weighting == "pure-error"

@@ -386,7 +386,8 @@ def test_paper_procedure_equals_general_fit_restricted_to_the_paper_model(rng):
     runs = _single_position(rng)
     cal = paper_procedure(runs)
     f = fit(runs)  # the paper's model (offset, lambda2), tilt known
-    assert cal.weighting == f.weighting == "pure-error"
+    # 6 replicate degrees of freedom: too few for a pure-error sigma, both take the residuals'
+    assert cal.weighting == f.weighting == "residual" and f.lack_of_fit.dof == (1, 6)
     l2, s2 = f.value("lambda2")
     # the full gyrocompass also sees the north error Omega C13 M33 that Eq. 14 drops: a
     # relative 1e-4 at a 1-mrad tilt, a thousandth of a sigma here
@@ -408,7 +409,10 @@ def test_paper_procedure_reproduces_the_paper_numbers():
     cal = paper_procedure(runs, c23=c23)
     assert cal.k_hse_arcsec_per_radps == pytest.approx(17.4, rel=1e-12)
     assert cal.lambda2_arcsec == pytest.approx(4.2, rel=1e-12)
-    assert cal.weighting == "pure-error" and cal.sigma / units.ARCSEC == pytest.approx(0.5, rel=1e-12)
+    # 6 replicate degrees of freedom (fewer than 8): the sigma is the residuals', whose sum of
+    # squares is the repeat scatter's (orthogonal to the model): 6 x 0.25 arcsec^2 over 9 - 2 dof
+    assert cal.weighting == "residual"
+    assert cal.sigma / units.ARCSEC == pytest.approx(np.sqrt(6 * 0.25 / 7), rel=1e-9)
 
 
 def test_paper_procedure_rejects_several_positions():

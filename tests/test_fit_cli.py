@@ -158,3 +158,32 @@ def test_report_p_value_matches_scipy():
             assert chi2_sf(x, dof) == pytest.approx(chi2.sf(x, dof), rel=1e-8, abs=1e-300)
     with pytest.raises(ValueError, match="dof 2.5"):
         chi2_sf(1.0, 2.5)
+
+
+@pytest.mark.parametrize("budget", ["present", "zero", "absent"])
+def test_compensate_states_the_systematic_bound_in_words(tmp_path, capsys, budget):
+    """The systematic bound is its size when there is one (the output column's maximum), 'none'
+    when FIT.json's budget is zero everywhere, and 'not computed' when the file has no budget
+    (written before budgets); never 'up to 0 arcsec' (new-user trial)."""
+    fit_path = tmp_path / "FIT.json"
+    assert main(["fit", TABLE1, "--fix", FIX, "-o", str(fit_path)]) == 0
+    d = json.loads(fit_path.read_text())
+    for p in d["parameters"].values():
+        if budget == "zero":
+            p["systematic"], p["systematic_by"] = 0.0, {}
+        elif budget == "absent":
+            del p["systematic"], p["systematic_by"]
+    fit_path.write_text(json.dumps(d))
+    capsys.readouterr()
+    out_csv = tmp_path / "OUT.csv"
+    assert main(["compensate", TABLE1, "--fit", str(fit_path), "-o", str(out_csv)]) == 0
+    text = capsys.readouterr().out
+    assert "up to 0 arcsec" not in text
+    column = np.asarray(load_runs(out_csv).covariates["heading_comp_sys_arcsec"], float)
+    if budget == "present":
+        assert column.max() > 1.0
+        assert f"up to {column.max():.3g} arcsec" in text
+    elif budget == "zero":
+        assert not column.any() and "systematic bound: none" in text
+    else:
+        assert not column.any() and "systematic bound: not computed" in text

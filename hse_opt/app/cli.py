@@ -212,4 +212,7 @@ def main(argv=None):
 
 
 if __name__ == "__main__":
-    sys.exit(main())
+    _status = main()
+    from hse_opt.interrupts import forget_escaped_interrupt
+    forget_escaped_interrupt()     # python -m: the status chosen, not a kill by SIGINT on the way out
+    sys.exit(_status)

@@ -48,6 +48,7 @@ from __future__ import annotations
 
 import json
 import os
+import re
 import time
 from dataclasses import dataclass, field
 
@@ -204,19 +205,25 @@ class SessionResult:
         }
 
 
+def natural_key(name):
+    """Sort key of a name with its digit runs as numbers: ``run_2`` before ``run_10``."""
+    return [int(t) if t.isdigit() else t for t in re.split(r"(\d+)", os.fspath(name))]
+
+
 def log_paths(items, suffixes=_SUFFIXES):
     """Raw-log files: files as given, a folder -> its raw logs (entries whose names end in
     ``suffixes`` and do not start with ``.``), sorted by name. An entry that is not a regular
     file (a folder, a FIFO) is kept: the loader refuses it by its kind, naming it, without
     opening it (a FIFO would block), so it is never passed over in silence. ValueError naming
-    a missing item or a folder without raw logs (``hse-opt align`` and ``calibrate``)."""
+    a missing item or a folder without raw logs (``hse-opt align`` and ``calibrate``). Names sort
+    naturally (:func:`natural_key`: run_2 before run_10)."""
     suffixes = tuple(suffixes)
     paths = []
     for item in items:
         item = os.fspath(item)
         if os.path.isdir(item):
-            found = sorted(os.path.join(item, f) for f in os.listdir(item)
-                           if f.endswith(suffixes) and not f.startswith("."))
+            found = sorted((os.path.join(item, f) for f in os.listdir(item)
+                            if f.endswith(suffixes) and not f.startswith(".")), key=natural_key)
             if not found:
                 raise ValueError(f"{item}: no raw logs ({', '.join(suffixes)}) in the directory; allowed: a "
                                  f"directory of raw logs ({', '.join(suffixes)})")

@@ -217,23 +217,27 @@ def flag_runs(run, lev, cooks, stud, k, alpha, n=None):
 
 
 def lack_of_fit(null, runs):
-    """Pure-error lack-of-fit F test: the model against one mean per replicate group."""
+    """Pure-error lack-of-fit F test: the model against one mean per replicate group, by the
+    fit's own rule (:func:`hse_opt.fit.weights.lack_of_fit_test`: the pure error is the scatter
+    within the groups, ``measurements - groups`` degrees of freedom, whatever the model's
+    columns do within a group -- measured tilts and rates vary a little)."""
+    from ..fit.weights import lack_of_fit_test
     labels, g = replicate_groups(runs, null.f.measurement)
     if g == null.n:
         return None
-    D = np.zeros((null.n, g))
-    D[np.arange(null.n), labels] = 1.0
-    U = null.basis(D / null.sigma[:, None])
-    F, dof, p, logp = null.score(U)
-    if p is None and null.n_eff < null.n:
+    test = lack_of_fit_test(null.f.residuals, null.sigma, labels, g, null.n_eff, null.k)
+    dof = (g - null.k, null.n_eff - g)
+    if test is None and (null.n_eff < null.n or dof[0] >= 1):    # copies, or no scatter within groups
         return Test("lack of fit", f"{g} replicate groups", None, dof, None, None, "",
                     "the replicates are identical (copies: zero pure error): no lack-of-fit test; "
                     "check that the repeated runs were really measured again")
-    if p is None:
+    if test is None:
         return Test("lack of fit", f"{g} replicate groups", None, dof, None, None, "",
                     "not enough replicate groups beyond the model's parameters")
+    dof = test.dof
     return Test("lack of fit", f"model against {g} replicate-group means (pure error from "
-                f"{dof[1]} degrees of freedom)", F, dof, p, logp)
+                f"{dof[1]} degrees of freedom)", test.statistic, dof, test.p_value,
+                f_logsf(test.statistic, *dof))
 
 
 @dataclass(frozen=True)

@@ -27,11 +27,16 @@ Weights (``FitResult.weighting``)
 ``heading_std``
     the runs' own 1-sigma (``heading_std_arcsec``); the covariance is not rescaled.
 ``pure-error``
-    no sigmas but replicated settings (same rate, azimuth, tilt, duration, latitude): one
-    sigma from the scatter within replicate groups, independent of the model.
+    no sigmas but replicated settings (same rate, azimuth, tilt, duration, latitude) with at
+    least :data:`~hse_opt.fit.weights.PURE_ERROR_MIN_DOF` (8) replicate degrees of freedom:
+    one sigma from the scatter within replicate groups, independent of the model.
 ``residual``
     neither: one sigma from the residuals, ``s^2 = RSS / dof`` (chi2_red is then 1 by
-    construction and no goodness-of-fit test is possible).
+    construction; replicates, if any, still test the fit).
+
+With replicates, ``FitResult.lack_of_fit`` is the pure-error lack-of-fit F test, the goodness
+of fit of ``pure-error`` and ``residual`` weighting and the same test ``hse-opt diagnose``
+makes (docs/weights.md: the rule and why).
 ``robust-scale``
     ``robust=True`` without ``heading_std``: one sigma from the median absolute deviation of
     the residuals, ``1.4826 MAD``.

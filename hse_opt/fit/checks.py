@@ -93,7 +93,12 @@ def check_lines(result, runs):
     implausible = implausible_scatter(result, runs)
     if implausible:
         out.append(implausible)
-    if result.weighting in ("heading_std", "pure-error") and result.dof > 0:
+    lof = result.lack_of_fit
+    if lof is not None and lof.p_value < ALPHA:
+        out.append(f"the replicate groups' means stray from the model more than the replicates scatter "
+                   f"({lof.text()}): a missing effect (hse-opt diagnose), or replicates that are not "
+                   "independent")
+    if result.weighting == "heading_std" and result.dof > 0:
         p = chi2_sf(result.chi2_red * result.dof, result.dof)
         if not ALPHA / 2 <= p <= 1 - ALPHA / 2:
             lo, hi = (chi2_isf(q, result.dof) / result.dof for q in (1 - ALPHA / 2, ALPHA / 2))

@@ -183,6 +183,7 @@ def load_fit(path, model=None):
             inputs=(np.array([runs["inputs"][k] for k in RUN_FIELDS + tuple(mm.covariates)], dtype=float)
                     if "inputs" in runs else None),
             confounded=tuple(_group(g) for g in d.get("confounded", [])),
+            lack_of_fit=_lack_of_fit(d.get("lack_of_fit")),
             **_systematic(par, names, get("std")))
     except (KeyError, TypeError, IndexError, OverflowError, AttributeError) as err:
         raise ValueError(f"{src}: FIT.json is missing or has a malformed entry {err}; allowed: a file "
@@ -192,6 +193,19 @@ def load_fit(path, model=None):
             raise
         allowed = "" if "allowed" in str(err) else "; allowed: a FIT.json written by hse-opt fit -o"
         raise ValueError(f"{src}: {err}{allowed}") from None
+
+
+def _lack_of_fit(d):
+    """The ``lack_of_fit`` entry as a :class:`~hse_opt.fit.weights.LackOfFit` (None: absent)."""
+    from .weights import LackOfFit
+    if d is None:
+        return None
+    dof = tuple(int(x) for x in d["dof"])
+    value = LackOfFit(float(d["statistic"]), dof, float(d["p_value"]), int(d["groups"]))
+    if len(dof) != 2 or min(dof) < 1 or not value.statistic >= 0 or not 0 <= value.p_value <= 1:
+        raise ValueError(f"\"lack_of_fit\" {d}: allowed an F >= 0, two degrees of freedom >= 1 and a p-value "
+                         "in [0, 1], as hse-opt fit -o writes it")
+    return value
 
 
 def _check_numbers(src, d, mm, names, n_runs):

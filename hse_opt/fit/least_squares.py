@@ -10,7 +10,8 @@ from ..model.composition import as_model
 from .problem import Problem, position_projector, setup
 from .result import FitResult, SolverError
 from .solvers import gauss_newton, gauss_newton_step, solve, subspace
-from .weights import HUBER_C, huber_weights, mad_scale, multiplicity, run_sigma
+from .weights import (HUBER_C, huber_weights, lack_of_fit_test, mad_scale, multiplicity, replicate_groups,
+                      run_sigma)
 
 
 #: the profile start runs on at most this many runs (evenly spread in run order)
@@ -333,6 +334,12 @@ def _fit(runs, model, *, fix, tilt_known, bounds, constraints, prior, robust, hu
     order = np.argsort(hw, kind="stable")
     down = tuple(int(runs.run[i]) for i in order if hw[i] < 1 - 1e-12)
     p = prob.p(z)
+    # the replicates' test of the model (one rule with hse-opt diagnose); a prior's pull on the
+    # parameters is no part of the replicate groups' means: no test then
+    lof = None
+    if not r_prior:
+        labels, g = replicate_groups(runs, mm)
+        lof = lack_of_fit_test(res, sigma, labels, g, n_meas, k_eff + n_pos)
     return FitResult(
         model=model, tilt_known=tilt_known, names=mm.names, units=tuple(q.unit for q in mm.params),
         values=p / mm.scale, std=std, covariance=cov, correlation=corr, free=free, p=p,
@@ -341,7 +348,7 @@ def _fit(runs, model, *, fix, tilt_known, bounds, constraints, prior, robust, hu
         bic=ll_term + (k_eff + n_pos) * np.log(n_meas), condition=info.condition, weighting=weighting,
         method=method, status=status, binding=binding_names, downweighted=down, notes=tuple(notes),
         lower=lower, upper=upper, constraints=kept, active=active, weights=hw, chi2_prior=chi2_prior,
-        inputs=X, confounded=groups)
+        inputs=X, confounded=groups, lack_of_fit=lof)
 
 
 def _single_rate_positions(runs, group, positions):

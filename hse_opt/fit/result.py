@@ -53,6 +53,46 @@ def chi2_isf(q, dof):
     return 0.5 * (lo + hi)
 
 
+def f_sf(F, dof1, dof2):
+    """P(F with ``(dof1, dof2)`` degrees of freedom > ``F``): the regularised incomplete beta
+    function ``I_x(dof2/2, dof1/2)`` at ``x = dof2 / (dof2 + dof1 F)``, by its continued fraction
+    (modified Lentz), numpy and math only like :func:`chi2_sf`. ``F = inf`` gives 0."""
+    if dof1 <= 0 or dof2 <= 0:
+        raise ValueError(f"dof ({dof1}, {dof2}): allowed numbers > 0")
+    F = float(F)
+    if F <= 0.0:
+        return 1.0
+    if math.isinf(F):
+        return 0.0
+    x = dof2 / (dof2 + dof1 * F)
+    return _betainc(dof2 / 2.0, dof1 / 2.0, x)
+
+
+def _betainc(a, b, x):
+    """The regularised incomplete beta function ``I_x(a, b)``, 0 <= x <= 1."""
+    if x <= 0.0 or x >= 1.0:
+        return 0.0 if x <= 0.0 else 1.0
+    if x > (a + 1.0) / (a + b + 2.0):        # the fraction converges fast below the mean
+        return 1.0 - _betainc(b, a, 1.0 - x)
+    log_front = (a * math.log(x) + b * math.log1p(-x) - math.log(a)
+                 - (math.lgamma(a) + math.lgamma(b) - math.lgamma(a + b)))
+    tiny = 1e-300
+    c, d = 1.0, 1.0 - (a + b) * x / (a + 1.0)
+    d = 1.0 / (d if abs(d) > tiny else tiny)
+    h = d
+    for m in range(1, 10000):
+        for num in (m * (b - m) * x / ((a + 2 * m - 1) * (a + 2 * m)),
+                    -(a + m) * (a + b + m) * x / ((a + 2 * m) * (a + 2 * m + 1))):
+            d = 1.0 + num * d
+            d = 1.0 / (d if abs(d) > tiny else tiny)
+            c = 1.0 + num / c
+            c = c if abs(c) > tiny else tiny
+            h *= d * c
+        if abs(d * c - 1.0) < 1e-15:
+            break
+    return float(min(1.0, math.exp(log_front) * h))
+
+
 @dataclass(frozen=True)
 class Constraint:
     """A linear constraint ``lower <= sum(c_i * value_i) <= upper`` between parameters, in
@@ -185,6 +225,11 @@ class FitResult:
         (:func:`hse_opt.aliasing.alias_budget`, :meth:`with_budget`).
     systematic_by : tuple of dict
         Per parameter ``{effect: shift}`` of the effects behind ``systematic``.
+    lack_of_fit : LackOfFit or None
+        The replicates' test of the model (:func:`hse_opt.fit.weights.lack_of_fit_test`: the
+        replicate groups' means about the model against the scatter within them, F with
+        ``(groups - k, measurements - groups)`` degrees of freedom); None without replicates,
+        with a prior, or in a FIT.json written before it.
     """
 
     model: Model
@@ -223,6 +268,7 @@ class FitResult:
     confounded: tuple = ()
     systematic: np.ndarray = None
     systematic_by: tuple = ()
+    lack_of_fit: object = None
 
     def __post_init__(self):
         for f in fields(self):  # frozen all the way down: read-only copies of the arrays
@@ -322,12 +368,18 @@ class FitResult:
             lines.append(f"  {name:<{width}}{p['value']:>12.5g}  {sigma}  {p['unit']} {state}".rstrip())
         lines.append("")
         fit_line = f"  chi2 {self.chi2:.4g} / dof {self.dof} = {self.chi2_red:.4g}"
-        if self.weighting in ("heading_std", "pure-error"):
+        if self.weighting == "heading_std":
             fit_line += f" (p = {chi2_sf(self.chi2, self.dof):.3g})"
+        elif self.weighting == "pure-error":
+            fit_line += " (sigma from the replicates' scatter: the test is the lack of fit below)"
+        elif self.lack_of_fit is not None:
+            fit_line += " (sigma from the residuals: the test is the lack of fit below)"
         else:
             fit_line += " (sigma from the residuals: no goodness-of-fit test)"
         lines += [f"  {text}" for text in self.tilt_amplitude_lines()]
-        lines += [fit_line, f"  AIC {self.aic:.4g}, BIC {self.bic:.4g}, residual RMS "
+        if self.lack_of_fit is not None:
+            fit_line += f"\n  {self.lack_of_fit.text()}"
+        lines += [*fit_line.split("\n"), f"  AIC {self.aic:.4g}, BIC {self.bic:.4g}, residual RMS "
                             f"{self.rms_arcsec:.4g} arcsec, condition number {self.condition:.3g}"]
         lines.append(f"  bounds that bind: {', '.join(self.binding) or 'none'}")
         if self.constraints:
@@ -361,6 +413,7 @@ class FitResult:
             "tilt_amplitudes": {b: {"value": a, "std": sa, "unit": u}
                                 for b, (a, sa, u) in self.tilt_amplitudes().items()},
             "chi2": float(self.chi2), "dof": int(self.dof), "chi2_red": float(self.chi2_red),
+            "lack_of_fit": None if self.lack_of_fit is None else self.lack_of_fit.to_dict(),
             "aic": float(self.aic), "bic": float(self.bic), "rms_arcsec": self.rms_arcsec,
             "chi2_prior": float(self.chi2_prior), "tilt_known": bool(self.tilt_known),
             "condition": float(self.condition), "weighting": self.weighting,

@@ -1,6 +1,7 @@
 """The weights of a fit: each run's heading sigma (the runs' own, the pure error of replicate
 groups, or one to be estimated from the residuals; :mod:`hse_opt.fit`) and the robust
 (Huber) weights and scale."""
+from dataclasses import dataclass
 from functools import lru_cache
 
 import casadi as ca
@@ -10,6 +11,13 @@ from .. import units
 from ..data.runs import COPY_TOL_ARCSEC
 from ..information import heading_sigma
 from ..model.inputs import RUN_FIELDS, RunInputs
+
+#: the fewest replicate degrees of freedom whose pure error is used as the runs' sigma
+#: (docs/weights.md): ``s^2 / sigma^2`` is ``chi2_nu / nu``, so with ``nu``
+#: = 2 one sheet in ten gets ``s < sigma / 3`` and the fit's chi-square and standard errors are
+#: off by that factor; from 8 the one-sided 97.5 % bound of ``sigma / s`` is below 2 (1.92).
+#: Fewer: the pooled residual variance (``n - k`` >= ``nu`` degrees of freedom) is the sigma.
+PURE_ERROR_MIN_DOF = 8
 
 #: Huber's threshold in sigmas (95 % efficiency for Gaussian data)
 HUBER_C = 1.345
@@ -139,12 +147,79 @@ def _run_sigma(runs, robust, mm):
         return guess, "residual", [
             f"the replicates are identical (pure-error scatter {s_pe / units.ARCSEC:.2g} arcsec from {dof_pe} "
             "degrees of freedom): no pure-error sigma; check that the repeated runs were really measured again"]
-    if s_pe is not None:
+    if s_pe is not None and dof_pe >= PURE_ERROR_MIN_DOF:
         sigma, weighting, notes = _with_reference(np.full(n, s_pe), reference, "pure-error")
         return sigma, weighting, [
             f"sigma {s_pe / units.ARCSEC:.3g} arcsec from {dof_pe} replicate degrees of freedom "
             f"(pure error)"] + notes
+    if dof_pe >= 1:
+        skipped = [f"{dof_pe} replicate degree{'s' if dof_pe > 1 else ''} of freedom: too few for a "
+                   f"pure-error sigma (at least {PURE_ERROR_MIN_DOF}), sigma from the residuals; the "
+                   "replicates test the fit (lack of fit)"] + skipped
     return guess, "residual", skipped
+
+
+@dataclass(frozen=True)
+class LackOfFit:
+    """The pure-error lack-of-fit F test: the scatter of the replicate groups' means about the
+    model against the scatter within the groups.
+
+    Attributes
+    ----------
+    statistic : float
+        ``F = (SS_lof / dof[0]) / (SS_pe / dof[1])``.
+    dof : tuple of int
+        ``(groups - k, measurements - groups)``: lack of fit, pure error.
+    p_value : float
+        P(F(dof) > statistic).
+    groups : int
+        Replicate groups (:func:`replicate_groups`).
+    """
+
+    statistic: float
+    dof: tuple
+    p_value: float
+    groups: int
+
+    def text(self):
+        """``'lack of fit F(18, 2) = 0.61, p = 0.78 (20 replicate groups)'``."""
+        return (f"lack of fit F({self.dof[0]}, {self.dof[1]}) = {self.statistic:.4g}, p = {self.p_value:.3g} "
+                f"({self.groups} replicate groups)")
+
+    def to_dict(self):
+        return {"statistic": float(self.statistic), "dof": [int(d) for d in self.dof], "p_value": float(self.p_value), "groups": int(self.groups)}
+
+
+def lack_of_fit_test(residuals, sigma, labels, n_groups, n_meas, k):
+    """The pure-error lack-of-fit F test of a weighted fit (:class:`LackOfFit`), or None when
+    the runs have no replicate, too few groups for it, or replicates that agree exactly. One rule for :func:`~hse_opt.fit.fit`
+    and ``hse-opt diagnose``: the pure-error sum of squares is the weighted scatter within the
+    replicate groups (``labels`` (n,), ``n_groups`` of them), ``dof = n_meas - n_groups``
+    whatever the model; the lack of fit is the rest of the weighted residual sum of squares,
+    ``n_groups - k`` degrees of freedom.
+
+    Parameters
+    ----------
+    residuals, sigma : numpy.ndarray, shape (n,)
+        The fit's residuals and each run's sigma (rad; the weights are ``1 / sigma^2``, copies
+        of one measurement sharing its weight).
+    labels : numpy.ndarray of int, shape (n,)
+    n_groups, n_meas, k : int
+        Replicate groups, measurements (rows less copies) and fitted directions (free parameters
+        less active constraints, plus the positions' unknown headings).
+    """
+    from .result import f_sf
+    dof_pe, dof_lof = n_meas - n_groups, n_groups - k
+    if dof_pe < 1 or dof_lof < 1:
+        return None
+    res, w = np.asarray(residuals, float), 1.0 / np.asarray(sigma, float) ** 2
+    mean = np.bincount(labels, w * res, n_groups) / np.bincount(labels, w, n_groups)
+    ss_pe = float(np.sum(w * (res - mean[labels]) ** 2))
+    ss_lof = max(float(np.sum(w * res ** 2)) - ss_pe, 0.0)
+    if ss_pe <= 1e-20 * (ss_pe + ss_lof):
+        return None                  # replicates that agree to the last bits: copies, no test
+    F = (ss_lof / dof_lof) / (ss_pe / dof_pe)
+    return LackOfFit(float(F), (int(dof_lof), int(dof_pe)), f_sf(F, dof_lof, dof_pe), int(n_groups))
 
 
 def _with_reference(sigma, reference, weighting):

@@ -77,7 +77,7 @@ color:#1b1b1b;background:#fff;line-height:1.45}
 main{max-width:60rem;margin:0 auto;padding:1rem 1.5rem 3rem}
 h1{font-size:1.6rem;margin:.5rem 0}h2{font-size:1.25rem;border-bottom:1px solid #ddd;
 padding-bottom:.2rem;margin-top:2.2rem}
-table{border-collapse:collapse;margin:.6rem 0;font-size:.88rem}
+table{border-collapse:collapse;margin:.6rem 0;font-size:.88rem;display:block;width:max-content;max-width:100%;overflow-x:auto}
 th,td{border-bottom:1px solid #e3e3e3;padding:.2rem .6rem;text-align:left;vertical-align:top}
 th{background:#f4f6f8}td{font-variant-numeric:tabular-nums}
 .cols{display:flex;flex-wrap:wrap;gap:1.5rem;align-items:flex-start}

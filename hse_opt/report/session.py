@@ -42,13 +42,15 @@ def _uncertainty(result):
 
 
 def _with_risks(result):
-    """How the plan's sigma of lambda2 is meant: which effects it estimates besides the model."""
+    """How the plan's sigma of lambda2 is meant: which effects it estimates besides the model
+    (then its model is not the fit's, and its sigma now is not the fit's statistical one)."""
     c = result.continuation
     fitted = () if result.fit is None else result.fit.model.effect_names
     extra = [e for e in c.effects if e not in fitted]
     if not extra:
         return " (statistical)"
-    return f" (statistical, with {', '.join(extra)} - a systematic risk now - estimated too)"
+    return (f" (statistical, with {', '.join(extra)} - a systematic risk now - estimated too; the fit "
+            f"above, without {'it' if len(extra) == 1 else 'them'}, gives +- {result.target()[1]:.2g} {c.unit})")
 
 
 def summary_lines(result):

@@ -39,6 +39,18 @@ def _stats(x):
             "std_arcsec": float(np.std(x, ddof=1)) if x.size > 1 else None}
 
 
+def _systematic_text(calibration, summary):
+    """The systematic bound as words: its size, or that there is none, or that none was computed."""
+    if calibration.systematic is None:
+        return ("systematic bound: not computed (this FIT.json carries no systematic budget: "
+                "hse-opt fit writes one)")
+    if summary["comp_sys_max_arcsec"] == 0:
+        return ("systematic bound: none (no effect the calibration campaign could not rule out "
+                "moves the correction)")
+    return (f"systematic bound (what the calibration campaign could not rule out): up to "
+            f"{summary['comp_sys_max_arcsec']:.3g} arcsec")
+
+
 def run(args):
     from ... import units
     from ...data import load_runs, save_runs
@@ -95,8 +107,7 @@ def run(args):
             print(f"  {what}{where}: RMS {b['rms_arcsec']:.4g} -> {a['rms_arcsec']:.4g} arcsec, "
                   f"peak-to-peak {b['ptp_arcsec']:.4g} -> {a['ptp_arcsec']:.4g} arcsec")
         print(f"  compensation 1-sigma (calibration uncertainty): mean "
-              f"{summary['comp_std_mean_arcsec']:.3g} arcsec; systematic bound (what the calibration "
-              f"campaign could not rule out): up to {summary['comp_sys_max_arcsec']:.3g} arcsec")
+              f"{summary['comp_std_mean_arcsec']:.3g} arcsec; {_systematic_text(calibration, summary)}")
         if positions:
             print(f"  positions without a heading reference ({', '.join(positions)}): their true heading "
                   "errors are unknown; the scatter shows how consistent each position's headings became")

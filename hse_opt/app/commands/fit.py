@@ -12,7 +12,9 @@ DESCRIPTION = """\
 Fit the measurement model (the paper's 'hse' plus the effects named) to RUNS.csv by weighted
 least squares and print the parameters with their units and standard errors, the fit
 statistics, bounds that bind and strong correlations. Weights come from heading_std_arcsec,
-else from the scatter of replicated runs (pure error), else from the residuals. Runs without
+else from the scatter of replicated runs (pure error) when they give at least 8 degrees of
+freedom, else from the residuals (docs/weights.md: why 8); replicated runs also test the fit
+(the lack-of-fit F test, the same in hse-opt diagnose). Runs without
 pitch/roll get the tilt-coupled terms as free azimuth sinusoids (names like
 lambda2*tilt_cos). When the runs cannot separate two parameters the command stops (exit 2),
 names them and proposes runs that would; when they are only nearly inseparable (|r| > 0.99 or
