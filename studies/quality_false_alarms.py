@@ -17,6 +17,12 @@ P(X >= F | N, 1e-4) >= 1e-3 (for ``N`` = 1,200 that is ``F`` <= 1).
 
     python studies/quality_false_alarms.py            # CI size: 20 seeds a case, 20-s and 60-s logs
     python studies/quality_false_alarms.py --full     # 200 seeds a case, 20 s to 10 min (3,600 logs)
+    python studies/quality_false_alarms.py --full --resolution-unknown
+
+The checks are given each system's encoder resolution (``assess(...,
+encoder_counts_per_rev=...)``, as the calibration file's ``encoder.counts_per_rev`` or a
+mapping file's gives it); ``--resolution-unknown`` leaves it out (the checks then see the
+encoder's quantum only in the data).
 
 Prints the table (logs with a finding / logs) and the findings of the first few false alarms.
 """
@@ -62,9 +68,12 @@ def check_of(finding):
     return "channel other"
 
 
-def run_case(truth, duration, seeds, case_seed):
-    """Findings of ``assess`` on ``seeds`` clean logs: (list of (spec, seed, Quality), seconds)."""
+def run_case(truth, duration, seeds, case_seed, resolution_known=True):
+    """Findings of ``assess`` on ``seeds`` clean logs: (list of (spec, seed, Quality), seconds);
+    ``resolution_known``: the checks are given the encoder's counts per revolution."""
     rng = np.random.default_rng(case_seed)
+    res = truth.encoder.resolution
+    counts = 2.0 * np.pi / res if resolution_known and res > 0 else None
     out, spent = [], 0.0
     for seed in range(seeds):
         rate = float(rng.choice([-1.0, 1.0]) * rng.uniform(10.0, 60.0))
@@ -73,7 +82,7 @@ def run_case(truth, duration, seeds, case_seed):
                        tilt=tuple(rng.normal(0.0, 1e-3, 2)))
         log = generate(truth, spec, np.random.default_rng(seed))
         t0 = time.perf_counter()
-        q = assess(log)
+        q = assess(log, encoder_counts_per_rev=counts)
         spent += time.perf_counter() - t0
         out.append((spec, seed, q))
     return out, spent
@@ -83,6 +92,8 @@ def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--full", action="store_true", help="200 seeds a case, durations 20, 120 and 600 s")
     ap.add_argument("--seeds", type=int, default=None, help="seeds a case (default 20, or 200 with --full)")
+    ap.add_argument("--resolution-unknown", action="store_true",
+                    help="do not give the checks the encoder's counts per revolution")
     args = ap.parse_args(argv)
     seeds = args.seeds or (200 if args.full else 20)
     durations = (20.0, 120.0, 600.0) if args.full else (20.0, 60.0)
@@ -92,7 +103,7 @@ def main(argv=None):
     examples = []
     print(f"{'system':<15}{'duration':>10}{'logs':>7}{'with a finding':>16}   checks that fired")
     for i, (name, truth, d) in enumerate(cases):
-        res, spent = run_case(truth, d, seeds, [i, int(d)])
+        res, spent = run_case(truth, d, seeds, [i, int(d)], resolution_known=not args.resolution_unknown)
         fired = Counter()
         bad = 0
         for spec, seed, q in res:

@@ -216,3 +216,27 @@ def test_the_quality_column_align_writes_is_no_news_to_the_fit(logdir, tmp_path,
     other = tmp_path / "OTHER.csv"
     other.write_text("\n".join([text[0] + ",operator"] + [line + ",ann" for line in text[1:]]) + "\n")
     assert [n for n in load_runs(other).notes if "'operator' is text" in n]
+
+
+def test_align_without_a_calibration_says_once_what_it_assumed(logdir, tmp_path, capsys):
+    """No --calibration: one note line on stderr (the orthogonal, perfectly mounted IMU and how
+    to give the file) and the report says it too; with --calibration no such note, and the
+    filter's noise source line names the file's figures."""
+    d, _ = logdir
+    assert main(["align", str(d), "-o", str(tmp_path / "A.csv"), "--no-progress", "--report",
+                 str(tmp_path / "rep")]) == 0
+    err = capsys.readouterr().err.splitlines()
+    notes = [line for line in err if "assumed an orthogonal, perfectly mounted IMU" in line]
+    assert len(notes) == 1 and notes[0].startswith("hse-opt align: note: no --calibration:"), err
+    assert "--calibration CALIBRATION.toml" in notes[0]
+    page = (tmp_path / "rep" / "report.html").read_text()
+    assert "assumed an orthogonal, perfectly mounted IMU" in page
+    assert "gyro ARW: data; accel VRW: data" in page
+    save_calibration(lab_calibration(TRUTH), tmp_path / "CAL.toml")
+    assert main(["align", str(d), "-o", str(tmp_path / "B.csv"), "--no-progress", "--calibration",
+                 str(tmp_path / "CAL.toml")]) == 0
+    err = capsys.readouterr().err
+    assert "assumed an orthogonal" not in err
+    assert "the filter's noise: gyro ARW: file; accel VRW: file; gyro quantum: file; accel quantum: file" in err
+    assert set(load_runs(tmp_path / "B.csv").metadata["noise_source"]) == {
+        "gyro ARW: file; accel VRW: file; gyro quantum: file; accel quantum: file"}

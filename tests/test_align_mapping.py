@@ -28,15 +28,16 @@ def native():
     return log
 
 
-def _counter_stand_csv(log, path):
-    """The native log as example 1's stand writes it (hse_opt/datasets/mappings/counter_stand.toml)."""
+def _counter_stand_csv(log, path, counts=7_200_000):
+    """The native log as example 1's stand writes it (hse_opt/datasets/mappings/counter_stand.toml;
+    ``counts``: its encoder's counts per revolution)."""
     tick = np.round(log.t * 1e6).astype(np.int64) % 2**32
     pulses = np.round(log.gyro / (0.1 * units.ARCSEC)).astype(np.int64)
     assert np.allclose(pulses * 0.1 * units.ARCSEC, log.gyro, rtol=1e-12, atol=0)    # whole pulses
     total = (np.cumsum(pulses * [1, -1, 1], axis=0) + 16_000_000) % 2**24          # GY counts about -y
     acc = np.round(log.accel / 1e-4).astype(np.int64)
-    res = 2 * np.pi / 7_200_000
-    enc = np.round(-log.encoder / res).astype(np.int64) % 7_200_000                 # counts up turning negatively
+    res = 2 * np.pi / counts
+    enc = np.round(-log.encoder / res).astype(np.int64) % counts                    # counts up turning negatively
     lines = ["Stand 7 raw data", "operator;A. N. Other", "firmware;2,4", "tick_us;GY_total;GX_total;GZ_total;"
              "AX;AY;AZ;table_counts;supply_V"]
     for k in range(len(log)):
@@ -93,6 +94,8 @@ def test_a_stand_csv_gives_the_native_logs_heading(native, tmp_path, name, write
         assert mapped.temperature[0] == pytest.approx(27.0) and log.meta["temp_c"] == pytest.approx(27.15)
     else:
         assert log.meta["source"].startswith("counter stand")
+    # the encoder's resolution, the quality checks' quantum, when the mapping gives it (counts)
+    assert log.meta.get("encoder_counts_per_rev") == (7_200_000 if name == "counter_stand" else None)
 
     out_n, out_s = tmp_path / "RUNS_native.csv", tmp_path / "RUNS_stand.csv"
     assert main(["align", str(tmp_path / "native.npz"), "-o", str(out_n), "--no-progress"]) == 0
@@ -195,3 +198,33 @@ def test_whitespace_columns_comments_and_a_preamble(native, tmp_path):
     assert np.allclose(log.gyro, native.gyro[:n], rtol=1e-12, atol=0)
     assert np.allclose(log.accel, native.accel[:n], rtol=1e-12, atol=0)
     assert np.allclose(log.encoder, native.encoder[:n], rtol=1e-12, atol=0)
+
+
+def test_the_mappings_counts_per_rev_is_the_quality_checks_encoder_quantum(tmp_path):
+    """The coarse encoder's 20-s log that studies/quality_false_alarms.py --full refused
+    (seed 96: a one-count step taken for a jump) read through a counter stand's mapping of
+    64,800 counts per revolution passes clean; the same mapping with a sidecar that says
+    another resolution is an error naming both."""
+    import sys
+    if sys.version_info >= (3, 11):
+        import tomllib
+    else:  # pragma: no cover
+        import tomli as tomllib
+    from hse_opt.align.quality import assess
+    coarse = TRUTH.updated({"encoder": {"resolution_arcsec": 20.0}, "table": {"jitter_arcsec": 0.0}})
+    spec = RunSpec(rate=0.38780612891539773, azimuth=6.281353087327135, duration=20.0, t_start=4518.478663475609,
+                   tilt=(0.0009445359525567823, 0.00034051607364603026))
+    log = generate(coarse, spec, np.random.default_rng(96))
+    assert assess(log).refused                        # the resolution unknown: the false alarm
+    d = tomllib.loads(open(example_mapping("counter_stand"), encoding="utf-8").read())
+    d["encoder"]["counts_per_rev"] = 64_800
+    m = mapping_from_dict(d, source="coarse.toml")
+    _counter_stand_csv(log, tmp_path / "r.csv", counts=64_800)
+    mapped = read_mapped(tmp_path / "r.csv", m)
+    assert mapped.log.meta["encoder_counts_per_rev"] == 64_800
+    q = assess(mapped.log, temperature=mapped.temperature)
+    assert q.summary() == "ok"
+    (tmp_path / "r.csv.json").write_text(json.dumps({"encoder_counts_per_rev": 7_200_000}))
+    with pytest.raises(ValueError, match=r"r.csv: metadata encoder_counts_per_rev = 7200000 and the mapping's "
+                                         r"encoder.counts_per_rev = 64800 \(coarse.toml\) differ"):
+        read_mapped(tmp_path / "r.csv", m)

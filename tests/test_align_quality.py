@@ -452,3 +452,67 @@ def test_logs_of_an_independent_generator_raise_no_finding_and_a_glitch_in_one_i
     q = assess(RawLog(t, log.gyro, log.accel, enc, log.meta))
     f = _only(q, "repaired")
     assert (f.sample, f.time) == (12_345, t[12_345]) and abs(q.log.encoder[12_345] - alpha[12_345]) < 1e-9
+
+
+# -- the encoder's resolution, when known ---------------------------------------------------------
+COARSE = TRUTH.updated({"encoder": {"resolution_arcsec": 20.0}, "table": {"jitter_arcsec": 0.0}})
+COARSE_COUNTS = 360 * 3600 / 20.0          # 64,800 counts per revolution
+#: the two false alarms of studies/quality_false_alarms.py --full (the coarse encoder's 20-s log
+#: of seed 96 and 2-minute log of seed 132, the study's draws): a one-count step taken for a jump
+ALARMS = [
+    (RunSpec(rate=0.38780612891539773, azimuth=6.281353087327135, duration=20.0, t_start=4518.478663475609,
+             tilt=(0.0009445359525567823, 0.00034051607364603026)), 96),
+    (RunSpec(rate=-0.5332941736487797, azimuth=0.23519941421204815, duration=120.0, t_start=616.3387623640753,
+             tilt=(0.0008984658008137689, 0.0010521486677411694)), 132),
+]
+
+
+@pytest.mark.parametrize("spec, seed", ALARMS)
+def test_a_coarse_encoders_one_count_step_passes_when_its_resolution_is_known(spec, seed):
+    """Without the resolution the steps' quantum is not seen in the first 4,000 samples (the
+    step is a whole number of counts there) and a later one-count step (20 arcsec) is refused
+    as a jump; with ``encoder_counts_per_rev`` (given, or in the log's metadata) the quantum is
+    the count and the clean log passes. A real jump of 5 counts (100 arcsec) on the same log is
+    still refused at its sample."""
+    log = generate(COARSE, spec, np.random.default_rng(seed))
+    alarm = assess(log)
+    assert alarm.refused and "encoder jumps by" in alarm.summary() and "-20 arcsec" in alarm.summary()
+    for q in (assess(log, encoder_counts_per_rev=COARSE_COUNTS),
+              assess(_faulty(log, meta={"encoder_counts_per_rev": int(COARSE_COUNTS)}))):
+        assert q.findings == () and not q.repaired, q.summary()
+    k = len(log) // 2
+
+    def jump(e):
+        e[k:] += 5 * 20.0 * units.ARCSEC
+    q = assess(_faulty(log, encoder=jump), encoder_counts_per_rev=COARSE_COUNTS)
+    first = [f for f in q.findings if f.action == "refused"][0]
+    assert first.check == "encoder" and first.sample == k and "+100 arcsec" in first.detail, q.summary()
+
+
+def test_the_calibrations_and_the_logs_encoder_resolution_differing_refuses_the_log():
+    log = generate(COARSE, ALARMS[0][0], np.random.default_rng(ALARMS[0][1]))
+    q = assess(_faulty(log, meta={"encoder_counts_per_rev": 64000}), encoder_counts_per_rev=COARSE_COUNTS)
+    assert q.refused and "'encoder_counts_per_rev' = 64000" in q.summary() and "allowed: one" in q.summary()
+    q = assess(_faulty(log, meta={"encoder_counts_per_rev": 0.5}))
+    assert q.refused and "allowed: a number >= 1" in q.summary()
+
+
+def test_align_takes_the_encoder_resolution_from_the_calibration_file(tmp_path, capsys):
+    """The 20-s alarm log: refused by ``hse-opt align`` with the default system's lab
+    calibration, aligned with the same file plus ``[encoder] counts_per_rev = 64800``."""
+    import dataclasses
+
+    from hse_opt.align import save_calibration
+    from hse_opt.sim import lab_calibration
+    spec, seed = ALARMS[0]
+    (tmp_path / "logs").mkdir()
+    save_rawlog(generate(COARSE, spec, np.random.default_rng(seed)), tmp_path / "logs" / "r.npz")
+    cal = lab_calibration(COARSE)
+    save_calibration(cal, tmp_path / "A.toml")
+    save_calibration(dataclasses.replace(cal, encoder_counts_per_rev=COARSE_COUNTS), tmp_path / "B.toml")
+    assert "[encoder]\n# " in (tmp_path / "B.toml").read_text()
+    args = [str(tmp_path / "logs"), "--no-progress"]
+    assert main(["align", *args, "-o", str(tmp_path / "A.csv"), "--calibration", str(tmp_path / "A.toml")]) == 2
+    assert "encoder jumps by -20 arcsec" in capsys.readouterr().err
+    assert main(["align", *args, "-o", str(tmp_path / "B.csv"), "--calibration", str(tmp_path / "B.toml")]) == 0
+    assert load_runs(tmp_path / "B.csv").metadata["quality"].tolist() == ["ok"]

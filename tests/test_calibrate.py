@@ -106,18 +106,30 @@ def test_the_runs_are_what_hse_opt_align_writes_with_the_same_processor(campaign
     """Without a calibration file both take the orthogonal system and tune the filter from the
     logs' pooled noise: the session's RUNS.csv is align's, byte for byte."""
     logs = campaigns["field"]
-    assert _calibrate([logs, "--out", tmp_path / "s"], capsys, calibration=False)[0] == 0
+    status, _, err = _calibrate([logs, "--out", tmp_path / "s"], capsys, calibration=False)
+    assert status == 0
     assert cli.main(["align", str(logs), "-o", str(tmp_path / "R.csv"), "--no-progress"]) == 0
-    capsys.readouterr()
+    err_align = capsys.readouterr().err
     assert (tmp_path / "s" / "RUNS.csv").read_bytes() == (tmp_path / "R.csv").read_bytes()
     page = (tmp_path / "s" / "report.html").read_text()
     assert "gyro ARW" in page and "quality" in page        # the noise and the quality of the logs
+    # what was assumed without the file: once on stderr for each command, in the report and summary.json
+    for text, command in ((err, "calibrate"), (err_align, "align")):
+        notes = [line for line in text.splitlines() if "no --calibration: assumed an orthogonal" in line]
+        assert len(notes) == 1 and notes[0].startswith(f"hse-opt {command}: note:"), text
+        assert "--calibration CALIBRATION.toml" in notes[0]
+    data = json.loads((tmp_path / "s" / "summary.json").read_text())
+    assert [n for n in data["notes"] if n.startswith("no --calibration: assumed an orthogonal")]
+    assert "no --calibration: assumed an orthogonal" in page
+    assert "the filter's noise: gyro ARW: data; accel VRW: data; gyro quantum: data; accel quantum: data" in \
+        "\n".join(data["notes"])
 
 
 def test_text_output_starts_with_the_verdict(campaigns, tmp_path, capsys):
     status, stdout, err = _calibrate([campaigns["surveyed"], "--out", tmp_path / "s", "--target-sigma", "0.01"],
                                      capsys)
     assert status == 0, err
+    assert "no --calibration" not in err                    # the file given: nothing assumed
     first = stdout.splitlines()[0]
     assert first.startswith("hse-opt calibrate: Verdict: NOT YET")
     assert "above the target 0.01 arcsec" in first          # an unreachable target is the reason

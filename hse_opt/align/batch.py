@@ -20,7 +20,8 @@ from hse_opt.align.quality import assess
 from hse_opt.align.rawlog import load_rawlog
 from hse_opt.data import DataError, Runs
 
-__all__ = ["align_logs", "runs_from_rows", "single_blas_thread", "LOG_META_COLUMNS"]
+__all__ = ["align_logs", "runs_from_rows", "single_blas_thread", "LOG_META_COLUMNS", "NOISE_FIGURES",
+           "NOISE_SOURCE_COLUMN"]
 
 #: the filter tuned from the data pools the Allan figures of at most this many logs, spread
 #: evenly over the campaign (the noise is the system's: eight ten-minute logs pin its terms to
@@ -28,6 +29,14 @@ __all__ = ["align_logs", "runs_from_rows", "single_blas_thread", "LOG_META_COLUM
 TUNING_LOGS = 8
 #: metadata keys of a raw log that become RUNS.csv columns (file units)
 LOG_META_COLUMNS = ("azimuth_deg", "t_start_s", "temp_c")
+#: the filter's noise figures (``AlignConfig`` fields) -> their names in the RUNS.csv column
+#: :data:`NOISE_SOURCE_COLUMN` and in messages
+NOISE_FIGURES = {"arw": "gyro ARW", "vrw": "accel VRW", "gyro_pulse": "gyro quantum",
+                 "accel_pulse": "accel quantum"}
+#: RUNS.csv text column: where each of the filter's noise figures came from, e.g. ``gyro ARW:
+#: file; accel VRW: data; gyro quantum: data; accel quantum: data`` (``data``: the Allan
+#: analysis of the logs; otherwise ``align_logs``'s ``given_by``: ``file``, ``truth``)
+NOISE_SOURCE_COLUMN = "noise_source"
 
 
 def single_blas_thread():
@@ -41,14 +50,15 @@ def single_blas_thread():
     return threadpool_limits(limits=1, user_api="blas")
 
 
-def _checked_log(path, mapping=None, pulse_weights=None):
+def _checked_log(path, mapping=None, pulse_weights=None, counts=None):
     """Load ``path`` (through ``mapping`` when given; ``pulse_weights`` for a pulse-count log
-    whose sidecar gives none) and run the quality checks: the (repaired) log and its Quality."""
+    whose sidecar gives none) and run the quality checks (``counts``: the encoder's counts per
+    revolution when the calibration gives them): the (repaired) log and its Quality."""
     if mapping is None:
-        quality = assess(load_rawlog(path, pulse_weights=pulse_weights))
+        quality = assess(load_rawlog(path, pulse_weights=pulse_weights), encoder_counts_per_rev=counts)
     else:
         mapped = read_mapped(path, mapping)
-        quality = assess(mapped.log, temperature=mapped.temperature)
+        quality = assess(mapped.log, temperature=mapped.temperature, encoder_counts_per_rev=counts)
     quality.raise_if_refused(path)
     return quality.log, quality
 
@@ -64,7 +74,7 @@ def _error_line(path, exc):
 def _noise_one(path, config, mapping=None, noise=None, pulse_weights=None):
     """Worker: the noise figures of one raw log; ``(path, figures, error)``."""
     try:
-        return path, noise_from_log(_checked_log(path, mapping, pulse_weights)[0]), None
+        return path, noise_from_log(_checked_log(path, mapping, pulse_weights, config.encoder_counts_per_rev)[0]), None
     except (ValueError, OSError) as exc:
         return path, None, _error_line(path, exc)
 
@@ -77,7 +87,7 @@ def _align_one(path, config, mapping=None, noise=None, pulse_weights=None):
     from hse_opt.data import DEFAULT_MIN_RATE_DPS
 
     try:
-        log, quality = _checked_log(path, mapping, pulse_weights)
+        log, quality = _checked_log(path, mapping, pulse_weights, config.encoder_counts_per_rev)
         noise = noise_from_log(log) if noise is None else noise
         res = align(log, config)
         lat = latitude_of(log, config)
@@ -149,7 +159,7 @@ def _map(worker, paths, config, jobs, progress, client, mapping, noise=None, pul
 
 
 def align_logs(paths, config, jobs=1, progress=None, client=None, *, mapping=None, tune_from_data=False,
-               pulse_weights=None):
+               pulse_weights=None, given_by="given"):
     """Align raw logs (:mod:`hse_opt.align.rawlog`), in parallel; a bad log does not stop the others.
 
     Parameters
@@ -169,14 +179,19 @@ def align_logs(paths, config, jobs=1, progress=None, client=None, *, mapping=Non
         code, and collected in path order.
     mapping : hse_opt.align.mapping.Mapping, optional
         Read every log as a test stand's CSV through it (:func:`hse_opt.align.mapping.read_mapped`).
-    tune_from_data : bool
+    tune_from_data : bool or collection of str
         Tune the filter from the logs' own noise instead of ``config``'s ``arw``, ``vrw``,
-        ``gyro_pulse``, ``accel_pulse`` (for a system whose noise no calibration file gives):
-        a first pass takes the Allan analysis (:func:`hse_opt.align.noise.noise_from_log`) of
-        up to :data:`TUNING_LOGS` logs spread evenly over ``paths``, pooled
-        (:func:`hse_opt.align.noise.combine_noise`: one system, so one noise; a single log's
-        long-cluster points are few), and every log is aligned with
-        :meth:`~hse_opt.align.noise.NoiseFigures.tuning` of the pooled figures.
+        ``gyro_pulse``, ``accel_pulse`` (True: all four, for a system whose noise no
+        calibration file gives; a collection: those of :data:`NOISE_FIGURES` named, the others
+        kept from ``config``, for a file that gives only some): a first pass takes the Allan
+        analysis (:func:`hse_opt.align.noise.noise_from_log`) of up to :data:`TUNING_LOGS` logs
+        spread evenly over ``paths``, pooled (:func:`hse_opt.align.noise.combine_noise`: one
+        system, so one noise; a single log's long-cluster points are few), and every log is
+        aligned with :meth:`~hse_opt.align.noise.NoiseFigures.tuning` of the pooled figures
+        (per sensor axis).
+    given_by : str
+        Where ``config``'s noise figures come from, for the rows' :data:`NOISE_SOURCE_COLUMN`
+        (``file``: a calibration file; ``truth``: a simulated system's).
     pulse_weights : (gyro, accel), optional
         Pulse weights (rad, m/s; one number or three each) for pulse-count CSV logs whose
         sidecar gives none (:func:`hse_opt.align.load_rawlog`): the lab calibration's.
@@ -190,7 +205,8 @@ def align_logs(paths, config, jobs=1, progress=None, client=None, *, mapping=Non
         row's increments have no encoder angle at their start),
         ``pitch_arcsec``, ``roll_arcsec``, ``heading_std_arcsec`` (the filter's 1-sigma),
         ``quality`` (:meth:`hse_opt.align.quality.Quality.summary`: ``ok``, or what was
-        repaired or noted before alignment), the noise columns
+        repaired or noted before alignment), ``noise_source`` (:data:`NOISE_SOURCE_COLUMN`:
+        where each of the filter's noise figures came from), the noise columns
         (:data:`hse_opt.align.noise.NOISE_COLUMNS`: ``gyro_arw_dph_rthz``, ...) and ``noise``
         (the log's :class:`hse_opt.align.noise.NoiseFigures`, for reports), and
         from the log's metadata, when present: ``run``, ``position``, ``azimuth_deg``,
@@ -206,14 +222,19 @@ def align_logs(paths, config, jobs=1, progress=None, client=None, *, mapping=Non
     if isinstance(jobs, bool) or not isinstance(jobs, (int, np.integer)) or jobs < 1:
         raise ValueError(f"jobs = {jobs!r} is not allowed: an integer >= 1 is required")
     paths = [str(p) for p in paths]
+    tuned = _tuned(tune_from_data)
     noise = None
-    if tune_from_data:      # a first pass over up to TUNING_LOGS logs spread over the campaign
+    if tuned:      # a first pass over up to TUNING_LOGS logs spread over the campaign
         sample = [paths[i] for i in sorted(set(np.linspace(0, len(paths) - 1, min(TUNING_LOGS, len(paths)))
                                                 .round().astype(int).tolist()))]
         first = _map(_noise_one, sample, config, jobs, None, client, mapping, pulse_weights=pulse_weights)
         noise = {p: first[p][1] for p in sample if first[p][1] is not None}   # in path order: pooled alike
         if noise:
-            config = dataclasses.replace(config, **combine_noise(noise.values()).tuning())
+            tuning = combine_noise(noise.values()).tuning()
+            config = dataclasses.replace(config, **{k: tuning[k] for k in tuned})
+        else:       # no log could be read: they are all bad logs below; nothing was measured
+            tuned = ()
+    source = "; ".join(f"{name}: {'data' if key in tuned else given_by}" for key, name in NOISE_FIGURES.items())
     done = _map(_align_one, paths, config, jobs, progress, client, mapping, noise, pulse_weights)
     rows, errors, seen = [], [], {}
     for path in paths:
@@ -224,10 +245,23 @@ def align_logs(paths, config, jobs=1, progress=None, client=None, *, mapping=Non
                 err = (f"{path}: the same log as {first} (given twice, or a copy); allowed: each log once"
                        if first != path else f"{path}: given twice; allowed: each log once")
         if err is None:
-            rows.append({**{k: v for k, v in row.items() if k != "_samples"}, "log": path})
+            rows.append({**{k: v for k, v in row.items() if k != "_samples"}, NOISE_SOURCE_COLUMN: source,
+                         "log": path})
         else:
             errors.append(err)
     return rows, errors
+
+
+def _tuned(tune_from_data):
+    """The figures of :data:`NOISE_FIGURES` to measure from the data (a tuple, in its order)."""
+    if isinstance(tune_from_data, (bool, np.bool_)):
+        return tuple(NOISE_FIGURES) if tune_from_data else ()
+    names = set(tune_from_data)
+    unknown = names - set(NOISE_FIGURES)
+    if unknown:
+        raise ValueError(f"tune_from_data names {sorted(unknown)}; allowed: True, False or some of "
+                         + ", ".join(NOISE_FIGURES))
+    return tuple(k for k in NOISE_FIGURES if k in names)
 
 
 def runs_from_rows(rows, source="<aligned logs>"):
@@ -284,8 +318,9 @@ def _columns(rows):
                 raise DataError(r.get("log", "<log>"), "has no 'position' in its metadata while other logs have one; "
                                           "allowed: a position in every log's metadata or in none")
         columns["position"] = [str(r["position"]) for r in rows]
-    if any("quality" in r for r in rows):
-        columns["quality"] = [r.get("quality", "") for r in rows]
+    for name in ("quality", NOISE_SOURCE_COLUMN):
+        if any(name in r for r in rows):
+            columns[name] = [r.get(name, "") for r in rows]
     for name in NOISE_COLUMNS:
         if all(name in r for r in rows):
             columns[name] = [r[name] for r in rows]

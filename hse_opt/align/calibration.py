@@ -23,10 +23,13 @@ File format (TOML; the unit is in every key that has one; matrices are dimension
     ``C_s_b`` (3x3) s -> b, or ``r_zb_s`` (3, a unit vector) the rotation axis z_b in s as the
     paper calibrates it (forward and backward turns), C_s^b then by the paper's closed form
     (:func:`hse_opt.align.rotations.c_b_s`); exactly one of the two.
-``[noise]`` (optional: without it the filter is tuned from the data)
-    ``gyro_arw_dph_rthz`` the gyros' angle random walk, deg/h/sqrt(Hz) (TRUTH.toml's unit;
-    1 deg/sqrt(h) = 60 deg/h/sqrt(Hz)); ``accel_vrw_ug_rthz`` the accelerometers' white
-    noise, ug/sqrt(Hz).
+``[noise]`` (optional: a figure it leaves out is measured from the logs)
+    ``gyro_arw_dph_rthz`` (one number or three: x_g, y_g, z_g) the gyros' angle random walk,
+    deg/h/sqrt(Hz) (TRUTH.toml's unit; 1 deg/sqrt(h) = 60 deg/h/sqrt(Hz));
+    ``accel_vrw_ug_rthz`` (one number or three) the accelerometers' white noise, ug/sqrt(Hz).
+``[encoder]`` (optional)
+    ``counts_per_rev`` the table encoder's counts per revolution: the quality checks' encoder
+    quantum (:func:`hse_opt.align.quality.assess`).
 ``[site]`` (optional)
     ``latitude_deg`` for logs whose metadata gives none; a log whose ``latitude_deg`` differs
     is an error naming both.
@@ -71,6 +74,7 @@ _SCHEMA = {
     "accel": ("K_a", "pulse_mps"),
     "mount": ("C_s_b", "r_zb_s"),
     "noise": ("gyro_arw_dph_rthz", "accel_vrw_ug_rthz"),
+    "encoder": ("counts_per_rev",),
     "site": ("latitude_deg",),
 }
 
@@ -89,12 +93,16 @@ class LabCalibration:
         Calibrated mount C~_s^b, s -> b.
     gyro_pulse, accel_pulse : tuple of 3 float or None
         Pulse weights, rad and m/s (x, y, z); None: not given.
-    arw : float or None
-        Gyro angle random walk, rad/sqrt(s); None: tune from the data.
-    vrw : float or None
-        Accelerometer white noise, m/s/sqrt(s); None: tune from the data.
+    arw : float, tuple of 3 float, or None
+        Gyro angle random walk, rad/sqrt(s): one for all three gyros or one each (x_g, y_g,
+        z_g); None: measured from the data.
+    vrw : float, tuple of 3 float, or None
+        Accelerometer white noise, m/s/sqrt(s), one or one each; None: measured from the data.
     latitude : float or None
         rad; used for logs whose metadata gives none.
+    encoder_counts_per_rev : float or None
+        The table encoder's counts per revolution (the quality checks' encoder quantum);
+        None: not given.
     source : str
         Where it came from (a file name), for messages.
     """
@@ -107,6 +115,7 @@ class LabCalibration:
     arw: float | None = None
     vrw: float | None = None
     latitude: float | None = None
+    encoder_counts_per_rev: float | None = None
     source: str = "<calibration>"
 
     def __post_init__(self):
@@ -133,8 +142,14 @@ class LabCalibration:
                 object.__setattr__(self, name, tuple(float(x) for x in w))
         for name in ("arw", "vrw"):
             v = getattr(self, name)
-            if v is not None and not (math.isfinite(v) and v >= 0):
-                raise DataError(self.source, f"{name} = {v!r}; allowed: a number >= 0")
+            if v is not None:
+                w = np.asarray(v, dtype=float) if _numbers(v, ()) or _numbers(v, (3,)) else None
+                if w is None or not np.all(np.isfinite(w) & (w >= 0)):
+                    raise DataError(self.source, f"{name} = {v!r}; allowed: one number >= 0 or three")
+                object.__setattr__(self, name, float(w) if w.ndim == 0 else tuple(float(x) for x in w))
+        c = self.encoder_counts_per_rev
+        if c is not None and not (_numbers(c, ()) and math.isfinite(c) and c >= 1):
+            raise DataError(self.source, f"encoder.counts_per_rev = {c!r}; allowed: a number >= 1")
         if self.latitude is not None and not abs(self.latitude) < math.radians(89.0):
             raise DataError(self.source, f"latitude_deg = {self.latitude / units.DEG:g}; allowed: |latitude| < 89")
 
@@ -155,20 +170,28 @@ class LabCalibration:
 
     @property
     def has_noise(self):
-        """Whether the calibration gives both noise figures (else the filter is tuned from data)."""
-        return self.arw is not None and self.vrw is not None
+        """Whether the calibration gives every noise figure the filter needs (:meth:`noise_given`)."""
+        return all(self.noise_given().values())
+
+    def noise_given(self):
+        """Which of the filter's noise figures (:data:`hse_opt.align.batch.NOISE_FIGURES`: the
+        gyros' ARW, the accelerometers' VRW, the two quanta) this calibration gives, name ->
+        bool; the others are measured from the logs (``align_logs(..., tune_from_data=...)``)."""
+        return {"arw": self.arw is not None, "vrw": self.vrw is not None,
+                "gyro_pulse": self.gyro_pulse is not None, "accel_pulse": self.accel_pulse is not None}
 
     def align_config(self, **overrides):
         """The processor's settings (:class:`hse_opt.align.AlignConfig`): these matrices, the
-        latitude, the noise and the pulse weights where given (the mean of three), the
-        :class:`~hse_opt.align.AlignConfig` defaults elsewhere; ``overrides`` replace any field."""
-        kw = dict(K_g_cal=self.K_g, C_s_b_cal=self.C_s_b, A_acc_cal=self.K_a, latitude=self.latitude)
-        for field_, value in (("arw", self.arw), ("vrw", self.vrw)):
+        latitude, the encoder's counts, the noise and the pulse weights where given (one per
+        axis when three differ), the :class:`~hse_opt.align.AlignConfig` defaults elsewhere
+        (the figures a calibration leaves out are measured from the logs by
+        :func:`hse_opt.align.align_logs`); ``overrides`` replace any field."""
+        kw = dict(K_g_cal=self.K_g, C_s_b_cal=self.C_s_b, A_acc_cal=self.K_a, latitude=self.latitude,
+                  encoder_counts_per_rev=self.encoder_counts_per_rev)
+        for field_, value in (("arw", self.arw), ("vrw", self.vrw), ("gyro_pulse", self.gyro_pulse),
+                              ("accel_pulse", self.accel_pulse)):
             if value is not None:
-                kw[field_] = value
-        for field_, value in (("gyro_pulse", self.gyro_pulse), ("accel_pulse", self.accel_pulse)):
-            if value is not None:
-                kw[field_] = float(np.mean(value))
+                kw[field_] = _one_or_three(value)
         kw.update(overrides)
         return AlignConfig(**kw)
 
@@ -197,16 +220,30 @@ class LabCalibration:
             out += ["# velocity pulse weight, m/s (x, y, z)", f"pulse_mps = {vec(self.accel_pulse, 1.0)}"]
         out += ["", "[mount]", "# C~_s^b: s -> b (b: the table top, z_b down along the rotation axis)",
                 f"C_s_b = {mat(self.C_s_b)}"]
+        def one_or_vec(v, factor):
+            return num(v, factor) if isinstance(v, float) else vec(v, factor)
+
         if self.arw is not None or self.vrw is not None:
-            out += ["", "[noise]", "# the filter's tuning; without this section it is tuned from the logs"]
+            out += ["", "[noise]", "# the filter's tuning, one number or three (x, y, z); a figure left out is "
+                    "measured from the logs"]
             if self.arw is not None:
-                out.append(f"gyro_arw_dph_rthz = {num(self.arw, units.DEG_PER_H)}")
+                out.append(f"gyro_arw_dph_rthz = {one_or_vec(self.arw, units.DEG_PER_H)}")
             if self.vrw is not None:
-                out.append(f"accel_vrw_ug_rthz = {num(self.vrw, units.MICRO_G)}")
+                out.append(f"accel_vrw_ug_rthz = {one_or_vec(self.vrw, units.MICRO_G)}")
+        if self.encoder_counts_per_rev is not None:
+            out += ["", "[encoder]", "# the table encoder's counts per revolution (the quality checks' quantum)",
+                    f"counts_per_rev = {num(self.encoder_counts_per_rev)}"]
         if self.latitude is not None:
             out += ["", "[site]", "# for logs without latitude_deg in their metadata",
                     f"latitude_deg = {num(self.latitude, units.DEG)}"]
         return "\n".join(out) + "\n"
+
+
+def _one_or_three(v):
+    """A float for one number or three equal ones, else the tuple of three."""
+    if isinstance(v, tuple):
+        return v[0] if v[0] == v[1] == v[2] else v
+    return v
 
 
 def _matrix(source, name, value):
@@ -271,7 +308,7 @@ def calibration_from_dict(d, source="<calibration>"):
             hint = f" (did you mean [{close[0]}]?)" if close else ""
             raise DataError(source, f"unknown section [{name}]{hint}; allowed: "
                             + ", ".join(f"[{s}]" for s in _SCHEMA))
-    gyro, accel, mount, noise, site = (_section(source, d, s) for s in _SCHEMA)
+    gyro, accel, mount, noise, encoder, site = (_section(source, d, s) for s in _SCHEMA)
     for sec, key in (("gyro", "K_g"), ("accel", "K_a")):
         if key not in d.get(sec, {}):
             raise DataError(source, f"has no '{sec}.{key}'; allowed: a complete file gives gyro.K_g, accel.K_a "
@@ -296,10 +333,13 @@ def calibration_from_dict(d, source="<calibration>"):
         kw["gyro_pulse"] = _si(source, "gyro.pulse_arcsec", gyro["pulse_arcsec"], units.ARCSEC, 3)
     if "pulse_mps" in accel:
         kw["accel_pulse"] = _si(source, "accel.pulse_mps", accel["pulse_mps"], 1.0, 3)
-    if "gyro_arw_dph_rthz" in noise:
-        kw["arw"] = _si(source, "noise.gyro_arw_dph_rthz", noise["gyro_arw_dph_rthz"], units.DEG_PER_H)
-    if "accel_vrw_ug_rthz" in noise:
-        kw["vrw"] = _si(source, "noise.accel_vrw_ug_rthz", noise["accel_vrw_ug_rthz"], units.MICRO_G)
+    for key, field_, factor in (("gyro_arw_dph_rthz", "arw", units.DEG_PER_H),
+                                ("accel_vrw_ug_rthz", "vrw", units.MICRO_G)):
+        if key in noise:    # one number stays one (a file read back writes it as it was)
+            v = _si(source, f"noise.{key}", noise[key], factor, 3)
+            kw[field_] = v[0] if _numbers(noise[key], ()) else v
+    if "counts_per_rev" in encoder:
+        kw["encoder_counts_per_rev"] = _si(source, "encoder.counts_per_rev", encoder["counts_per_rev"], 1.0)
     if "latitude_deg" in site:
         kw["latitude"] = _si(source, "site.latitude_deg", site["latitude_deg"], units.DEG)
     return LabCalibration(K_g=_matrix(source, "gyro.K_g", gyro["K_g"]),

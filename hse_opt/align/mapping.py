@@ -33,7 +33,8 @@ Keys (every number's unit is in its key or in the section's ``unit``)
     use it); ``wrap_counts`` (optional) -- such a counter rolls over at this value.
 ``[encoder]``
     ``column``; ``unit`` -- ``rad``, ``deg``, ``arcsec`` or ``counts``;
-    ``counts_per_rev`` -- with ``counts``; ``sign`` (optional, +1 / -1) -- +1 when the
+    ``counts_per_rev`` -- with ``counts`` (also the encoder's quantum in the quality checks:
+    each log read gets it as its metadata ``encoder_counts_per_rev``); ``sign`` (optional, +1 / -1) -- +1 when the
     reading grows as the table turns positively about z_b (down: clockwise seen from above);
     ``zero_deg`` (optional) -- the reading at the zero-position indicator, deg.
 ``[temperature]`` (optional)
@@ -128,6 +129,10 @@ class Mapping:
     temperature_offset : float
         Added to the column to give degC (-273.15 for K).
     meta : dict
+    encoder_counts_per_rev : float or None
+        ``encoder.counts_per_rev`` (with ``unit = "counts"``, else None): the encoder's
+        resolution, which the quality checks take as its quantum (each log read gets it as its
+        metadata ``encoder_counts_per_rev``).
     """
 
     source: str
@@ -147,6 +152,7 @@ class Mapping:
     temperature_column: str | None
     temperature_offset: float
     meta: tuple = ()
+    encoder_counts_per_rev: float | None = None
 
     @property
     def columns(self):
@@ -288,8 +294,10 @@ def mapping_from_dict(d, source="<mapping>"):
 
     e = sec["encoder"]
     eunit = e.text("unit", choices=list(_ENCODER_UNITS))
+    counts = None
     if eunit == "counts":
-        efactor = 2 * math.pi / e.number("counts_per_rev")
+        counts = e.number("counts_per_rev")
+        efactor = 2 * math.pi / counts
     else:
         if "counts_per_rev" in e.d:
             e.fail("counts_per_rev", e.d["counts_per_rev"], "only with unit = \"counts\"")
@@ -315,7 +323,8 @@ def mapping_from_dict(d, source="<mapping>"):
                 time_wrap=twrap, gyro=_triad(sec["gyro"], _GYRO_UNITS, "pulse_arcsec", units.ARCSEC),
                 accel=_triad(sec["accel"], _ACCEL_UNITS, "pulse_mps", 1.0), encoder_column=e.text("column"),
                 encoder_factor=efactor, encoder_sign=float(esign), encoder_zero=ezero,
-                temperature_column=temp_col, temperature_offset=temp_off, meta=tuple(sorted(meta.items())))
+                temperature_column=temp_col, temperature_offset=temp_off, meta=tuple(sorted(meta.items())),
+                encoder_counts_per_rev=counts)
     seen = {}
     for key, col in zip(("time.column", "gyro.columns", "gyro.columns", "gyro.columns", "accel.columns",
                          "accel.columns", "accel.columns", "encoder.column", "temperature.column"), m.columns):
@@ -471,6 +480,12 @@ def read_mapped(path, mapping, meta=None):
                 raise ValueError(f"{side}: holds a JSON {type(extra).__name__}; allowed: a JSON object of metadata")
             file_meta.update(extra)
         file_meta.update(meta or {})
+        if m.encoder_counts_per_rev is not None:     # the checks' encoder quantum (quality.assess)
+            given = file_meta.setdefault("encoder_counts_per_rev", m.encoder_counts_per_rev)
+            if given != m.encoder_counts_per_rev:
+                raise ValueError(f"metadata encoder_counts_per_rev = {given!r} and the mapping's encoder."
+                                 f"counts_per_rev = {m.encoder_counts_per_rev:g} ({m.source}) differ; allowed: one "
+                                 "resolution, or leave the key out of the metadata")
         if temperature is not None and "temp_c" not in file_meta and np.isfinite(temperature).all():
             file_meta["temp_c"] = float(np.mean(temperature))
         log = RawLog(t, gyro, accel, encoder, file_meta)

@@ -211,14 +211,14 @@ class NoiseFigures:
 
     def tuning(self):
         """The alignment filter's noise from these figures, as keyword arguments of
-        ``AlignConfig`` (``dataclasses.replace(config, **figures.tuning())``): ``arw`` (the
-        gyros' mean N, rad/sqrt(s)), ``vrw`` (the accelerometers' mean N, m/s/sqrt(s)),
-        ``gyro_pulse`` and ``accel_pulse`` (the quanta whose white noise ``q / sqrt(12)`` is
-        the measured Q: ``sqrt(12) Q``, rad and m/s)."""
+        ``AlignConfig`` (``dataclasses.replace(config, **figures.tuning())``), one per sensor
+        axis (tuples of 3, x y z): ``arw`` (the gyros' N, rad/sqrt(s)), ``vrw`` (the
+        accelerometers' N, m/s/sqrt(s)), ``gyro_pulse`` and ``accel_pulse`` (the quanta whose
+        white noise ``q / sqrt(12)`` is the measured Q: ``sqrt(12) Q``, rad and m/s)."""
         q, n = self.quantization, self.random_walk
-        return {"arw": float(n[:3].mean()), "vrw": float(n[3:].mean()),
-                "gyro_pulse": float(math.sqrt(12.0) * q[:3].mean()),
-                "accel_pulse": float(math.sqrt(12.0) * q[3:].mean())}
+        k = math.sqrt(12.0)
+        return {"arw": tuple(n[:3].tolist()), "vrw": tuple(n[3:].tolist()),
+                "gyro_pulse": tuple((k * q[:3]).tolist()), "accel_pulse": tuple((k * q[3:]).tolist())}
 
     def columns(self):
         """The RUNS.csv columns (:data:`NOISE_COLUMNS`), file units: each the mean over the

@@ -29,7 +29,8 @@ Steps
    it reaches heading only through the tilt, which the filter sees in the east rate).
    Process noise: the gyros' angle random walk and the pulse quantization noise
    (:func:`quantization_arw`) on the horizontal attitude, the accelerometers' white noise
-   on the velocity.
+   on the velocity (a figure per sensor enters by its share of the horizontal plane:
+   :func:`horizontal_rms`).
    States (9): attitude error phi = (N, E, D) of the navigation solution, horizontal
    velocity error, the horizontal gyro and accelerometer biases of the table top seen in b0
    (they rotate at the table rate: ``d/dt x = Omega [[0, -1], [1, 0]] x``). The model is
@@ -59,7 +60,8 @@ from hse_opt.align.rotations import R_ZB_S_IDEAL, c_b_s, dcm_to_zyx, earth_rate_
 from hse_opt.align._angles import MAX_DEVIATION, SMALL_DEVIATION, rotate
 from hse_opt.align.rawlog import RawLog
 
-__all__ = ["AlignConfig", "AlignResult", "AlignHistory", "align", "triad", "quantization_arw", "latitude_of"]
+__all__ = ["AlignConfig", "AlignResult", "AlignHistory", "align", "triad", "quantization_arw", "horizontal_rms",
+           "latitude_of"]
 
 _CHUNK_TARGET = 32768
 #: a log's latitude_deg and the processor's may differ by this much, deg (0.1 m on the ground;
@@ -100,13 +102,18 @@ class AlignConfig:
     latitude : float or None
         rad; for logs whose metadata gives no ``latitude_deg`` (the log's wins; the two
         differing is an error: :func:`latitude_of`).
-    arw : float
-        Gyro angle random walk assumed by the filter, rad/sqrt(s).
-    vrw : float
-        Accelerometer white noise assumed by the filter, m/s/sqrt(s).
-    gyro_pulse, accel_pulse : float
-        Quanta, rad and m/s: the RLG pulse adds its quantization random walk to the process
-        noise (:func:`quantization_arw`), the velocity pulse sets the measurement noise.
+    arw : float or tuple of 3 float
+        Gyro angle random walk assumed by the filter, rad/sqrt(s): one for the three gyros,
+        or one each (x_g, y_g, z_g; :func:`horizontal_rms` says how the filter combines them).
+    vrw : float or tuple of 3 float
+        Accelerometer white noise assumed by the filter, m/s/sqrt(s) (one, or one each).
+    gyro_pulse, accel_pulse : float or tuple of 3 float
+        Quanta, rad and m/s (one, or one each): the RLG pulse adds its quantization random
+        walk to the process noise (:func:`quantization_arw`), the velocity pulse sets the
+        measurement noise.
+    encoder_counts_per_rev : float or None
+        The table encoder's counts per revolution, when known: the quality checks' encoder
+        quantum (:func:`hse_opt.align.quality.assess`); the filter does not use it.
     filter_rate : float
         Approximate filter rate, Hz (1 Hz default).
     smoothing_revolutions : int
@@ -134,6 +141,7 @@ class AlignConfig:
     sigma0_gyro_bias: float = 0.05 * units.DEG_PER_H
     sigma0_accel_bias: float = 1e-2
     velocity_floor: float = 1e-6
+    encoder_counts_per_rev: float | None = None
 
     def __post_init__(self):
         for name in ("K_g_cal", "C_s_b_cal", "A_acc_cal"):
@@ -141,10 +149,17 @@ class AlignConfig:
             if m.shape != (3, 3) or not np.isfinite(m).all():
                 raise ValueError(f"AlignConfig.{name} must be a finite 3x3 matrix, got shape {m.shape}")
             object.__setattr__(self, name, _mat(m))
-        for name in ("arw", "vrw", "gyro_pulse", "accel_pulse", "velocity_floor"):
-            v = getattr(self, name)
-            if not (math.isfinite(v) and v >= 0):
-                raise ValueError(f"AlignConfig.{name} = {v!r} is not allowed: must be >= 0")
+        for name in ("arw", "vrw", "gyro_pulse", "accel_pulse"):
+            v = np.asarray(getattr(self, name), dtype=float)
+            if v.shape not in ((), (3,)) or not np.all(np.isfinite(v) & (v >= 0)):
+                raise ValueError(f"AlignConfig.{name} = {getattr(self, name)!r} is not allowed: one number >= 0 "
+                                 "or three (x, y, z)")
+            object.__setattr__(self, name, float(v) if v.ndim == 0 else tuple(float(x) for x in v))
+        if not (math.isfinite(self.velocity_floor) and self.velocity_floor >= 0):
+            raise ValueError(f"AlignConfig.velocity_floor = {self.velocity_floor!r} is not allowed: must be >= 0")
+        c = self.encoder_counts_per_rev
+        if c is not None and not (math.isfinite(c) and c >= 1):
+            raise ValueError(f"AlignConfig.encoder_counts_per_rev = {c!r} is not allowed: a number >= 1")
         for name in ("filter_rate", "sigma0_tilt", "sigma0_heading", "sigma0_gyro_bias",
                      "sigma0_accel_bias"):
             v = getattr(self, name)
@@ -458,9 +473,42 @@ def quantization_arw(pulse, rate, dt):
     return pulse * abs(rate) * math.sqrt(dt / 12.0)
 
 
+def horizontal_rms(value, M):
+    """The noise of three sensors as the filter's horizontal axes in b0 see it.
+
+    The filter's noise is one figure per horizontal axis of b0 (its model is time invariant);
+    a sensor's noise reaches b along its axis (column ``i`` of ``M``: raw outputs -> b), and
+    the table's turn spreads the horizontal part evenly over the horizontal axes of b0 (a
+    2x2 covariance ``A`` turned through every angle averages to ``tr(A) / 2 I``). So each
+    sensor counts with its share of the horizontal plane, ``h_i = M_0i^2 + M_1i^2`` (2/3 for
+    each axis of the paper's triad):
+
+        rms = sqrt(sum_i h_i v_i^2 / sum_i h_i)
+
+    (normalised: for equal values it is that value whatever the calibration's scale factors;
+    on an orthogonal triad it is ``sqrt(tr(A) / 2)`` exactly).
+
+    Parameters
+    ----------
+    value : float or tuple of 3 float
+        One figure for the three sensors, or one each (any unit; the result has it).
+    M : numpy.ndarray, shape (3, 3)
+        ``C~_s^b K~_g`` (gyros) or ``C~_s^b A~_a`` (accelerometers).
+
+    Returns
+    -------
+    float
+    """
+    if not isinstance(value, tuple):
+        return float(value)
+    h = M[0] ** 2 + M[1] ** 2
+    return math.sqrt(float(h @ np.square(value)) / float(h.sum()))
+
+
 def _filter_matrices(C0, w_n, g, rate, T, dt, config):
     """Transition Phi, process noise Qd (Van Loan) for one block of length T (s); ``dt`` is
-    the sample period (s), for the pulse quantization noise."""
+    the sample period (s), for the pulse quantization noise; per-axis noise as the
+    horizontal axes see it (:func:`horizontal_rms`)."""
     F = np.zeros((9, 9))
     # attitude error (N, E; D held): phi_dot = -[w x] phi - C0[:, :2] x_g
     wN, wE, wD = w_n.tolist()
@@ -473,8 +521,10 @@ def _filter_matrices(C0, w_n, g, rate, T, dt, config):
     F[5, 6] = F[7, 8] = -rate                   # rate [[0, -1], [1, 0]]
     F[6, 5] = F[8, 7] = rate
     Qc = np.zeros((9, 9))
-    Qc[0, 0] = Qc[1, 1] = config.arw ** 2 + quantization_arw(config.gyro_pulse, rate, dt) ** 2
-    Qc[3, 3] = Qc[4, 4] = config.vrw ** 2
+    Mg, Ma = _calibration(config)
+    Qc[0, 0] = Qc[1, 1] = (horizontal_rms(config.arw, Mg) ** 2
+                           + quantization_arw(horizontal_rms(config.gyro_pulse, Mg), rate, dt) ** 2)
+    Qc[3, 3] = Qc[4, 4] = horizontal_rms(config.vrw, Ma) ** 2
     M = np.zeros((18, 18))
     M[:9, :9] = -F
     M[:9, 9:] = Qc
@@ -666,7 +716,7 @@ def align(log, config=None):
     vel = np.cumsum(dvel, axis=1)
 
     Phi, Qd = _filter_matrices(C0, w_n, g, blk["rate"], T, blk["dt"], config)
-    Rv = config.accel_pulse ** 2 / 12.0 + config.velocity_floor ** 2
+    Rv = horizontal_rms(config.accel_pulse, _calibration(config)[1]) ** 2 / 12.0 + config.velocity_floor ** 2
     P = np.diag([config.sigma0_tilt ** 2, config.sigma0_tilt ** 2, config.sigma0_heading ** 2,
                  config.velocity_floor ** 2, config.velocity_floor ** 2,
                  config.sigma0_gyro_bias ** 2, config.sigma0_gyro_bias ** 2,

@@ -22,6 +22,18 @@ Checks, rules and thresholds (:class:`Thresholds`; the reasons are physical)
    quanta, the encoder's resolution); an isolated sample off by less moves the heading
    by < 1e-5 arcsec (0.7 arcsec per rad measured mid-run).
 
+   *Encoder resolution.* The steps' quantum is seen in the data (the smallest change between
+   steps over the first 4,000 samples); when the encoder's counts per revolution are known
+   (``assess(..., encoder_counts_per_rev=...)``: the calibration file's
+   ``encoder.counts_per_rev``; else the log's metadata ``encoder_counts_per_rev``, which a
+   mapping file's ``encoder.counts_per_rev`` sets) the quantum is at least one count,
+   ``2 pi / counts``, here and in check 3's share of the turn. A jitter-free coarse encoder
+   whose step is a whole number of counts over the first samples shows no quantum there, and
+   a later one-count step was refused as a jump (the two false alarms of the full sweep
+   below); with its counts known the same logs pass, and a jump of 4 counts (80 arcsec on a
+   20-arcsec encoder) or more is still refused at its sample
+   (``tests/test_align_quality.py``).
+
    *Repair*: a run of at most ``repair_samples`` (3) consecutive samples whose first and
    last neighbours agree with the table's rate (the steps around them add up to the rate's
    within the threshold: a glitch, a repeated stale reading; a sample off by a whole turn
@@ -323,6 +335,8 @@ _META_TYPES = {
     "position": (lambda v: isinstance(v, str) and v.strip() != "" or
                  isinstance(v, numbers.Integral) and not isinstance(v, bool), "a text label or an integer"),
     "source": (lambda v: isinstance(v, str), "text"),
+    "encoder_counts_per_rev": (lambda v: _number(v) and float(v) >= 1.0,
+                               "a number >= 1, the encoder's counts per revolution"),
 }
 
 
@@ -381,12 +395,13 @@ def _step_stats(d):
     return c, _MAD * float(_median(np.abs(sub - c)))
 
 
-def _check_encoder(t, enc, gyro, th, findings):
-    """Check 1; returns the encoder (a repaired copy, or ``enc`` itself)."""
+def _check_encoder(t, enc, gyro, th, findings, resolution=0.0):
+    """Check 1; returns the encoder (a repaired copy, or ``enc`` itself). ``resolution``: the
+    encoder's count, rad, when known (0: the steps' quantum as seen in the data)."""
     n = enc.size
     d = np.diff(enc)
     c, s = _step_stats(d)
-    thr = max(th.encoder_sigmas * s, th.encoder_floor, _QUANTA * float(_quantum(d[1:])))
+    thr = max(th.encoder_sigmas * s, th.encoder_floor, _QUANTA * max(float(_quantum(d[1:])), resolution))
     if float(d.max()) - c <= thr and c - float(d.min()) <= thr:      # (two reductions, no temporaries)
         return enc
     dev = d - c
@@ -534,8 +549,9 @@ def _fit(A, Y, keep):
     return np.linalg.solve(Ak.T @ Ak, Ak.T @ Y[keep])
 
 
-def _check_channels(t, enc, gyro, accel, turn, L, m, th, findings):
-    """Check 3; returns (gyro, accel, enc), repaired copies where a spike rule applied."""
+def _check_channels(t, enc, gyro, accel, turn, L, m, th, findings, resolution=0.0):
+    """Check 3; returns (gyro, accel, enc), repaired copies where a spike rule applied.
+    ``resolution``: the encoder's count, rad, when known (0: as seen in the data)."""
     if m < 8:
         return gyro, accel, enc
     X = np.hstack([_window_sums(gyro, L, m), _window_sums(accel, L, m)])      # (m, 6)
@@ -565,7 +581,7 @@ def _check_channels(t, enc, gyro, accel, turn, L, m, th, findings):
     size = np.array([float(_median(np.abs(turn))) * scale, f_med])
     # the encoder's count (the smallest change of its steps) quantizes each window's turn, which
     # the gyros' ratio and residuals (less beta_j x turn) carry: bounded like their own pulses
-    qe = float(_quantum(np.diff(enc[:_QUANTUM_SAMPLES + 2])[1:]))
+    qe = max(float(_quantum(np.diff(enc[:_QUANTUM_SAMPLES + 2])[1:])), resolution)
     level = _level(th, 8 * m, m)
     sigmas = max(th.channel_sigmas, level)
     nquant = _QUANT_BOUND * np.array([np.sqrt(3.0) * q[:3].max() + qe * scale, np.sqrt(3.0) * q[3:].max()]) / size
@@ -759,7 +775,22 @@ def _check_temperature(t, temp, L, m, th, findings):
 
 
 # -- the whole assessment ------------------------------------------------------------------------
-def assess(log, *, thresholds=None, temperature=None):
+def _resolution(meta, counts, findings):
+    """The encoder's count, rad (0 when unknown): ``2 pi / counts`` of the argument or of the
+    metadata's ``encoder_counts_per_rev``; the two differing (by more than 1e-9 relative) is a
+    metadata refusal naming both (a metadata value of the wrong type is already one)."""
+    given = meta.get("encoder_counts_per_rev")
+    if given is not None and not _META_TYPES["encoder_counts_per_rev"][0](given):
+        given = None
+    if counts is not None and given is not None and abs(float(given) - counts) > 1e-9 * counts:
+        findings.append(Finding("metadata", None, None, "refused",
+                                f"'encoder_counts_per_rev' = {given!r} and the calibration's encoder.counts_per_rev "
+                                f"= {counts:g} differ; allowed: one encoder resolution (or only one of them)"))
+    counts = counts if counts is not None else given
+    return 0.0 if counts is None else 2.0 * math.pi / float(counts)
+
+
+def assess(log, *, thresholds=None, temperature=None, encoder_counts_per_rev=None):
     """Check a raw log and repair what a documented rule allows (module docstring).
 
     Parameters
@@ -769,6 +800,11 @@ def assess(log, *, thresholds=None, temperature=None):
     thresholds : Thresholds, optional
     temperature : array_like, shape (n,), optional
         The IMU temperature at each sample, degC (a mapping file's ``temp_c`` column).
+    encoder_counts_per_rev : float, optional
+        The encoder's counts per revolution when known (the calibration file's
+        ``encoder.counts_per_rev``); the log's metadata ``encoder_counts_per_rev`` serves when
+        this is None, and the two differing refuses the log. Its count, ``2 pi / counts``, is
+        the encoder's quantum in checks 1 and 3 (module docstring, *Encoder resolution*).
 
     Returns
     -------
@@ -778,16 +814,17 @@ def assess(log, *, thresholds=None, temperature=None):
     """
     th = thresholds or Thresholds()
     findings = check_metadata(log.meta)
+    resolution = _resolution(log.meta, encoder_counts_per_rev, findings)
     t, enc = log.t, log.encoder
     n = t.size
     dt = float(t[-1] - t[0]) / (n - 1)
-    enc2 = _check_encoder(t, enc, log.gyro, th, findings)
+    enc2 = _check_encoder(t, enc, log.gyro, th, findings, resolution)
     L, m = _windows(n, dt, th)
     gyro, accel = log.gyro, log.accel
     if m >= 2 and not any(f.action == "refused" and f.check == "encoder" for f in findings):
         turn = _check_rate(t, enc2, L, m, th, findings)
         if not any(f.check == "rate" for f in findings):
-            gyro, accel, enc2 = _check_channels(t, enc2, gyro, accel, turn, L, m, th, findings)
+            gyro, accel, enc2 = _check_channels(t, enc2, gyro, accel, turn, L, m, th, findings, resolution)
     if temperature is not None:
         _check_temperature(t, temperature, L, m, th, findings)
     findings.sort(key=lambda f: (-1 if f.sample is None else f.sample))

@@ -290,7 +290,7 @@ def _align(paths, config, jobs, progress, cache, align_kw, client):
 
 
 def calibrate(logs, *, config=None, align_kw=None, suffixes=_SUFFIXES, effects=(), time_left_h=DEFAULT_TIME_LEFT_H,
-              jobs=1, client=None, target_sigma=None, progress=None, cache=None, costs=None):
+              jobs=1, client=None, target_sigma=None, progress=None, cache=None, costs=None, notes=()):
     """The session on raw logs (module docstring).
 
     Parameters
@@ -325,6 +325,9 @@ def calibrate(logs, *, config=None, align_kw=None, suffixes=_SUFFIXES, effects=(
         :func:`watch` passes so that each update aligns only the new logs.
     costs : hse_opt.design.Costs, optional
         Setup times for the plan of the rest.
+    notes : sequence of str
+        Notes on the processor (e.g. what it assumed without a lab calibration): first in the
+        result's notes (the report, ``summary.json``).
 
     Returns
     -------
@@ -368,8 +371,10 @@ def calibrate(logs, *, config=None, align_kw=None, suffixes=_SUFFIXES, effects=(
     seconds["align"] = time.perf_counter() - t0
     if not rows:
         raise NoRunsError(f"none of the {len(paths)} logs could be aligned (first: {errors[0]})")
-    runs, notes = runs_from_rows(rows)
-    notes = list(notes)
+    runs, found = runs_from_rows(rows)
+    from ..align.batch import NOISE_SOURCE_COLUMN
+    notes = [*notes, f"the filter's noise: {rows[0][NOISE_SOURCE_COLUMN]} (data: measured from the logs; file: the "
+             "calibration file; truth: TRUTH.toml)", *found]
     time_left = float(time_left_h) * units.HOUR
 
     t0 = time.perf_counter()

@@ -19,9 +19,9 @@ DEFAULT_MIN_RATE_DPS = 5.0
 
 
 #: text columns hse-opt itself writes (``hse-opt align``'s ``quality``: what the log-quality
-#: checks repaired or noted): kept as metadata like any text column, without the note a
-#: user's own text column gets
-OWN_TEXT_COLUMNS = ("quality",)
+#: checks repaired or noted; ``noise_source``: where the filter's noise figures came from):
+#: kept as metadata like any text column, without the note a user's own text column gets
+OWN_TEXT_COLUMNS = ("quality", "noise_source")
 
 class _Col(NamedTuple):
     name: str        # column name in the file, with its unit

@@ -33,9 +33,10 @@ DESCRIPTION = (
     "applied is --calibration CAL.toml (docs/calibration.md; `hse-opt simulate "
     "--write-calibration` writes a simulated system's), or --truth TRUTH.toml (a simulated "
     "system's), else the orthogonal system with the paper's ideal mount (K_g = K_a = I, every "
-    "gyro axis at 54.74 deg from the rotation axis); unless the calibration file has a [noise] "
-    "section (or --truth is given) the filter is tuned from the pooled figures of up to 8 logs "
-    "spread over the campaign.")
+    "gyro axis at 54.74 deg from the rotation axis; said once on stderr); each of the filter's "
+    "noise figures the calibration file does not give ([noise] ARW and VRW, one number or one "
+    "per axis, and the pulse weights) is measured from the pooled figures of up to 8 logs "
+    "spread over the campaign, and the text column noise_source says which came from where.")
 INPUTS = ("logs", "truth", "calibration", "mapping")
 OUTPUTS = {"output": FILE, "report": REPORT}
 EXAMPLE = """examples:
@@ -68,9 +69,11 @@ def add_processor_arguments(parser):
     calib.add_argument("--calibration", metavar="CAL.toml",
                        help="the system's lab calibration: [gyro] K_g (gyro outputs -> s), [accel] K_a "
                             "(accelerometer outputs -> s), [mount] C_s_b (s -> b) or r_zb_s, optionally "
-                            "pulse weights, [noise] (else the filter is tuned from the logs) and [site] "
-                            "latitude_deg (docs/calibration.md; e.g. --calibration CALIBRATION.toml; "
-                            "default: the orthogonal system with the paper's ideal mount)")
+                            "pulse weights, [noise] (one number or one per axis; a figure left out is "
+                            "measured from the logs), [encoder] counts_per_rev (the quality checks' encoder "
+                            "quantum) and [site] latitude_deg (docs/calibration.md; e.g. --calibration "
+                            "CALIBRATION.toml; default: the orthogonal system with the paper's ideal mount, "
+                            "said in a note)")
     calib.add_argument("--truth", metavar="TRUTH.toml",
                        help="a simulated system: its lab calibration (K~_g, C~_s^b) and sensor noise "
                             "(e.g. --truth TRUTH.toml; hse_opt/datasets/truth_default.toml is the "
@@ -100,8 +103,9 @@ def processor(args):
     -------
     config : hse_opt.align.AlignConfig
     kw : dict
-        :func:`hse_opt.align.batch.align_logs`'s ``mapping``, ``tune_from_data`` and
-        ``pulse_weights``.
+        :func:`hse_opt.align.batch.align_logs`'s ``mapping``, ``tune_from_data`` (the noise
+        figures the calibration file does not give: measured from the logs), ``pulse_weights``
+        and ``given_by``.
     suffixes : tuple of str
         The file names a folder's raw logs end with.
     """
@@ -121,11 +125,11 @@ def processor(args):
         except OSError as err:
             raise ValueError(f"{args.truth}: cannot read the truth: {err.strerror or err}; allowed: a "
                              "TRUTH.toml you can read") from None
-        config, weights, from_data = default_align_config(truth), None, False
+        config, weights, from_data, given_by = default_align_config(truth), None, (), "truth"
     else:
         cal = load_calibration(args.calibration) if args.calibration else LabCalibration.orthogonal()
-        config, weights = cal.align_config(), cal.pulse_weights
-        from_data = cal.arw is None and cal.vrw is None    # tuning from data
+        config, weights, given_by = cal.align_config(), cal.pulse_weights, "file"
+        from_data = tuple(k for k, given in cal.noise_given().items() if not given)   # measured from the logs
     if args.latitude_deg is not None:
         if config.latitude is not None and abs(config.latitude / units.DEG - args.latitude_deg) > LATITUDE_TOL_DEG:
             raise ValueError(f"--latitude-deg {args.latitude_deg:g} and site.latitude_deg "
@@ -135,8 +139,27 @@ def processor(args):
     if args.mapping:
         from ...align.mapping import load_mapping
         mapping = load_mapping(args.mapping)
-    return (config, dict(mapping=mapping, tune_from_data=from_data, pulse_weights=weights),
+    return (config, dict(mapping=mapping, tune_from_data=from_data, pulse_weights=weights, given_by=given_by),
             _MAPPED_SUFFIXES if mapping else _SUFFIXES)
+
+
+def noise_source_line(row):
+    """Where the filter's noise figures came from (an aligned row's ``noise_source``), one line."""
+    from ...align.batch import TUNING_LOGS
+    return (f"the filter's noise: {row['noise_source']} (data: measured from the logs, the Allan analysis of up "
+            f"to {TUNING_LOGS} of them pooled; file: the calibration file; truth: TRUTH.toml)")
+
+
+def assumption(args):
+    """The one-line note on what the processor assumed without a lab calibration (neither
+    --calibration nor --truth), else None: ``hse-opt align`` and ``calibrate`` say it once on
+    stderr and in their report (and summary.json)."""
+    if args.calibration or args.truth:
+        return None
+    return ("no --calibration: assumed an orthogonal, perfectly mounted IMU (K_g = K_a = I, every gyro axis at "
+            "54.74 deg from the rotation axis); a real system's axes are off by tens of arcsec, which moves its "
+            "headings, and what is calibrated from them, by as much: give its lab calibration with --calibration "
+            "CALIBRATION.toml (docs/calibration.md)")
 
 
 def run(args):
@@ -150,6 +173,9 @@ def run(args):
         raise ValueError(f"--jobs {args.jobs}: allowed: an integer >= 1")
     config, kw, suffixes = processor(args)
     paths = _expand(args.logs, suffixes)
+    assumed = assumption(args)
+    if assumed:
+        message(f"hse-opt align: note: {assumed}")
     with dask_client(args.dask) as client, tqdm(total=len(paths), unit="log", desc="align", file=sys.stderr,
                                                 disable=None if args.progress else True) as bar:
         rows, errors = align_logs(paths, config, jobs=args.jobs, client=client, **kw,
@@ -169,9 +195,12 @@ def run(args):
     pooled = combine_noise(r["noise"] for r in rows)
     message(f"hse-opt align: noise (Allan, IEEE 952) over {pooled.n_logs} log{'s' if pooled.n_logs != 1 else ''}: "
             f"{pooled.summary()}")
+    tuning = noise_source_line(rows[0])
+    message(f"hse-opt align: {tuning}")
     if args.report:
-        from ...report import noise_section
-        write_report(args, [noise_section([r["noise"] for r in rows], pooled,
+        from ...report import noise_section, text_section
+        write_report(args, [text_section("The processor", [x for x in (assumed, tuning) if x]),
+                            noise_section([r["noise"] for r in rows], pooled,
                                           names=[os.path.basename(r["log"]) for r in rows])],
                      f"hse-opt align: {len(rows)} log{'s' if len(rows) != 1 else ''}")
     touched = sum(r.get("quality", "ok") != "ok" for r in rows)

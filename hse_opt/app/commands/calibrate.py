@@ -108,13 +108,16 @@ def _check(args):
 
 def run(args):
     from ..session import calibrate, write_outputs
-    from .align import processor
+    from .align import assumption, processor
     from .demo import _progress_bar
 
     _check(args)
     config, align_kw, suffixes = processor(args)
+    assumed = assumption(args)
+    if assumed:
+        message(f"hse-opt calibrate: note: {assumed}")
     kw = dict(config=config, align_kw=align_kw, suffixes=suffixes, effects=_effects(args.effects),
-              jobs=args.jobs)
+              jobs=args.jobs, notes=(assumed,) if assumed else ())
     if args.watch:
         with dask_client(args.dask) as client:
             return _watch(args, {**kw, "client": client})
