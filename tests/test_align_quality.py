@@ -277,6 +277,51 @@ def test_a_stuck_encoder_is_refused_and_a_stall_named_as_such(clean):
     assert f.action == "refused" and f.sample == K + 1 and "the gyros turned with it" in f.detail
 
 
+@pytest.mark.parametrize("start", [100_000, 0])
+def test_a_frozen_encoder_is_named_from_its_first_stale_sample(clean, start):
+    """An encoder that holds one reading from sample ``start`` to the end (two thirds of the
+    log, or all of it) while the table turns: refused at the first sample that repeats the
+    reading, with the gyros' turn meanwhile (the table's 10 deg/s over that time), and no other
+    finding or warning (before: 'at sample 1', the good part called off the table's '+0 arcsec'
+    step, or 'the gyros turn inf times the encoder's turn' with divide-by-zero warnings)."""
+    import warnings
+    log, _ = clean
+
+    def frozen(e):
+        e[start:] = e[start]
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        q = assess(_faulty(log, encoder=frozen))
+    f = _only(q, "refused")
+    first = start + 1
+    assert f.check == "encoder" and (f.sample, f.time) == (first, log.t[first]), f.text()
+    assert f"the encoder is frozen at {log.encoder[start]:.6g} rad from sample {first} to {log.t.size - 1}" in f.detail
+    span_deg = 10.0 * (log.t[-1] - log.t[start])
+    turned = float(f.detail.split("the gyros turned ")[1].split(" deg")[0])
+    assert turned == pytest.approx(span_deg, rel=0.01)
+
+
+@pytest.mark.parametrize("channel, size, at", [(2, 30.0, K + 100), (3, 0.05, K + 60)])
+def test_a_bias_step_is_reported_at_its_sample_with_its_size(clean, channel, size, at):
+    """A gyro bias step (30 deg/h on gyro_z) or an accelerometer one (0.05 m/s^2 on accel_x) in
+    the middle of a window: refused at the step's sample within a tenth of a window, its size
+    within 2 % (before: 'at sample 1', the first sample of the log)."""
+    log, _ = clean
+    dt = log.sample_period
+    L = int(round(Thresholds().window_s / dt))
+    per_sample = (size * units.DEG_PER_H if channel < 3 else size) * dt
+
+    def step(x):
+        x[at:, channel % 3] += per_sample
+    q = assess(_faulty(log, **{"gyro" if channel < 3 else "accel": step}))
+    f = _only(q, "refused")
+    assert f.check == "channel" and abs(f.sample - at) <= L // 10, f.text()
+    assert f.time == log.t[f.sample] and f"at about sample {f.sample} (t = {log.t[f.sample]:.6g} s" in f.detail
+    name = ("gyro_x", "gyro_y", "gyro_z", "accel_x", "accel_y", "accel_z")[channel]
+    got = float(f.detail.split(f"{name} bias steps by ")[1].split(" ")[0])
+    assert got == pytest.approx(size, rel=0.02)
+
+
 @pytest.mark.parametrize("ppm, refused", [(1000, False), (10000, True)])
 def test_a_table_rate_ripple_beyond_the_threshold_is_refused(ppm, refused):
     truth = TRUTH.updated({"table": {"ripple_ppm": ppm}})

@@ -401,6 +401,11 @@ def _check_encoder(t, enc, gyro, th, findings, resolution=0.0):
     n = enc.size
     d = np.diff(enc)
     c, s = _step_stats(d)
+    if c == 0.0:            # one reading held over half the log or more: frozen, if the table turned
+        frozen = _frozen_encoder(t, enc, gyro, d)
+        if frozen is not None:
+            findings.append(frozen)
+            return enc
     thr = max(th.encoder_sigmas * s, th.encoder_floor, _QUANTA * max(float(_quantum(d[1:])), resolution))
     if float(d.max()) - c <= thr and c - float(d.min()) <= thr:      # (two reductions, no temporaries)
         return enc
@@ -468,6 +473,28 @@ def _check_encoder(t, enc, gyro, th, findings, resolution=0.0):
                     "between samples that keep the rate)")
         findings.append(Finding("encoder", k, float(t[k]), "refused", what))
     return out
+
+
+def _frozen_encoder(t, enc, gyro, d):
+    """The refusal of an encoder that holds one reading (its longest run of zero steps ``d``)
+    while the gyros turn more than a hundred times the Earth's rate would (a static table); None
+    when they do not."""
+    starts, lengths = _runs(d == 0.0)
+    if not starts.size:
+        return None
+    r = int(np.argmax(lengths))
+    i0, length = int(starts[r]), int(lengths[r])
+    a, b = i0 + 1, i0 + length                  # samples a..b repeat sample i0's reading
+    span = float(t[b] - t[i0])
+    turned = float(np.linalg.norm(gyro[a:b + 1].sum(axis=0)))      # the gyros' turn meanwhile, rad
+    if not turned > 100.0 * EARTH_RATE * span:
+        return None
+    share = length / d.size
+    return Finding("encoder", a, float(t[a]), "refused",
+                   f"the encoder is frozen at {float(enc[i0]):.6g} rad from sample {a} to {b} (t = {t[a]:.6g}-"
+                   f"{t[b]:.6g} s: {length} samples, {share:.0%} of the log) while the gyros turned "
+                   f"{turned / units.DEG:.4g} deg ({turned / span / units.DEG_PER_S:.3g} deg/s): a stopped counter "
+                   "or a lost encoder signal; allowed: an encoder reading that follows the table's turn")
 
 
 def _gyro_turn(gyro):
@@ -740,7 +767,15 @@ def _channel_fault(t, enc, x, j, beta, ws, dev, thr, L, th, findings, fitted, bo
                 k = a
                 what = f"{name} stuck at {_value(v, unit)} for {b - a} samples ({a}-{b - 1})"
         if what is None:
-            what = f"{name} does not follow the table's turn"
+            step = _level_step(dev, thr, L, n)
+            if step is not None:
+                k, size = step
+                per_s = size / (L * float(np.median(np.diff(t[s0 - 1:s1 + 1]))))
+                what = (f"{name} bias steps by " + (f"{per_s / units.DEG_PER_H:+.4g} deg/h" if j < 3 else
+                                                    f"{per_s:+.4g} m/s^2") + f" at about sample {k} "
+                        f"(t = {t[k]:.6g} s: the windows before and after it sit at two levels)")
+            else:
+                what = f"{name} does not follow the table's turn"
         more = len(stretches) - 1
         findings.append(Finding("channel", k, float(t[k]), "refused",
                                 f"{what}: windows of samples {s0}-{s1} off the fit by up to "
@@ -749,6 +784,39 @@ def _channel_fault(t, enc, x, j, beta, ws, dev, thr, L, th, findings, fitted, bo
                                 + f"; allowed: within {_value(thr, unit)} of a constant, a sinusoid of the table "
                                 "angle" + (", the gyro's share of the turn" if j < 3 else "") + " and slow drift"))
         return
+
+
+def _level_step(dev, thr, L, n):
+    """``(sample, size)`` of one level change in a channel's window residuals ``dev`` (m,) that
+    explains them (a bias step: the residual beyond it at most half its size), else None. The
+    windows either side are compared through eight-window medians; the step's sample within the
+    two windows at the change from their share of it (about a window's tenth at a step ten
+    times the windows' noise)."""
+    m = dev.size
+    if m < 4:
+        return None
+    h = min(8, m // 2)
+    from numpy.lib.stride_tricks import sliding_window_view
+    med = np.median(sliding_window_view(dev, h), axis=1)            # med[i]: windows i .. i + h - 1
+    jump = med[h:] - med[:-h]                                       # after window c - 1 vs before: c = h .. m - h
+    if not jump.size:
+        return None
+    c = h + int(np.argmax(np.abs(jump)))        # near the change (a median ignores a few windows)
+    a0 = max(0, c - h)
+    c = a0 + 1 + int(np.argmax(np.abs(np.diff(dev[a0:c + h]))))     # the first window past the largest jump
+    lo, hi = float(np.median(dev[max(0, c - 1 - h):c - 1])) if c > 1 else float(dev[0]), \
+        float(np.median(dev[c + 1:c + 1 + h])) if c + 1 < m else float(dev[-1])
+    size = hi - lo
+    if not abs(size) > thr:
+        return None
+    fit = np.where(np.arange(m) < c, lo, hi)
+    rest = np.abs(dev - fit)
+    rest[max(0, c - 1):c + 1] = 0.0                                 # the windows the step falls in
+    if rest.max() > 0.5 * abs(size):
+        return None
+    after = float(np.clip(((dev[c - 1] - lo) + (dev[c] - lo)) / size, 0.0, 2.0))   # windows after the step
+    k = 1 + (c - 1) * L + int(round((2.0 - after) * L))
+    return min(max(k, 1), n - 1), size
 
 
 def _value(x, unit):
