@@ -159,9 +159,9 @@ def judge(runs):
     # effect fitted on these runs (lambda2's sigma then below its statistical + systematic now)
     risks = [r.effect for r in last.budget.risks] if last.budget is not None else []
     plans = [resolving_plan(last.fit, runs, [e], level=last.budget.level) for e in risks]
-    by_runs = [p.n_runs for p in plans if p is not None and p.resolved]
-    by_fit = sum(1 for p in plans if p is not None and not p.resolved and any(
-        n == "lambda2" and w < sd + sys_l2 for n, _, sd, w in p.fitted))
+    by_runs = [p.n_runs for p in plans if p.resolved]
+    by_fit = sum(1 for p in plans if not p.resolved and p.fitted and all(
+        w < sd + sys_ for _, _, sd, w, sys_ in p.fitted))
     return {"verdict": last.verdict, "effects": tuple(last.effects), "value": float(value), "std": float(std),
             "systematic": sys_l2, "risks": len(risks), "by_runs": by_runs, "by_fit": by_fit}
 
@@ -232,7 +232,7 @@ def main(argv=None):
     by_fit = sum(r["by_fit"] for r in rows)
     print(f"systematic risks {risks}: ended by added runs at the azimuths or positions so far {len(by_runs)} "
           f"(median {np.median(by_runs) if by_runs else float('nan'):.0f} runs), by fitting the effect on "
-          f"these runs (lambda2's sigma below its statistical + systematic now) {by_fit}, neither "
+          f"these runs (each parameter at risk then known better than statistical + systematic now) {by_fit}, neither "
           f"{risks - len(by_runs) - by_fit}")
     print(f"in all: {n} campaigns; confidently wrong before {before} ({100 * before / n:.1f} %), "
           f"after {after} ({100 * after / n:.1f} %); target <= 5 % after "

@@ -111,7 +111,7 @@ def test_the_sigma_fitted_with_the_effect_is_a_real_fits(campaign, effect):
     plan = resolving_plan(d.fit, runs, [effect], level=d.budget.level)
     assert not plan.resolved and plan.fitted
     g = fit(runs, list(d.fit.model.effect_names) + [effect])
-    for name, _, now, with_effect in plan.fitted:
+    for name, _, now, with_effect, _ in plan.fitted:
         assert now == pytest.approx(d.fit.value(name)[1], rel=1e-9)
         assert with_effect == pytest.approx(g.value(name)[1], rel=0.02)
         assert with_effect > now

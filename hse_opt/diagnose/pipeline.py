@@ -189,7 +189,7 @@ def _inconclusive(f0, runs, budget, cands, alpha, level, chi2_test):
         hit = [f"{f0.names[i]} by up to {f0.systematic_by[i][e]:.3g} {f0.units[i]} (its sigma {f0.std[i]:.3g})"
                for i in at_risk if e in f0.systematic_by[i]]
         plan = resolving_plan(f0, runs, [e], level=level)
-        if plan is not None and plan.resolved:
+        if plan.resolved:
             resolving += [dict(r, effect=e) for r in plan.runs]
             plans.append(plan)
         notes.append(f"inconclusive: {e}, {risk.threshold_text()}, could move {', '.join(hit)}; "
@@ -198,15 +198,13 @@ def _inconclusive(f0, runs, budget, cands, alpha, level, chi2_test):
         # greedy for all at once, and each effect's own plan completed: the shorter
         both = [resolving_plan(f0, runs, effects, level=level), resolving_plan(f0, runs, effects, level=level,
                                                                                start=plans)]
-        plan = min((p for p in both if p is not None), key=lambda p: (not p.resolved, p.n_runs))
+        plan = min(both, key=lambda p: (not p.resolved, p.n_runs))
         notes.append(f"inconclusive: all of {', '.join(effects)} together: {_plan_text(plan, runs)}")
     return ("inconclusive" if effects or strong else "adequate"), notes, tuple(resolving)
 
 
 def _plan_text(plan, runs):
     """What it takes to resolve a risk, in words (:class:`.resolution.ResolvingPlan`)."""
-    if plan is None:
-        return "no run varying rate, sense, azimuth, start time or tilt would resolve it"
     return plan.text(field=runs.surveyed is not None and not np.all(runs.surveyed))
 
 

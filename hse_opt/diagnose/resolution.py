@@ -66,10 +66,12 @@ class ResolvingPlan:
         The worst undetectable shift in sigmas before and after.
     hours : float
         The alignments' time (``n_runs`` runs of the campaign's median duration), h.
-    fitted : tuple of (name, unit, sigma now, sigma fitted)
+    fitted : tuple of (name, unit, sigma now, sigma fitted, systematic now)
         The other way to end the risks, without runs: fit the effects with the model on these
         runs. Per parameter at risk, its statistical sigma now and with the effects fitted
-        (display units; ``inf`` when these runs cannot fit them together).
+        (display units; ``inf`` when these runs cannot fit them together), and its systematic
+        now. The text proposes the fit when every sigma fitted is below statistical +
+        systematic now.
     """
 
     effects: tuple
@@ -88,14 +90,16 @@ class ResolvingPlan:
         it = "it" if len(self.effects) == 1 else "them"
         if self.resolved:
             return f"{self.n_runs} runs would resolve {it} (about {self.hours:.2g} h of alignments): {what}"
-        left = f"{self.n_runs} more would leave it at {self.ratio_after:.2g} sigma, from {self.ratio_before:.2g}"
+        left = (f"{self.n_runs} more would leave it at {self.ratio_after:.2g} sigma, from {self.ratio_before:.2g}"
+                if self.n_runs else f"no run lowers its {self.ratio_before:.2g} sigma")
         if field:
             text = (f"runs at the positions so far cannot resolve {it} ({left}); positions at other headings may: "
                     "hse-opt design --field --runs RUNS.csv plans them")
         else:
             text = f"runs varying rate, sense, azimuth or start time cannot resolve {it} ({left})"
-        if self.fitted and all(np.isfinite(w) for _, _, _, w in self.fitted):
-            sig = ", ".join(f"{n} +- {w:.3g} {u} (now {s:.3g} statistical)" for n, u, s, w in self.fitted)
+        if self.fitted and all(w < s + sys_ for _, _, s, w, sys_ in self.fitted):
+            sig = ", ".join(f"{n} +- {w:.3g} {u} (now {s:.3g} statistical, {sys_:.3g} systematic)"
+                            for n, u, s, w, sys_ in self.fitted)
             return (f"{text}; fitted with the model, these runs would give {sig}: hse-opt fit --effects "
                     f"{','.join(self.effects)}")
         if field:
@@ -161,8 +165,8 @@ def resolving_plan(fit_result, runs, effects, *, level, max_runs=MAX_RUNS, start
 
     Returns
     -------
-    ResolvingPlan or None
-        None when no candidate run changes anything (nothing varies that the effects depend on).
+    ResolvingPlan
+        With no run when none lowers the worst ratio.
     """
     f = fit_result
     effs = [make_effect(e) for e in effects]
@@ -222,8 +226,8 @@ def resolving_plan(fit_result, runs, effects, *, level, max_runs=MAX_RUNS, start
         # the test's denominator dof grows by one with each run
         r = normal.at_dof(dof0 + int(counts.sum()) + 1).ratios(N[None] + outer)
         best = int(np.argmin(r))
-        if not counts.any() and not r[best] < ratio - 1e-12:
-            return None
+        if not r[best] < ratio - 1e-12:
+            break           # no run lowers it: none is added
         N = N + outer[best]
         counts[best] += 1
         ratio = float(r[best])
@@ -235,7 +239,7 @@ def resolving_plan(fit_result, runs, effects, *, level, max_runs=MAX_RUNS, start
 
 
 def _fitted(f, N, k, n_pos, blocks, names, effects):
-    """Per parameter at risk: (name, unit, sigma now, sigma with the effects fitted), from the
+    """Per parameter at risk: (name, unit, sigma now, sigma with the effects fitted, systematic), from the
     normal matrix of these runs; ``inf`` when the extended model is singular here."""
     at_risk = [n for n, by in zip(f.names, f.systematic_by or ()) if set(by) & set(effects)]
     cols = np.r_[np.arange(k + n_pos), np.concatenate([np.arange(b.start, b.stop) for b in blocks])]
@@ -248,7 +252,7 @@ def _fitted(f, N, k, n_pos, blocks, names, effects):
     for j, name in enumerate(names):
         if name in at_risk:
             i = list(f.names).index(name)
-            out.append((str(name), f.units[i], float(f.std[i]), float(with_std[j])))
+            out.append((str(name), f.units[i], float(f.std[i]), float(with_std[j]), float(f.systematic[i])))
     return tuple(out)
 
 
