@@ -104,6 +104,9 @@ def test_fit_and_diagnose_give_one_lack_of_fit_test_with_measured_tilts():
     assert f.lack_of_fit.p_value == pytest.approx(stats.f.sf(F, 18, 2), rel=1e-9)
     text = "\n".join(f.summary())
     assert "lack of fit F(18, 2)" in text and "2 replicate degrees of freedom: too few" in text
+    from hse_opt.report.fit_sections import fit_section      # and the report's statistics table
+    page = "".join(b for b in fit_section(f, runs).blocks if isinstance(b, str))
+    assert f"F(18, 2) = {F:.4g}, p = {stats.f.sf(F, 18, 2):.3g}" in page
 
 
 def test_f_tail_matches_scipy():

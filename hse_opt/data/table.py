@@ -314,8 +314,11 @@ class _Table:
             if name in OWN_TEXT_COLUMNS:    # hse-opt's own text: no news to its user
                 continue
             cells = text.tolist()
-            i = _first_not_number(cells)
-            out += (f"column '{name}' is text (row {i + 1}: {cells[i]!r} is not a number): kept as "
+            filled = [k for k, c in enumerate(cells) if str(c).strip()]   # an empty cell shows no text
+            i = _first_not_number([cells[k] for k in filled]) if filled else None
+            why = (f"row {filled[i] + 1}: {cells[filled[i]]!r} is not a number" if i is not None else
+                   "every cell empty" if not filled else f"row {_first_not_number(cells) + 1} is empty")
+            out += (f"column '{name}' is text ({why}): kept as "
                     "metadata and passed through to output tables, not a covariate",)
         return out
 

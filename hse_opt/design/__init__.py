@@ -16,9 +16,10 @@ the information matrix into a loss; :func:`design` minimises it within a test-ti
    Frank-Wolfe gap of the (Lagrangian) objective over all candidates bounds the loss of
    optimality (``ApproximateDesign.certified_efficiency``). Each conic solution is re-solved
    on its support with IPOPT (conic solvers leave ~1e-4 in the weights). The solver's
-   ``problem.status`` is checked: a failure raises :class:`DesignError` with it; an
-   ``optimal_inaccurate`` end is judged by the certificate (kept at >= 0.99, and said in the
-   result's notes below 0.999).
+   ``problem.status`` is checked: a failure raises :class:`DesignError` (a
+   :class:`~hse_opt.fit.SolverError`) with it; an ``optimal_inaccurate`` end is judged by the
+   certificate (kept at >= 0.99, and said in the result's notes below 0.999), and below that
+   the even design and IPOPT from it are tried before the error.
 3. **Exact design** -- the approximate design's support is first reduced (the same
    information matrices on few stand positions, then Caratheodory: on fewer candidates),
    then rounded efficiently (Pukelsheim & Rieder 1992, :func:`apportion`) to ``n`` whole

@@ -17,6 +17,7 @@ import casadi as ca
 import cvxpy as cp
 import numpy as np
 
+from ..fit.result import SolverError
 from ..information import UnidentifiableError
 from ..interrupts import check as check_interrupt
 from .criteria import CASADI, CvxOps, NotSmooth, Scaled, as_criterion
@@ -31,8 +32,18 @@ SOLVERS = ("CLARABEL", "SCS")
 ENOUGH = 0.9999
 
 
-class DesignError(RuntimeError):
-    """A solver failed; the message carries its status."""
+#: what a user can change when the convex program fails (an ill-conditioned design space)
+CHANGE = ("allowed: a design space that separates the parameters better (more rate levels --n-rates, both senses "
+          "--reverse, a tilt fixture --max-tilt-arcsec, fewer --effects) or another --criterion (D, A)")
+
+
+class DesignError(SolverError):
+    """A solver failed; ``status`` is its status (the message carries it too). A
+    :class:`~hse_opt.fit.SolverError`: the command line names it in one line, exit 1."""
+
+    def __init__(self, message, status=None):
+        RuntimeError.__init__(self, message)
+        self.status = status
 
 
 @dataclass(frozen=True)
@@ -112,7 +123,8 @@ def solve_approximate(prob, batch=128, polish=True, target=1 - 1e-7, enough=ENOU
             if status == cp.OPTIMAL or cert >= 0.99 or certify(sub, w[active], mus, sup_grads)[2] >= 0.99:
                 break
         if best is None:
-            raise DesignError("the approximate design's convex program was not solved: " + "; ".join(failures))
+            raise DesignError("the approximate design's convex program was not solved: " + "; ".join(failures)
+                              + f"; {CHANGE}", "not solved")
         w, mus, cert, loss, h, status, used = best
         if active.size == n or cert >= target or (cert >= enough and cert - last < 1e-5):
             break
@@ -127,8 +139,12 @@ def solve_approximate(prob, batch=128, polish=True, target=1 - 1e-7, enough=ENOU
             break
         active = np.union1d(active, new)
     if status != cp.OPTIMAL and not cert >= 0.99:  # an inaccurate solve is judged by its certificate
+        fallback = _fallback(prob, active, loss if np.isfinite(loss) else None)
+        if fallback is not None and fallback[2] > cert:
+            w, mus, cert, loss, used = fallback[0], fallback[1], fallback[2], fallback[3], f"{used}, then {fallback[4]}"
+    if status != cp.OPTIMAL and not cert >= 0.99:
         raise DesignError(f"the approximate design's convex program ended {status} ({used}) with a "
-                          f"certified efficiency of only {cert:.4g}")
+                          f"certified efficiency of only {cert:.4g}; {CHANGE}", status)
     return ApproximateDesign(prob.candidates, w, loss, status, used, cert, time.perf_counter() - t0, it,
                              int(active.size))
 
@@ -214,6 +230,34 @@ def polish_weights(prob, w, loss0):
     out[sup] = np.clip(np.array(sol["x"]).ravel()[:m], 0.0, None)
     lam = np.array(sol["lam_g"]).ravel()[n_lin:n_lin + n_g]
     return out, [max(0.0, -float(v) * scale) for v in lam]
+
+
+def _fallback(prob, active, loss0):
+    """When the conic solvers end inaccurate (an ill-conditioned program): the even design over
+    the active candidates (each time slot's budget spent evenly) and IPOPT's solution from it
+    on them (:func:`polish_weights`), the one with the better certificate. Returns
+    ``(w, mus, cert, loss, what)`` or None (no even design meets the run limit or the guards)."""
+    w = np.zeros(prob.n)
+    for s in range(prob.n_slots):
+        idx = active[prob.slot[active] == s]
+        if idx.size:
+            w[idx] = prob.slot_budget[s] / prob.cost[idx].sum()
+    if prob.max_runs is not None and w.sum() > prob.max_runs:
+        w *= prob.max_runs / w.sum()
+    mus = [0.0] * len(prob.guards)
+    try:
+        loss, _, cert = certify(prob, w, mus, None)
+    except (np.linalg.LinAlgError, ValueError):
+        return None
+    if prob.guards and not all(g.level(w) >= g.bound for g in prob.guards):
+        return None
+    best = (w, mus, cert, loss, "the even design")
+    polished = polish_weights(prob, w, loss if loss0 is None else loss0)
+    if polished is not None:
+        trial = certify(prob, *polished)
+        if trial[2] > cert:
+            best = (*polished, trial[2], trial[0], "IPOPT from the even design")
+    return best
 
 
 def _concave(guard):

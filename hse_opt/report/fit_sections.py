@@ -17,12 +17,16 @@ from .style import _embed
 
 def _fit_statistics(fit):
     """(label, key, formatted value) rows of a fit's statistics."""
+    lof = fit.lack_of_fit
     return [
         ("runs", "n_runs", _fmt(fit.n_runs)),
         ("RMS of residuals [arcsec]", "rms_arcsec", _fmt(fit.rms_arcsec)),
         ("chi-square", "chi2", _fmt(fit.chi2)),
         ("degrees of freedom", "dof", _fmt(fit.dof)),
         ("reduced chi-square", "chi2_red", _fmt(fit.chi2_red)),
+    ] + ([("lack of fit against the replicates (docs/weights.md)", "lack_of_fit",
+           html.escape(f"F({lof.dof[0]}, {lof.dof[1]}) = {lof.statistic:.4g}, p = {lof.p_value:.3g}"))]
+         if lof is not None else []) + [
         ("AIC", "aic", _fmt(fit.aic)),
         ("BIC", "bic", _fmt(fit.bic)),
         ("condition number", "condition", _fmt(fit.condition, 3)),
@@ -166,8 +170,11 @@ def comparison_section(before, after=None, runs=None, title=None, derived=()):
         data = _jsonable(comparison.to_dict())
     else:
         sb, sa = _fit_statistics(before), _fit_statistics(after)
-        stats = [[lab, vb, va] for (lab, _, vb), (_, _, va) in zip(sb, sa)]
-        keys = [k for _, k, _ in sb]
+        after_by_key = {k: v for _, k, v in sa}     # (a row one of them lacks: a dash)
+        rows = list(sb) + [r for r in sa if r[1] not in {k for _, k, _ in sb}]
+        before_by_key = {k: v for _, k, v in sb}
+        stats = [[lab, before_by_key.get(k, "&ndash;"), after_by_key.get(k, "&ndash;")] for lab, k, _ in rows]
+        keys = [k for _, k, _ in rows]
         params = []
         for n in dict.fromkeys(before.names + after.names):
             cells = [f"<code>{html.escape(n)}</code>"]

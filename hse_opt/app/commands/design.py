@@ -25,7 +25,11 @@ among positions x rate patterns x repeats by the same criterion: protect keeps p
 against each effect some plan in the budget can show (a field plan cannot show an effect that
 is constant at a position, e.g. axis_bias), c:lambda2 takes the smallest sigma alone. With
 --evaluate an existing PLAN.csv is scored instead;
-a plan that cannot identify the model stops (exit 2) naming the parameters."""
+a plan that cannot identify the model stops (exit 2) naming the parameters. A conic solver that
+ends inaccurate is backed by the even design and IPOPT from it (kept when the equivalence
+theorem certifies it); a refinement IPOPT cannot finish keeps the grid plan (said in the
+output); a convex program that still fails stops with one line naming the solver's status and
+what to change (exit 1)."""
 INPUTS = ("evaluate", "prior", "runs")
 OUTPUTS = {"output": FILE, "report": REPORT}
 EXAMPLE = """\
