@@ -239,8 +239,10 @@ def test_the_next_plans_sigma_says_its_model_and_the_report_fits_the_page(tmp_pa
     std = summary["parameters"]["lambda2"]["std"]
     line = next(ln for ln in stdout.splitlines() if "takes sigma(lambda2)" in ln)
     assert f"with {', '.join(extra)} - a systematic risk now - estimated too" in line, line
-    assert f"the fit above, without it, gives +- {std:.2g} arcsec" in line, line
-    assert f"+- {std:.2g} arcsec (statistical, 1-sigma)" in stdout
+    assert f"the fit above, without it, gives +- {std:.3g} arcsec" in line, line
+    assert f"+- {std:.3g} arcsec (statistical, 1-sigma)" in stdout
+    # one precision in the box: the verdict's sentence and the line below give lambda2's sigma alike
+    assert f"lambda2 = {summary['parameters']['lambda2']['value']:.4g} +- {std:.3g} arcsec statistical" in stdout
     page = (out / "report.html").read_text()
     logs_section = page[page.index("<h2>Raw logs"):]
     keys = re.findall(r'data-key="(run_\d+)\.npz"', logs_section[:logs_section.index("</table>")])

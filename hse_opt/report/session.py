@@ -29,13 +29,14 @@ def _uncertainty(result):
     value, std, sys_, total, unit = result.target()
     if value is None:
         return "lambda2 is not estimated yet."
-    text = f"lambda2 = {value:.4g} +- {std:.2g} {unit} (statistical, 1-sigma)"
+    # three figures, as the verdict's own sentence gives them (was 3.02 there, 3 here)
+    text = f"lambda2 = {value:.4g} +- {std:.3g} {unit} (statistical, 1-sigma)"
     if sys_ == 0:
         text += ("; no systematic risk: no effect this campaign would miss moves it by more than its "
                  "sigma")
     elif sys_ is not None:
-        text += (f"; systematic up to {sys_:.2g} {unit} from effects this campaign cannot rule out; "
-                 f"total +- {total:.2g} {unit}")
+        text += (f"; systematic up to {sys_:.3g} {unit} from effects this campaign cannot rule out; "
+                 f"total +- {total:.3g} {unit}")
     else:
         text += "; no systematic budget was computed for it"
     return text + "."
@@ -50,7 +51,7 @@ def _with_risks(result):
     if not extra:
         return " (statistical)"
     return (f" (statistical, with {', '.join(extra)} - a systematic risk now - estimated too; the fit "
-            f"above, without {'it' if len(extra) == 1 else 'them'}, gives +- {result.target()[1]:.2g} {c.unit})")
+            f"above, without {'it' if len(extra) == 1 else 'them'}, gives +- {result.target()[1]:.3g} {c.unit})")
 
 
 def summary_lines(result):
