@@ -82,6 +82,10 @@ def main():
                 print(f"{model:<26}{kind:<8}{crit:<11}{n:>11}{total:>7.2f} s{cpu:>7.2f} s{a.solve_time:>7.2f} s"
                       f"{a.certified_efficiency:>11.6f}{r.rounding_efficiency:>10.4f}{r.efficiency:>8.4f}"
                       f"{a.support.size:>9}{r.n_runs:>6}")
+                if r.protection:
+                    print(f"{'':<26}sigma lambda2 {r.std_of('lambda2'):.4g} arcsec; power: " + ", ".join(
+                        f"{p.effect} {'-' if p.power is None else format(p.power, '.3f')}"
+                        f"{'' if p.protected else ' (not protected)'}" for p in r.protection))
                 worst = max(worst or (total, ""), (total, f"{model} / {kind} / {crit} (cpu {cpu:.2f} s)"))
                 low = min(low or (2.0, ""), (min(a.certified_efficiency, r.rounding_efficiency),
                                              f"{model} / {kind} / {crit}"))

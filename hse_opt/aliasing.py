@@ -338,13 +338,105 @@ def _critical(q, dof, level):
     return crit, _solve(lambda lam: f_sf(crit, q, dof, lam), POWER_LIMIT, 0.0, hi, rel=1e-9)
 
 
+class _Mixture:
+    """The power ``f_sf(crit, d1, d2, lam)`` of one test (fixed ``crit``, ``d1``, ``d2``) for
+    any ``lam``, its beta factors ``I_x(d2/2, d1/2 + j)``, ``j = 0, 1, ...`` computed once.
+
+    :func:`f_sf`'s Poisson mixture evaluates a continued fraction and the recurrence of the
+    beta factors on every call; they do not depend on ``lam``, so they are kept in a table
+    (the same recurrence, the same cumulative sums: the factors of a window starting at
+    ``j = 0`` are :func:`f_sf`'s to the last bit), extended on demand. The factors increase
+    to a limit: once a recurrence term past the terms' peak underflows to 0, or their sum
+    reaches 1, every later factor equals the last (the table is then complete). A window past
+    a complete table has power equal to the last factor: the Poisson mass below the window
+    (``mu - 12 sqrt(mu) - 12``) is below 1e-30. A table that would exceed :attr:`MAX` entries
+    (few runs and a huge noncentrality) leaves the window to :func:`f_sf`.
+    """
+
+    #: entries of the largest table (512 kB)
+    MAX = 1 << 16
+
+    def __init__(self, crit, d1, d2):
+        self.crit, self.d1, self.d2 = float(crit), d1, d2
+        self.x = d2 / (d2 + d1 * self.crit)
+        self.a, self.b0 = 0.5 * d2, 0.5 * d1
+        i0 = betainc(self.a, self.b0, self.x)
+        # (factors so far, their unclipped running sum, the running sum of the steps of
+        # lgamma(a + b) - lgamma(b) at the next term, the index from which every factor equals
+        # the last once the table is complete, else None): replaced whole, so that a thread
+        # reading it never sees half an extension
+        self._state = (np.array([min(i0, 1.0)]), i0, 0.0, None)
+
+    def _extend(self, size):
+        factors, total, steps, flat = self._state
+        m = factors.size
+        if flat is not None or m >= min(size, self.MAX):
+            return
+        size = min(self.MAX, max(size, 2 * m, 64))
+        a, x = self.a, self.x
+        b = self.b0 + np.arange(m - 1, size, dtype=float)      # terms m-1 .. size-1 give factors m ..
+        s = np.cumsum(np.concatenate([[steps], np.log(a + b[:-1]) - np.log(b[:-1])]))
+        lg = (math.lgamma(a + self.b0) - math.lgamma(self.b0)) + s[:-1]
+        log_term = lg - math.lgamma(a) + a * math.log(x) + b[:-1] * math.log1p(-x) - np.log(b[:-1])
+        sums = np.cumsum(np.concatenate([[total], np.exp(log_term)]))[1:]
+        factors = np.concatenate([factors, np.minimum(sums, 1.0)])
+        past_peak = log_term.size < 2 or log_term[-1] < log_term[-2]
+        if sums[-1] >= 1.0 or (math.exp(log_term[-1]) == 0.0 and past_peak):
+            flat = int(np.argmax(factors == factors[-1]))   # the factors do not decrease
+        self._state = (factors, float(sums[-1]), float(s[-1]), flat)
+
+    def sf(self, lam):
+        """``f_sf(crit, d1, d2, lam)`` (``lam > 0``)."""
+        mu = 0.5 * float(lam)
+        sd = math.sqrt(mu)
+        j0 = max(0, math.floor(mu - 12.0 * sd - 12.0))
+        j1 = math.ceil(mu + 12.0 * sd + 12.0)
+        self._extend(j1 + 1)
+        factors, _, _, flat = self._state
+        if flat is None and factors.size <= j1:
+            return f_sf(self.crit, self.d1, self.d2, lam)
+        if flat is not None and j0 >= flat:
+            return float(min(max(factors[-1], 0.0), 1.0))
+        I = factors[j0:j1 + 1]
+        if I.size <= j1 - j0:
+            I = np.concatenate([I, np.full(j1 - j0 + 1 - I.size, factors[-1])])
+        if j0 == 0:
+            j, log_factorial = _log_factorials(j1)
+            log_w = -mu + j * math.log(mu) - log_factorial
+        else:
+            j = np.arange(j0, j1 + 1, dtype=float)
+            log_w = -mu + j * math.log(mu) - (math.lgamma(j0 + 1.0) + np.concatenate(
+                [[0.0], np.cumsum(np.log(j[1:]))]))
+        return min(max(float(np.dot(np.exp(log_w), I)), 0.0), 1.0)
+
+
+def _log_factorials(n):
+    """``(j, log(j!))`` for ``j = 0 .. n`` (float arrays): :func:`f_sf`'s cumulative sums of
+    ``log j`` for a window from 0, from a table of the next power of two kept."""
+    j, lf = _factorial_table(1 << max(6, n.bit_length()))
+    return j[:n + 1], lf[:n + 1]
+
+
+@functools.lru_cache(maxsize=32)
+def _factorial_table(size):
+    j = np.arange(size, dtype=float)
+    return j, np.concatenate([[0.0], np.cumsum(np.log(j[1:]))])
+
+
+@functools.lru_cache(maxsize=64)
+def _mixture(q, dof, level):
+    """``(_Mixture, lam80)`` of the F(q, dof) test at ``level`` (:func:`_critical`)."""
+    crit, lam80 = _critical(q, dof, level)
+    return _Mixture(crit, q, dof), lam80
+
+
 def _test_power(lam, q, dof, level):
     """Power of the F(q, dof) test at ``level`` for the noncentrality ``lam``, and the
     noncentrality at which it is :data:`POWER_LIMIT` (0 and ``inf`` when no test is possible)."""
     if q < 1 or dof < 1:
         return 0.0, math.inf
-    crit, lam80 = _critical(int(q), int(dof), float(level))
-    return (f_sf(crit, q, dof, lam) if lam > 0 else level), lam80
+    mixture, lam80 = _mixture(int(q), int(dof), float(level))
+    return (mixture.sf(lam) if lam > 0 else level), lam80
 
 
 def noncentrality_for_power(q, dof, level):
@@ -355,56 +447,207 @@ def noncentrality_for_power(q, dof, level):
     return _test_power(0.0, q, dof, level)[1]
 
 
-class _Campaign:
-    """The weighted matrices of one campaign: the model's columns (free parameters and the
-    unsurveyed positions' constants), orthonormal basis of their span."""
+def _factor(C, g, k):
+    """The triangular factor of one Householder QR of a campaign's weighted columns
+    ``C = [G, A, Z]`` (n, g + k + Q): the unsurveyed positions' constants ``G`` (n, g), the
+    model's free parameters ``A`` (n, k) and the effects' ``Z`` (n, Q).
 
-    def __init__(self, A_model, G):
-        self.A = np.asarray(A_model, float)
-        self.G = np.zeros((self.A.shape[0], 0)) if G is None else np.asarray(G, float)
-        M = np.column_stack([self.A, self.G])
-        d = np.linalg.norm(M, axis=0)
-        self.Q, _ = np.linalg.qr(M / np.where(d > 0, d, 1.0)) if M.shape[1] else (np.zeros((M.shape[0], 0)), None)
-        if self.G.shape[1]:
-            Gq, _ = np.linalg.qr(self.G)
-            self.within = lambda Z: Z - Gq @ (Gq.T @ Z)
+    With ``[G, A, Z] = [Q_g, Q_a, Q_z] T`` every projection the budget needs is a block of
+    ``T``: the effects' part orthogonal to the model's span (positions included) is
+    ``Q_z T_zz``, so its norms and noncentralities are those of ``T_zz``; the model's columns
+    within the positions are ``Q_a T_aa`` and ``A' (I - P_G) Z = T_aa' T_az``, the alias
+    matrix's product. Householder's backward error is columnwise, so the columns' very
+    different scales need no equilibration.
+
+    Returns
+    -------
+    tuple
+        ``(T_z, m, T_aa, T_az)``: ``T_z`` the effects' columns of ``T`` (whole: their norms
+        are the effects' columns'), ``m = g + k`` the row where ``T_zz`` starts, ``T_aa``
+        (k, k) and ``T_az`` (k, Q).
+    """
+    m = g + k
+    T = np.linalg.qr(C, mode="r") if C.size else np.zeros((0, C.shape[1]))
+    return T[:, m:], m, T[g:m, g:m], T[g:m, m:]
+
+
+@dataclass(frozen=True, eq=False)
+class _Stack:
+    """Effects side by side: effect ``e``'s columns ``cols[e]`` of the stacked matrix ``Z``
+    and its sizes ``V[e]`` (q_e, m_e), the ``verts[e]`` columns of the vertices (``first``:
+    each effect's first); ``block`` (Q, m) the sizes on the effect's own rows, 0 elsewhere
+    (``Z @ block`` is every effect's ``Z_e @ V_e``)."""
+
+    cols: tuple
+    verts: tuple
+    V: tuple
+    block: np.ndarray
+    first: np.ndarray
+
+    @classmethod
+    def of(cls, sizes):
+        """From each effect's sizes (q_e, m_e), in order."""
+        q = np.cumsum([0] + [v.shape[0] for v in sizes])
+        m = np.cumsum([0] + [v.shape[1] for v in sizes])
+        block = np.zeros((q[-1], m[-1]))
+        for i, v in enumerate(sizes):
+            block[q[i]:q[i + 1], m[i]:m[i + 1]] = v
+        return cls(tuple(slice(int(a), int(b)) for a, b in zip(q[:-1], q[1:])),
+                   tuple(slice(int(a), int(b)) for a, b in zip(m[:-1], m[1:])), tuple(sizes), block, m[:-1])
+
+
+def _ranks(T_zz, cols, d2, r2):
+    """Per effect (its columns ``cols``) the rank of its columns orthogonal to the model's:
+    the singular values of its unit columns of ``T_zz`` above :data:`_TOL` (one column:
+    ``r / d``, ``d2``, ``r2`` the columns' squared norms before and after the projection). The
+    effects of several columns share one batched SVD, zero columns padding them to one width
+    (a zero column adds a singular value 0)."""
+    ranks, multi = [], []
+    for e, c in enumerate(cols):
+        if c.stop - c.start == 1:
+            ranks.append(int(d2[c.start] > 0.0 and r2[c.start] > _TOL ** 2 * d2[c.start]))
+            continue
+        ranks.append(0)
+        keep = [i for i in range(c.start, c.stop) if d2[i] > 0.0]
+        if keep and T_zz.shape[0]:
+            multi.append((e, keep))
+    if multi:
+        M = np.zeros((len(multi), T_zz.shape[0], max(len(keep) for _, keep in multi)))
+        for j, (_, keep) in enumerate(multi):
+            M[j, :, :len(keep)] = T_zz[:, keep] / np.sqrt(np.take(d2, keep))
+        for (e, _), s in zip(multi, np.linalg.svd(M, compute_uv=False)):
+            ranks[e] = int(np.sum(s > _TOL))
+    return ranks
+
+
+@dataclass(frozen=True, eq=False)
+class _Assessed:
+    """:func:`_assess`'s answer for E effects against k fitted parameters: ``power``,
+    ``threshold`` and ``q`` (lists, per effect); ``shift`` and ``full`` (k, E) or None;
+    ``worst`` per effect (k, q_e) or None."""
+
+    power: list
+    threshold: list
+    q: list
+    shift: np.ndarray = None
+    full: np.ndarray = None
+    worst: list = None
+
+
+def _assess(factor, stack, dof_fit, level, B=None):
+    """Every effect of ``stack`` at once: power at the edge, threshold fraction, the test's
+    numerator dof ``q``; with the alias matrix ``B`` (k, Q) of every effect's columns, the
+    undetectable and the edge shifts (k,) and the effect's values behind each undetectable
+    shift (k, q) (:class:`_Assessed`).
+
+    ``factor``: :func:`_factor` of the campaign with the effects' columns side by side
+    (:class:`_Stack`: their sizes to assess, the plausible box's vertices, :func:`_vertices`),
+    ``dof_fit`` the fit's residual degrees of freedom. ``q`` is the rank of the effect's
+    columns orthogonal to the model's (singular values of the unit columns above
+    :data:`_TOL`)."""
+    T, m = factor[0], factor[1]
+    T_zz = T[m:]
+    TV = T_zz @ stack.block
+    lam = np.einsum("ij,ij->j", TV, TV)         # every vertex's noncentrality
+    d2, r2 = np.einsum("ij,ij->j", T, T).tolist(), np.einsum("ij,ij->j", T_zz, T_zz).tolist()
+    lam_v = lam.tolist()
+    lam80, powers, ranks = [], [], []
+    for verts, q in zip(stack.verts, _ranks(T_zz, stack.cols, d2, r2)):
+        # the least detectable vertex (power grows with lambda)
+        power, need = _test_power(min(lam_v[verts]), q, dof_fit - q, level)
+        powers.append(float(power))
+        ranks.append(q)
+        lam80 += [need] * (verts.stop - verts.start)
+    # each vertex scaled to the largest size the test misses; the threshold is the least
+    # detectable vertex's
+    reach = np.sqrt(np.array(lam80) / np.where(lam > 0, lam, 1.0))
+    reach[lam <= 0] = math.inf
+    threshold = np.maximum.reduceat(reach, stack.first).tolist() if lam.size else []
+    if B is None:
+        return _Assessed(powers, threshold, ranks)
+    scale = np.minimum(1.0, reach)
+    BV = np.abs(B @ stack.block)
+    scaled = BV * scale
+    worst = []
+    for verts, V in zip(stack.verts, stack.V):
+        if V.shape[1] == 1:
+            worst.append(np.repeat(V.T * scale[verts.start], BV.shape[0], axis=0))
         else:
-            self.within = lambda Z: Z
-
-    def residual(self, Z):
-        """The part of Z (n, q) orthogonal to the model's span (twice: Kahan-Parlett) and its rank."""
-        R = Z
-        for _ in range(2):
-            R = R - self.Q @ (self.Q.T @ R)
-        d = np.linalg.norm(Z, axis=0)
-        if not R.shape[1] or not np.any(d > 0):
-            return R, 0
-        # singular values of the (n, q) residual from its q x q triangular factor
-        s = np.linalg.svd(np.linalg.qr(R[:, d > 0] / d[d > 0], mode="r"), compute_uv=False)
-        return R, int(np.sum(s > _TOL))
+            worst.append((V * scale[verts])[:, np.argmax(scaled[:, verts], axis=1)].T)
+    return _Assessed(powers, threshold, ranks, np.maximum.reduceat(scaled, stack.first, axis=1),
+                     np.maximum.reduceat(BV, stack.first, axis=1), worst)
 
 
-def _assess(camp, A_E, V, dof_fit, level, alias=None):
-    """(power at the edge, threshold fraction, undetectable shifts (k,), edge shifts (k,), q,
-    the effect's values behind each undetectable shift (k, q)).
+@dataclass(frozen=True, eq=False)
+class _Layout:
+    """What :func:`alias_budget` knows of a fit's model before it sees the runs (built once
+    per model, tilt mode, parameter names and effects asked, :func:`_layout`).
 
-    ``A_E`` (n, q) weighted effect columns, ``V`` (q, m) the sizes to assess (the plausible
-    box's vertices, :func:`_vertices`), ``dof_fit`` the fit's residual degrees of freedom,
-    ``alias(A_E) -> B`` (k, q) or None for no shifts."""
-    R, q = camp.residual(A_E)
-    lam = np.sum((R @ V) ** 2, axis=0)
-    least = int(np.argmin(lam))     # the least detectable vertex (power grows with lambda)
-    power, lam80 = _test_power(float(lam[least]), q, dof_fit - q, level)
-    with np.errstate(divide="ignore"):
-        reach = np.where(lam > 0, np.sqrt(lam80 / np.where(lam > 0, lam, 1.0)), math.inf)
-    scale = np.minimum(1.0, reach)  # each vertex scaled to the largest size the test misses
-    shift = full = worst = None
-    if alias is not None:
-        BV = np.abs(alias(A_E) @ V)
-        scaled = BV * scale[None, :]
-        shift, full = scaled.max(axis=1), BV.max(axis=1)
-        worst = (V * scale[None, :])[:, np.argmax(scaled, axis=1)].T
-    return float(power), float(reach[least]), shift, full, q, worst
+    ``skipped``: ``(effect, parameters, units, reason)`` of each effect not assessed;
+    ``assessed``: ``(effect, parameters, edge, units)`` of each effect assessed, in order;
+    ``mm``: the measurement model of the model with every assessable effect;
+    ``known``: which fit parameters ``mm`` has; ``jacobian``: the Jacobian of ``mm`` at those
+    parameters, the effects' at nominal (:meth:`~hse_opt.model.measurement.MeasurementModel.held_jacobian`),
+    its columns the known fit parameters' then the assessed effects' side by side (``stack``:
+    their vertices), ``scale`` the columns' SI scales; ``column``: each fit parameter's column
+    (-1 when ``mm`` lacks it)."""
+
+    skipped: tuple
+    assessed: tuple = ()
+    mm: object = None
+    known: np.ndarray = None
+    jacobian: object = None
+    scale: np.ndarray = None
+    column: np.ndarray = None
+    stack: _Stack = None
+
+
+@functools.lru_cache(maxsize=64)
+def _layout(model, tilt_known, names, wanted):
+    """The :class:`_Layout` of a fit's ``model`` (parameter ``names``) for the effects
+    ``wanted``; raises for an effect already in the model."""
+    have = set(model.effect_names)
+    skipped, extra = [], []
+    for name in wanted:
+        eff = make_effect(name)
+        params = [q for q in eff.params if q.name not in eff.nonlinear]
+        missing = [n for n in eff.needs if n not in have]
+        no_range = [q.name for q in params if q.name not in RANGES]
+        if name in have:
+            raise ValueError(f"effect {name!r} is already in the model ({', '.join(sorted(have))})")
+        if missing or no_range:
+            why = (f"it acts only in a product with {', '.join(missing)}, which the model lacks" if missing
+                   else f"no plausible range for {', '.join(no_range)}")
+            skipped.append((name, tuple(q.name for q in params), tuple(q.unit for q in params), why))
+            continue
+        extra.append(eff)
+    if not extra:
+        return _Layout(tuple(skipped))
+    mm = Model(model.effects + tuple(extra), model.geometry).measurement(tilt_known)
+    assessed, columns, sizes = [], [], []
+    for eff in extra:
+        params = [q for q in eff.params if q.name not in eff.nonlinear]
+        tilted = [n for n in mm.names if any(n.startswith(q.name + "*") for q in params)]
+        if tilted:
+            skipped.append((eff.name, tuple(q.name for q in params), tuple(q.unit for q in params),
+                            "it acts through the tilt, which these runs do not carry "
+                            f"({', '.join(tilted)}): its size here depends on the unknown tilt"))
+            continue
+        edge = tuple(max(abs(RANGES[q.name][0]), abs(RANGES[q.name][1])) for q in params)
+        assessed.append((eff.name, tuple(q.name for q in params), edge, tuple(q.unit for q in params)))
+        columns += [mm.parameter_index(q.name) for q in params]
+        sizes.append(_vertices(edge))
+    order = {name: i for i, name in enumerate(wanted)}
+    skipped.sort(key=lambda s: order[s[0]])
+    if not assessed:
+        return _Layout(tuple(skipped))
+    known = np.array([n in mm.names for n in names], dtype=bool)
+    at = tuple(mm.names.index(n) for n in np.array(names)[known]) if known.any() else ()
+    column = np.full(len(names), -1, dtype=np.intp)
+    column[known] = np.arange(len(at))
+    jacobian = mm.held_jacobian(at, at + tuple(columns))
+    return _Layout(tuple(skipped), tuple(assessed), mm, known, jacobian, mm.scale[list(at + tuple(columns))],
+                   column, _Stack.of(sizes))
 
 
 def alias_budget(fit_result, runs, effects=None, *, alpha=ALPHA, level=None, tests=None, jit=None):
@@ -432,88 +675,59 @@ def alias_budget(fit_result, runs, effects=None, *, alpha=ALPHA, level=None, tes
     -------
     AliasBudget
         Systematic per parameter in the parameter's display unit.
+
+    Notes
+    -----
+    The effects' bookkeeping (which can be assessed, their columns and vertices, the
+    extended model's Jacobian with the effects held at their nominal 0) is built once per
+    model and kept; a call evaluates that Jacobian on the runs once and assesses every effect
+    from one Householder QR of the model's and the effects' columns (:func:`_factor`,
+    :func:`_assess`).
     """
     f = fit_result
     level = alpha / (tests or DEFAULT_TESTS) if level is None else float(level)
     if not 0.0 < level < 1.0:
         raise ValueError(f"level {level!r}; allowed: a significance level in (0, 1)")
-    names = list(f.names)
-    have = set(f.model.effect_names)
-    wanted = [e for e in CATALOGUE if e not in have] if effects is None else list(effects)
-    out, extra = [], []
-    for name in wanted:
-        eff = make_effect(name)
-        params = [q for q in eff.params if q.name not in eff.nonlinear]
-        missing = [n for n in eff.needs if n not in have]
-        no_range = [q.name for q in params if q.name not in RANGES]
-        if name in have:
-            raise ValueError(f"effect {name!r} is already in the model ({', '.join(sorted(have))})")
-        if missing or no_range:
-            why = (f"it acts only in a product with {', '.join(missing)}, which the model lacks" if missing
-                   else f"no plausible range for {', '.join(no_range)}")
-            out.append(EffectRisk(name, tuple(q.name for q in params), (), tuple(q.unit for q in params),
-                                  False, why))
-            continue
-        extra.append(eff)
+    names = tuple(f.names)
+    have = f.model.effect_names
+    wanted = tuple(e for e in CATALOGUE if e not in have) if effects is None else tuple(effects)
+    layout = _layout(f.model, bool(f.tilt_known), names, wanted)
     n_p = len(names)
-    zeros = np.zeros(n_p)
     std = np.asarray(f.std, float)
-    if extra:
-        model = Model(f.model.effects + tuple(extra), f.model.geometry)
-        mm = model.measurement(f.tilt_known)
+    out, systematic, by = [], np.zeros(n_p), [dict() for _ in names]
+    if layout.assessed:
+        mm = layout.mm
         # catalogue effects add no covariate: the fit's own inputs are the extended model's
         X = f.inputs if f.inputs is not None and f.inputs.shape[0] == mm.n_x else mm.inputs_from_runs(runs)
-        p = mm.nominal.copy()
-        for n, v in zip(f.names, f.p):
-            if n in mm.names:
-                p[mm.parameter_index(n)] = v
-        A_all = weighted_jacobian(mm.jacobian(p, X, jit), f.sigma, mm.scale)
         free = np.asarray(f.free, bool)
-        cols = [mm.parameter_index(n) for n in np.array(names)[free]]
+        cols = layout.column[free]
+        if cols.size and cols.min() < 0:        # a free parameter the extended model lacks
+            mm.parameter_index(names[int(np.flatnonzero(free & (layout.column < 0))[0])])
+        A = weighted_jacobian(layout.jacobian(np.asarray(f.p, float)[layout.known], X, jit), f.sigma,
+                              layout.scale)
         group, positions = runs.reference_groups()
-        G = ((group[:, None] == np.arange(len(positions))[None, :]) / np.asarray(f.sigma)[:, None]
-             if positions else None)
-        camp = _Campaign(A_all[:, cols], G)
-        A_M = camp.within(camp.A)
-        cov = np.asarray(f.covariance, float)[np.ix_(free, free)]
-
-        def alias(A_E):
-            B = np.zeros((n_p, A_E.shape[1]))
-            B[free] = cov @ (A_M.T @ camp.within(A_E))
-            return B
-
-        for eff in extra:
-            params = [q for q in eff.params if q.name not in eff.nonlinear]
-            tilted = [n for n in mm.names if any(n.startswith(q.name + "*") for q in params)]
-            if tilted:
-                out.append(EffectRisk(eff.name, tuple(q.name for q in params), (), tuple(q.unit for q in params),
-                                      False, "it acts through the tilt, which these runs do not carry "
-                                      f"({', '.join(tilted)}): its size here depends on the unknown tilt"))
-                continue
-            idx = [mm.parameter_index(q.name) for q in params]
-            edge = tuple(max(abs(RANGES[q.name][0]), abs(RANGES[q.name][1])) for q in params)
-            power, thr, shift, full, q, worst = _assess(camp, A_all[:, idx], _vertices(edge), int(f.dof),
-                                                         level, alias)
-            out.append(EffectRisk(eff.name, tuple(q_.name for q_ in params), edge,
-                                  tuple(q_.unit for q_ in params), True, "", power, thr, shift, full,
-                                  (q, int(f.dof) - q), level, worst, alias(A_all[:, idx])))
-    out = [r if r.assessed else _blank(r, n_p, level) for r in out]
-    out.sort(key=lambda r: (not r.assessed, wanted.index(r.effect)))
-    systematic = zeros.copy()
-    by = [dict() for _ in names]
-    for r in out:
-        if not r.assessed:
-            continue
-        risky = (r.shift > std) & (std > 0)
-        for i in np.flatnonzero(risky):
-            by[i][r.effect] = float(r.shift[i])
-            systematic[i] = max(systematic[i], float(r.shift[i]))
-    return AliasBudget(tuple(names), tuple(f.units), std, tuple(out), systematic, tuple(by), alpha, level)
-
-
-def _blank(r, n_p, level):
-    from dataclasses import replace
-    return replace(r, shift=np.zeros(n_p), full_shift=np.zeros(n_p), level=level)
+        k, g, n_known = cols.size, len(positions), len(layout.column) - int(np.sum(layout.column < 0))
+        if g:
+            C = np.column_stack([(group[:, None] == np.arange(g)[None, :]) / np.asarray(f.sigma)[:, None],
+                                 A[:, cols], A[:, n_known:]])
+        else:   # every known parameter free: the Jacobian's columns are already in place
+            C = A if k == n_known else np.column_stack([A[:, cols], A[:, n_known:]])
+        factor = _factor(C, g, k)
+        cov = np.asarray(f.covariance, float)
+        B = np.zeros((n_p, factor[0].shape[1]))
+        B[free] = (cov if free.all() else cov[np.ix_(free, free)]) @ (factor[2].T @ factor[3])
+        dof = int(f.dof)
+        a = _assess(factor, layout.stack, dof, level, B)
+        for e, ((name, params, edge, units), cols) in enumerate(zip(layout.assessed, layout.stack.cols)):
+            out.append(EffectRisk(name, params, edge, units, True, "", a.power[e], a.threshold[e], a.shift[:, e],
+                                  a.full[:, e], (a.q[e], dof - a.q[e]), level, a.worst[e], B[:, cols].copy()))
+        risky = (a.shift.T > std) & (std > 0)  # (effects, parameters)
+        systematic = np.where(risky, a.shift.T, 0.0).max(axis=0, initial=0.0)
+        for e, i in zip(*np.nonzero(risky)):
+            by[i][layout.assessed[e][0]] = float(a.shift[i, e])
+    out += [EffectRisk(name, params, (), units, False, why, shift=np.zeros(n_p), full_shift=np.zeros(n_p),
+                       level=level) for name, params, units, why in layout.skipped]
+    return AliasBudget(names, tuple(f.units), std, tuple(out), systematic, tuple(by), alpha, level)
 
 
 def effect_test(model, X, effect, size=1.0, *, sigma, p=None, tilt_known=True, positions=None,
@@ -596,7 +810,6 @@ def effect_test(model, X, effect, size=1.0, *, sigma, p=None, tilt_known=True, p
             A_M = A_all[:, cols]
             inside = np.linalg.norm(A_M - Gq @ (Gq.T @ A_M), axis=0) <= 1e-9 * np.linalg.norm(A_M, axis=0)
             cols = [c for c, drop in zip(cols, inside) if not drop]
-    camp = _Campaign(A_all[:, cols], G)
     idx = [mm.parameter_index(q.name) for q in params]
     edge = np.array([max(abs(RANGES[q.name][0]), abs(RANGES[q.name][1])) for q in params])
     if isinstance(size, dict):
@@ -606,10 +819,10 @@ def effect_test(model, X, effect, size=1.0, *, sigma, p=None, tilt_known=True, p
         V = np.array([[float(size.get(q.name, 0.0))] for q in params])
     else:
         V = _vertices(float(size) * edge)
-    k = camp.Q.shape[1]
-    dof_fit = n - k if dof is None else int(dof)
-    power, _, _, _, q, _ = _assess(camp, A_all[:, idx], V, dof_fit, level)
-    return EffectTest(power, q, dof_fit - q)
+    dof_fit = n - len(cols) - n_pos if dof is None else int(dof)
+    C = np.column_stack(([G] if n_pos else []) + [A_all[:, cols], A_all[:, idx]])
+    a = _assess(_factor(C, n_pos, len(cols)), _Stack.of([V]), dof_fit, level)
+    return EffectTest(a.power[0], a.q[0], dof_fit - a.q[0])
 
 
 @dataclass(frozen=True)

@@ -395,3 +395,51 @@ def test_the_paper_plan_with_delay_and_axis_bias_names_the_group_in_json(tmp_pat
     idx = [mm.names.index(n) for n in g["parameters"]]
     np.testing.assert_allclose(g["inflation"], np.sqrt(vif[idx]), rtol=1e-2)
     assert "are confounded by these runs" in err
+
+
+def test_power_from_the_kept_beta_factors_matches_scipy():
+    """The budget's power (the beta factors of the noncentral F's Poisson mixture computed once
+    per test and kept) against scipy's stats.ncf, over noncentralities whose Poisson window
+    starts at 0, starts past the factors' limit, and grows the table between calls."""
+    from hse_opt.aliasing import _Mixture, _critical
+    for q, dof, level in [(1, 997, 0.0025), (2, 996, 0.0025), (4, 994, 0.0025), (1, 3, 0.05), (3, 10, 1e-4)]:
+        crit = _critical(q, dof, level)[0]
+        mixture = _Mixture(crit, q, dof)
+        for lam in [1e-3, 0.7, 13.5, 21.0, 161.0, 400.0, 3320.0, 6.8e3, 9.7e4, 25.0]:
+            assert mixture.sf(lam) == pytest.approx(stats.ncf.sf(crit, q, dof, lam), abs=1e-10), (q, dof, lam)
+
+
+def test_held_jacobian_is_the_full_jacobian_at_the_held_values():
+    """The Jacobian with the catalogue's other effects held at nominal (the budget's, folded into
+    the graph) against the model's full Jacobian there and central differences of its heading."""
+    from hse_opt.model import Model
+    mm = Model(["hse", "sync_delay", "warmup", "encoder_harmonic"]).measurement(True)
+    runs = _runs({}, 2)
+    X = mm.inputs_from_runs(runs)
+    varying = (mm.names.index("offset"), mm.names.index("lambda2"))
+    columns = varying + tuple(mm.names.index(n) for n in ("delay", "warmup_amp", "enc_c1", "enc_s1"))
+    p = mm.vector(offset=5.0, lambda2=4.2)
+    for jit in (False, True):
+        J = mm.held_jacobian(varying, columns)(p[list(varying)], X, jit)
+        np.testing.assert_allclose(J, mm.jacobian(p, X, jit)[:, list(columns)], rtol=1e-12, atol=1e-18)
+    for j, c in enumerate(columns):     # one display unit each way: the heading's rounding is ~1e-16 rad
+        step = np.zeros(p.size)
+        step[c] = mm.params[c].scale
+        fd = (mm.predict(p + step, X) - mm.predict(p - step, X)) / (2 * step[c])
+        np.testing.assert_allclose(J[:, j], fd, rtol=1e-6, atol=1e-6 * np.abs(fd).max())
+
+
+def test_effects_assessed_together_equal_each_assessed_alone():
+    """The budget assesses every missing effect with one factorisation; each effect's figures
+    must be those of a budget of that effect alone (no effect's columns leak into another's)."""
+    runs = _runs({}, 6)
+    f = fit(runs)
+    together = alias_budget(f, runs)
+    assessed = [r for r in together.effects if r.assessed]
+    assert len(assessed) >= 4
+    for r in assessed:
+        alone = alias_budget(f, runs, [r.effect]).effect(r.effect)
+        assert alone.dof == r.dof and alone.power == pytest.approx(r.power, rel=1e-9)
+        assert alone.threshold == pytest.approx(r.threshold, rel=1e-9)
+        np.testing.assert_allclose(alone.shift, r.shift, rtol=1e-9, atol=1e-9 * r.full_shift.max())
+        np.testing.assert_allclose(alone.alias, r.alias, rtol=1e-9, atol=1e-9 * np.abs(r.alias).max())

@@ -377,9 +377,7 @@ def _met(prob, exact):
 def _solve_and_round(prob, prune):
     """Approximate design, reduction, rounding and (``prune``) the setup-aware search:
     ``(prob, approx, reduced, exact, notes)``."""
-    # power floors make IPOPT's re-solve on the support slow (a matrix per floor and sample) and
-    # the conic solution is certified as it is
-    approx = solve_approximate(prob, polish=not any(g.is_power for g in prob.guards))
+    approx = solve_approximate(prob)     # with power floors: the conic solution, certified
     notes = []
     if approx.certified_efficiency < 0.999:
         notes.append(f"the approximate design is certified only to efficiency "
