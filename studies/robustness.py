@@ -48,11 +48,12 @@ Measured (2026-11-26, ``--campaigns 25``, 350 campaigns, 29 s CPU):
         arcsec against lambda2 = 4.2) covers the truth in 50 of 50
 
     how each systematic risk would end (the diagnosis's resolving plan per effect,
-    hse_opt.diagnose.resolving_plan): 811 risks over the 350 campaigns; 411 end with runs
-    added at the azimuths or positions so far (median 3 runs), 333 only by fitting the
-    effect on these runs (lambda2's sigma then below its statistical + systematic now), 67
-    neither (26 on stands, 41 in the field, where new positions are the way out). On a field
-    campaign added runs at the positions so far end 91 of 318 risks, on a stand 320 of 493.
+    hse_opt.diagnose.resolving_plan): 811 risks over the 350 campaigns; 410 end with runs
+    added at the azimuths or positions so far (median 3 runs), 359 only by fitting the
+    effect on these runs (each parameter at risk then known better than its statistical +
+    systematic now), 42 neither (26 on stands, 16 in the field, where new positions are the
+    way out). On a field campaign added runs at the positions so far end 91 of 318 risks, on
+    a stand 319 of 493.
 
 What the data say: on campaigns an operator would run without a design, the tool now
 refuses to call the calibration adequate nearly always, and says why (the effects it cannot
@@ -232,7 +233,8 @@ def main(argv=None):
     by_fit = sum(r["by_fit"] for r in rows)
     print(f"systematic risks {risks}: ended by added runs at the azimuths or positions so far {len(by_runs)} "
           f"(median {np.median(by_runs) if by_runs else float('nan'):.0f} runs), by fitting the effect on "
-          f"these runs (each parameter at risk then known better than statistical + systematic now) {by_fit}, neither "
+          f"these runs (each parameter at risk then known better than statistical + systematic now) {by_fit}, "
+          f"neither "
           f"{risks - len(by_runs) - by_fit}")
     print(f"in all: {n} campaigns; confidently wrong before {before} ({100 * before / n:.1f} %), "
           f"after {after} ({100 * after / n:.1f} %); target <= 5 % after "
