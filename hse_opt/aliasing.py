@@ -851,54 +851,6 @@ def effect_power(model, X, effect, size=1.0, **kw):
     return effect_test(model, X, effect, size, **kw).power
 
 
-def resolving_runs(fit_result, runs, risk, k=3):
-    """Runs that would resolve a systematic risk: those that best observe the combination this
-    campaign leaves unobserved -- the effect at the undetected size behind its largest shift
-    (relative to the parameter's sigma) together with the fitted parameters moved by its alias,
-    which changes no heading of these runs (:func:`hse_opt.information.separating_runs` over
-    both senses at the smallest and largest |rate|, azimuths every 45 deg, start times and,
-    for a level stand, a tilt).
-
-    Parameters
-    ----------
-    fit_result : FitResult
-    runs : hse_opt.data.Runs
-    risk : EffectRisk
-        An assessed effect of :func:`alias_budget` of this fit.
-    k : int
-        At most this many runs, best first.
-
-    Returns
-    -------
-    list of dict
-        As :func:`~hse_opt.information.separating_runs` (``rate_dps``, ``azimuth_deg``,
-        ``t_start_s``, ``pitch_arcsec``, ``roll_arcsec``, ``signal``, ``text``).
-    """
-    from .information import separating_runs
-
-    f = fit_result
-    std = np.asarray(f.std, float)
-    ratio = np.where(std > 0, risk.shift / np.where(std > 0, std, 1.0), 0.0)
-    i = int(np.argmax(ratio))
-    v = risk.worst[i]
-    mm = Model(f.model.effects + (make_effect(risk.effect),), f.model.geometry).measurement(f.tilt_known)
-    p = mm.nominal.copy()
-    for n, val in zip(f.names, f.p):
-        p[mm.parameter_index(n)] = val
-    fit_free = {n for n, fr in zip(f.names, f.free) if fr}
-    free = np.array([n in fit_free or n in risk.parameters for n in mm.names])
-    direction = np.zeros(len(mm.names))
-    shift = risk.alias @ v
-    for j, n in enumerate(mm.names):
-        if n in fit_free:
-            direction[j] = -shift[f.names.index(n)]
-        elif n in risk.parameters:
-            direction[j] = v[risk.parameters.index(n)]
-    X = mm.inputs_from_runs(runs)
-    return separating_runs(lambda Xc: mm.jacobian(p, Xc)[:, free], X, direction[free], mm.scale[free], k=k,
-                           tilt_known=f.tilt_known)
-
-
 def describe(budget, values=None):
     """The budget in words for a fit's text output: the sentences of
     :meth:`AliasBudget.sentences`, or one line saying that no effect is a risk."""
@@ -913,4 +865,4 @@ def describe(budget, values=None):
 
 
 __all__ = ["ALPHA", "AliasBudget", "DEFAULT_TESTS", "EffectRisk", "EffectTest", "POWER_LIMIT", "alias_budget",
-           "describe", "effect_power", "effect_test", "noncentrality_for_power", "resolving_runs"]
+           "describe", "effect_power", "effect_test", "noncentrality_for_power"]

@@ -9,7 +9,9 @@ shift is compared with and can make a risk worse.
 
 :func:`resolving_plan` adds, one at a time, the candidate run that most lowers the worst
 ratio *undetectable shift / sigma* over every fitted parameter and every effect at risk, until
-no ratio exceeds 1 or :data:`MAX_RUNS` runs are added (a greedy sequential design). The
+no ratio exceeds 1, or :data:`MAX_RUNS` runs are added, or the last :data:`STALL_RUNS` runs
+lowered it by less than :data:`STALL` (it tends to a limit above 1: more of the same runs
+shrink the shift and the sigma alike) -- a greedy sequential design. The
 quantities are those of :func:`hse_opt.aliasing.alias_budget` -- the fit's weighted Jacobian
 at its estimate, extended by the effects' columns, with every unsurveyed position's heading
 eliminated -- computed from the normal matrix ``N = [A_M A_E]' [A_M A_E]`` so that a run is a
@@ -44,6 +46,8 @@ from ..model.plausible import RANGES
 
 #: the most runs the plan adds before it says the risks cannot be resolved this way
 MAX_RUNS = 48
+#: the search stops when the last STALL_RUNS runs lowered the worst ratio by less than STALL
+STALL_RUNS, STALL = 8, 0.02
 
 
 @dataclasses.dataclass(frozen=True)
@@ -61,7 +65,8 @@ class ResolvingPlan:
     n_runs : int
         Runs added.
     resolved : bool
-        Whether the worst ratio fell to 1 or below; False: :data:`MAX_RUNS` runs did not.
+        Whether the worst ratio fell to 1 or below; False: :data:`MAX_RUNS` runs did not, or
+        it stalled above 1.
     ratio_before, ratio_after : float
         The worst undetectable shift in sigmas before and after.
     hours : float
@@ -91,6 +96,7 @@ class ResolvingPlan:
         if self.resolved:
             return f"{self.n_runs} runs would resolve {it} (about {self.hours:.2g} h of alignments): {what}"
         left = (f"{self.n_runs} more would leave it at {self.ratio_after:.2g} sigma, from {self.ratio_before:.2g}"
+                + (", and further runs barely lower it" if self.n_runs < MAX_RUNS else "")
                 if self.n_runs else f"no run lowers its {self.ratio_before:.2g} sigma")
         if field:
             text = (f"runs at the positions so far cannot resolve {it} ({left}); positions at other headings may: "
@@ -222,7 +228,10 @@ def resolving_plan(fit_result, runs, effects, *, level, max_runs=MAX_RUNS, start
                 counts[i] += d["count"]
     N = N + np.einsum("c,cij->ij", counts, outer)
     ratio = float(normal.at_dof(dof0 + int(counts.sum())).ratios(N[None])[0])
+    trail = [ratio]
     while ratio > 1.0 and counts.sum() < max_runs:
+        if len(trail) > STALL_RUNS and trail[-1] > (1.0 - STALL) * trail[-1 - STALL_RUNS]:
+            break           # more of the same runs shrink the shift and the sigma alike
         # the test's denominator dof grows by one with each run
         r = normal.at_dof(dof0 + int(counts.sum()) + 1).ratios(N[None] + outer)
         best = int(np.argmin(r))
@@ -231,6 +240,7 @@ def resolving_plan(fit_result, runs, effects, *, level, max_runs=MAX_RUNS, start
         N = N + outer[best]
         counts[best] += 1
         ratio = float(r[best])
+        trail.append(ratio)
     n = int(counts.sum())
     picked = tuple(dict(info[i], count=int(counts[i])) for i in np.flatnonzero(counts))
     picked = tuple(sorted(picked, key=lambda r: -r["count"]))
