@@ -561,3 +561,63 @@ def test_align_takes_the_encoder_resolution_from_the_calibration_file(tmp_path, 
     assert "encoder jumps by -20 arcsec" in capsys.readouterr().err
     assert main(["align", *args, "-o", str(tmp_path / "B.csv"), "--calibration", str(tmp_path / "B.toml")]) == 0
     assert load_runs(tmp_path / "B.csv").metadata["quality"].tolist() == ["ok"]
+
+
+# -- 3b. gyro steps below the window test --------------------------------------------------------
+def test_a_gyro_error_that_moves_the_heading_by_half_a_sigma_is_found_and_repaired(clean):
+    """One gyro sample off by ``d`` (an angle error that stays): the processor's heading moves
+    by up to 20 arcsec per arcsec of ``d`` (the filter takes it as a rate error ``d / T``),
+    depending on the gyro, the time and the table angle there. At each of six places (two
+    times, three gyros) the ``d`` that moves the heading by half its 1-sigma (about 0.2 arcsec,
+    below the window test's 0.66) is found at its sample and taken off: the repaired log's
+    heading is within a tenth of a sigma of the clean log's."""
+    log, res0 = clean
+    sigma = res0.heading_std
+    tested = 0
+    for frac in (0.1, 0.5):
+        k = int(frac * len(log))
+        for j in range(3):
+            def probe(g, d):
+                g[k, j] += d
+            slope = (align(_faulty(log, gyro=lambda g: probe(g, 0.6 * units.ARCSEC)), CFG).heading
+                     - res0.heading) / (0.6 * units.ARCSEC)
+            if abs(slope) < 1.0:          # this gyro's error hardly reaches the heading here
+                continue
+            d = 0.5 * sigma / abs(slope)
+            assert d < 0.3 * units.ARCSEC
+            bad = _faulty(log, gyro=lambda g: probe(g, d))
+            assert abs(align(bad, CFG).heading - res0.heading) == pytest.approx(0.5 * sigma, rel=0.05)
+            q = assess(bad)
+            f = _only(q, "repaired")
+            assert f.check == "channel" and abs(f.sample - k) <= 2 and f.detail.startswith(f"gyro_{'xyz'[j]} angle")
+            assert abs(align(q.log, CFG).heading - res0.heading) < 0.1 * sigma
+            tested += 1
+    assert tested >= 3
+
+
+def test_a_small_encoder_jump_is_noted_and_the_gyros_left_alone(clean):
+    """An encoder jump of 1 arcsec that stays (below check 1's 2-arcsec floor and the window
+    test) steps all three gyros' residuals in the ratio of their shares of the turn: noted as
+    the encoder's at its sample, the gyros not touched; it moves the heading by less than the
+    jump (measured: the processor on the jumped log)."""
+    log, res0 = clean
+
+    def jump(e):
+        e[K:] += 1.0 * units.ARCSEC
+    bad = _faulty(log, encoder=jump)
+    q = assess(bad)
+    f = _only(q, "noted")
+    assert f.check == "encoder" and abs(f.sample - K) <= 2, f.text()
+    assert float(f.detail.split("steps by ")[1].split(" arcsec")[0]) == pytest.approx(1.0, abs=0.05), f.detail
+    assert q.log is bad
+    assert abs(align(bad, CFG).heading - res0.heading) < 1.0 * units.ARCSEC
+
+
+def test_four_gyro_steps_in_one_channel_refuse_the_log(clean):
+    log, _ = clean
+
+    def lost(g):
+        for i in range(4):
+            g[60_000 * (i + 1), 0] -= 0.2 * units.ARCSEC
+    q = assess(_faulty(log, gyro=lost))
+    assert q.refused and "gyro_x: more than 3 steps in its angle" in q.summary()

@@ -99,11 +99,10 @@ Checks, rules and thresholds (:class:`Thresholds`; the reasons are physical)
      one count while its true value stays within it explains nothing; the finding names the
      run's first sample), or a fault that does not follow the table's turn.
 
-   What passes: a gyro error in one sample below the gyro threshold (0.8 arcsec for the
-   paper-like system) is not seen, and the filter takes an angle error ``d`` like a rate
-   error ``d / T`` over the run: 5 arcsec in gyro_y at mid-run moves a 10-minute heading by
-   103 arcsec (repaired: 0.2), 0.6 arcsec (passing) by 12 arcsec, 1.5 of its sigmas, 0.8
-   arcsec by about 16. A single lost pulse is not detectable.
+   What the window test lets pass: a gyro error in one sample below the gyro threshold (0.8
+   arcsec for the paper-like system), which the filter takes like a rate error ``d / T``
+   over the run: 5 arcsec in gyro_y at mid-run moves a 10-minute heading by 103 arcsec
+   (repaired: 0.2), 0.6 arcsec by 12 arcsec, 1.5 of its sigmas. Check 3b finds those.
 
    *Noise model and false alarms.* A window residual is a Gaussian part (the sensors'
    white noise and the table's jitter summed over the window; its 1-sigma ``s`` from the
@@ -127,6 +126,19 @@ Checks, rules and thresholds (:class:`Thresholds`; the reasons are physical)
    4,000 samples: the steps' quantum is not seen there, and a later one-count step is taken
    for a jump. The checks' first version refused 1 in 20 default 20-s logs (a window at the
    quantization's edge, then called saturation).
+3b. **Gyro steps** (per sample, below the window test; :mod:`hse_opt.align.steps`). A
+   sample's error that stays in one gyro's angle moves the heading by up to 20 times itself on
+   a 10-minute log: 0.2 arcsec, a quarter of the window test's threshold, moves it by half its
+   sigma. The counters' remainders bound their error in the cumulative angle, so the mean
+   angle residual over the ``step_span_s`` (0.25 s) after each sample less that before is a
+   step's size with a 1-sigma of 0.0071 arcsec (paper-like system, 10 minutes); beyond 6.3 of
+   them (0.044 arcsec; the Bonferroni level of ``false_alarm``; plus the window test's
+   quantization bound where the table's jitter does not dither the counters) a step is
+   found. *Repair*: taken off its sample (a step that only finishes a spike repair of check 3,
+   whose neighbours' mean is off by their noise, is part of that repair). *Noted*: steps in
+   all three gyros in the ratio of their shares of the turn are the encoder's, a jump below
+   checks 1 and 3 (1 arcsec moves the heading by less); the gyros are left alone.
+   *Refused*: more than ``repair_samples`` steps in one gyro (lost or extra pulses).
 4. **Temperature** (only for a log that carries a temperature channel: ``temperature``;
    a mapping file's ``temp_c`` column). A drift of more than ``temp_drift_c`` (1 degC)
    between the first and the last window is noted (not refused): a gyro bias
@@ -152,6 +164,7 @@ import numpy as np
 from hse_opt import units
 from hse_opt.align.rotations import EARTH_RATE
 from hse_opt.align.noise import _block_sums
+from hse_opt.align.steps import GRID, find_steps
 
 __all__ = ["Thresholds", "Finding", "Quality", "LogRefused", "assess", "check_metadata"]
 
@@ -226,6 +239,9 @@ class Thresholds:
         when that is higher (:func:`_level`).
     temp_drift_c : float
         A temperature drift above this over the run is noted, degC.
+    step_span_s : float
+        The gyro step test compares the mean angle residual over this span after each
+        sample with that over the span before, s (check 3b, :mod:`hse_opt.align.steps`).
     """
 
     encoder_sigmas: float = 10.0
@@ -245,6 +261,7 @@ class Thresholds:
     saturated_samples: int = 3
     false_alarm: float = 1e-4
     temp_drift_c: float = 1.0
+    step_span_s: float = 0.25
 
 
 @dataclass(frozen=True)
@@ -824,6 +841,51 @@ def _value(x, unit):
     return f"{x / units.ARCSEC:+.4g} arcsec" if unit == "gyro" else f"{x:+.4g} m/s"
 
 
+# -- 3b. gyro steps (per sample) ---------------------------------------------------------------
+def _check_gyro_steps(t, enc, gyro, L, th, findings, resolution):
+    """Check 3b (:func:`hse_opt.align.steps.find_steps`); returns the gyros (a repaired copy, or
+    ``gyro`` itself)."""
+    N = t.size - 1
+    K = GRID * max(1, int(round(th.step_span_s * N / float(t[-1] - t[0]) / GRID)))
+    if N < 8 * K:
+        return gyro
+    m = N / K
+    # the pulses and the encoder's counts are white only when the table's jitter dithers them
+    # (a noise of at least one quantum); else their bounded error is added to the threshold
+    jitter = _step_stats(np.diff(enc))[1] / math.sqrt(2.0)
+    beta = np.asarray(gyro)[1:].sum(axis=0) / float(enc[-1] - enc[0])
+    q = _quantum(gyro[1:])
+    qe = max(float(_quantum(np.diff(enc[:_QUANTUM_SAMPLES + 2])[1:])), resolution)
+    dithered = (jitter >= qe) & (np.abs(beta) * jitter >= q)
+    quant = np.where(dithered, 0.0, _QUANT_BOUND * (q + np.abs(beta) * qe))
+    steps, thr = find_steps(t, enc, gyro, K, _level(th, 6.0 * m, m), quant, th.gyro_floor)
+    if not steps:
+        return gyro
+    gyro = gyro.copy()
+    count = [0, 0, 0]
+    for kind, k, j, d in steps:
+        if kind == "encoder":
+            findings.append(Finding("encoder", k, float(t[k]), "noted",
+                                    f"the encoder steps by {_arcsec(d)} more than the gyros turned and stays off "
+                                    "(below checks 1 and 3: it moves the heading by less than that)"))
+            continue
+        count[j] += 1
+        if count[j] > th.repair_samples:
+            findings.append(Finding("channel", k, float(t[k]), "refused",
+                                    f"{CHANNELS[j]}: more than {th.repair_samples} steps in its angle, each beyond "
+                                    f"{_arcsec(thr[j])} (lost or extra pulses); allowed: at most "
+                                    f"{th.repair_samples}, each repaired"))
+            return gyro
+        gyro[k, j] -= d
+        if any(f.check == "channel" and f.action == "repaired" and f.detail.startswith(f"{CHANNELS[j]} spike")
+               and abs(f.sample - k) <= K for f in findings):
+            continue            # what the spike's repair left (its neighbours' noise): part of that repair
+        findings.append(Finding("channel", k, float(t[k]), "repaired",
+                                f"{CHANNELS[j]} angle steps by {_arcsec(d)} here and stays off (one sample's error "
+                                f"below the window test; allowed within {_arcsec(thr[j])}): taken off the sample"))
+    return gyro
+
+
 # -- 4. temperature ------------------------------------------------------------------------------
 def _check_temperature(t, temp, L, m, th, findings):
     temp = np.asarray(temp, dtype=float)
@@ -893,6 +955,8 @@ def assess(log, *, thresholds=None, temperature=None, encoder_counts_per_rev=Non
         turn = _check_rate(t, enc2, L, m, th, findings)
         if not any(f.check == "rate" for f in findings):
             gyro, accel, enc2 = _check_channels(t, enc2, gyro, accel, turn, L, m, th, findings, resolution)
+            if not any(f.action == "refused" for f in findings):
+                gyro = _check_gyro_steps(t, enc2, gyro, L, th, findings, resolution)
     if temperature is not None:
         _check_temperature(t, temperature, L, m, th, findings)
     findings.sort(key=lambda f: (-1 if f.sample is None else f.sample))
