@@ -28,6 +28,11 @@ quality
     the gyros, the table's rate, stuck / saturated / spiking channels, temperature drift,
     metadata types): repaired by a documented rule or refused, each finding with its sample
     and time (:class:`Quality`).
+steps
+    check 3b of the quality checks: a step in one gyro's angle below the window test (a
+    sample's error of 0.2 arcsec moves a 10-minute heading by half its sigma).
+metadata
+    a raw log's metadata keys and the values each allows (check 5), the encoder's resolution.
 mapping
     :func:`load_mapping`, :func:`read_mapped` -- a test stand's own CSV read through a
     mapping file (TOML: columns, units, time base, pulse weights, counts per revolution,

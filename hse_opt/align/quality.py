@@ -22,17 +22,11 @@ Checks, rules and thresholds (:class:`Thresholds`; the reasons are physical)
    quanta, the encoder's resolution); an isolated sample off by less moves the heading
    by < 1e-5 arcsec (0.7 arcsec per rad measured mid-run).
 
-   *Encoder resolution.* The steps' quantum is seen in the data (the smallest change between
-   steps over the first 4,000 samples); when the encoder's counts per revolution are known
-   (``assess(..., encoder_counts_per_rev=...)``: the calibration file's
-   ``encoder.counts_per_rev``; else the log's metadata ``encoder_counts_per_rev``, which a
-   mapping file's ``encoder.counts_per_rev`` sets) the quantum is at least one count,
-   ``2 pi / counts``, here and in check 3's share of the turn. A jitter-free coarse encoder
-   whose step is a whole number of counts over the first samples shows no quantum there, and
-   a later one-count step was refused as a jump (the two false alarms of the full sweep
-   below); with its counts known the same logs pass, and a jump of 4 counts (80 arcsec on a
-   20-arcsec encoder) or more is still refused at its sample
-   (``tests/test_align_quality.py``).
+   *Encoder resolution.* Known (``assess(..., encoder_counts_per_rev=...)``, the calibration
+   file's ``encoder.counts_per_rev``, else the log's metadata, which a mapping file sets), one
+   count is the least quantum here and in check 3 (unknown, a jitter-free coarse encoder whose
+   steps are whole counts for the first samples had a later one-count step refused as a jump;
+   a jump of 4 counts is still refused: ``tests/test_align_quality.py``).
 
    *Repair*: a run of at most ``repair_samples`` (3) consecutive samples whose first and
    last neighbours agree with the table's rate (the steps around them add up to the rate's
@@ -126,19 +120,9 @@ Checks, rules and thresholds (:class:`Thresholds`; the reasons are physical)
    4,000 samples: the steps' quantum is not seen there, and a later one-count step is taken
    for a jump. The checks' first version refused 1 in 20 default 20-s logs (a window at the
    quantization's edge, then called saturation).
-3b. **Gyro steps** (per sample, below the window test; :mod:`hse_opt.align.steps`). A
-   sample's error that stays in one gyro's angle moves the heading by up to 20 times itself on
-   a 10-minute log: 0.2 arcsec, a quarter of the window test's threshold, moves it by half its
-   sigma. The counters' remainders bound their error in the cumulative angle, so the mean
-   angle residual over the ``step_span_s`` (0.25 s) after each sample less that before is a
-   step's size with a 1-sigma of 0.0071 arcsec (paper-like system, 10 minutes); beyond 6.3 of
-   them (0.044 arcsec; the Bonferroni level of ``false_alarm``; plus the window test's
-   quantization bound where the table's jitter does not dither the counters) a step is
-   found. *Repair*: taken off its sample (a step that only finishes a spike repair of check 3,
-   whose neighbours' mean is off by their noise, is part of that repair). *Noted*: steps in
-   all three gyros in the ratio of their shares of the turn are the encoder's, a jump below
-   checks 1 and 3 (1 arcsec moves the heading by less); the gyros are left alone.
-   *Refused*: more than ``repair_samples`` steps in one gyro (lost or extra pulses).
+3b. **Gyro steps** (below the window test; :mod:`hse_opt.align.steps`: statistic, threshold,
+   rules, figures): a sample's error of 0.2 arcsec that stays in one gyro's angle (half a
+   sigma of a 10-minute heading) is found at its sample and taken off.
 4. **Temperature** (only for a log that carries a temperature channel: ``temperature``;
    a mapping file's ``temp_c`` column). A drift of more than ``temp_drift_c`` (1 degC)
    between the first and the last window is noted (not refused): a gyro bias
@@ -155,7 +139,6 @@ Cost: a few passes over the samples and one least-squares fit of a few hundred w
 from __future__ import annotations
 
 import math
-import numbers
 from dataclasses import dataclass
 from statistics import NormalDist
 
@@ -164,7 +147,8 @@ import numpy as np
 from hse_opt import units
 from hse_opt.align.rotations import EARTH_RATE
 from hse_opt.align.noise import _block_sums
-from hse_opt.align.steps import GRID, find_steps
+from hse_opt.align.metadata import encoder_counts, metadata_problems
+from hse_opt.align.steps import check_steps
 
 __all__ = ["Thresholds", "Finding", "Quality", "LogRefused", "assess", "check_metadata"]
 
@@ -337,45 +321,20 @@ class Quality:
 
 
 # -- metadata ------------------------------------------------------------------------------------
-def _number(v):
-    return isinstance(v, numbers.Real) and not isinstance(v, bool) and math.isfinite(float(v))
-
-
-#: metadata key -> (test, what is allowed)
-_META_TYPES = {
-    "latitude_deg": (lambda v: _number(v) and abs(float(v)) < 89.0, "a number, |latitude| < 89 deg"),
-    "rate_dps": (_number, "a finite number, deg/s"),
-    "azimuth_deg": (_number, "a finite number, deg (leave the key out for an unsurveyed position)"),
-    "t_start_s": (lambda v: _number(v) and float(v) >= 0.0, "a finite number >= 0, s"),
-    "temp_c": (_number, "a finite number, degC"),
-    "run": (lambda v: isinstance(v, numbers.Integral) and not isinstance(v, bool), "an integer"),
-    "position": (lambda v: isinstance(v, str) and v.strip() != "" or
-                 isinstance(v, numbers.Integral) and not isinstance(v, bool), "a text label or an integer"),
-    "source": (lambda v: isinstance(v, str), "text"),
-    "encoder_counts_per_rev": (lambda v: _number(v) and float(v) >= 1.0,
-                               "a number >= 1, the encoder's counts per revolution"),
-}
-
-
 def check_metadata(meta):
-    """Findings (refusals) for metadata keys of the wrong type or value.
+    """Findings (refusals) for metadata keys of the wrong type or value
+    (:func:`hse_opt.align.metadata.metadata_problems`; keys it does not list are kept).
 
     Parameters
     ----------
     meta : dict
-        A raw log's metadata; keys not listed in ``_META_TYPES`` are not checked (they are
-        kept, and the loader checks the pulse weights).
+        A raw log's metadata.
 
     Returns
     -------
     list of Finding
     """
-    out = []
-    for key, (ok, allowed) in _META_TYPES.items():
-        if key in meta and meta[key] is not None and not ok(meta[key]):
-            out.append(Finding("metadata", None, None, "refused",
-                               f"'{key}' = {meta[key]!r}; allowed: {allowed}"))
-    return out
+    return [Finding("metadata", None, None, "refused", text) for text in metadata_problems(meta)]
 
 
 # -- 1. encoder samples --------------------------------------------------------------------------
@@ -842,47 +801,16 @@ def _value(x, unit):
 
 
 # -- 3b. gyro steps (per sample) ---------------------------------------------------------------
-def _check_gyro_steps(t, enc, gyro, L, th, findings, resolution):
-    """Check 3b (:func:`hse_opt.align.steps.find_steps`); returns the gyros (a repaired copy, or
-    ``gyro`` itself)."""
-    N = t.size - 1
-    K = GRID * max(1, int(round(th.step_span_s * N / float(t[-1] - t[0]) / GRID)))
-    if N < 8 * K:
-        return gyro
-    m = N / K
-    # the pulses and the encoder's counts are white only when the table's jitter dithers them
-    # (a noise of at least one quantum); else their bounded error is added to the threshold
-    jitter = _step_stats(np.diff(enc))[1] / math.sqrt(2.0)
-    beta = np.asarray(gyro)[1:].sum(axis=0) / float(enc[-1] - enc[0])
-    q = _quantum(gyro[1:])
-    qe = max(float(_quantum(np.diff(enc[:_QUANTUM_SAMPLES + 2])[1:])), resolution)
-    dithered = (jitter >= qe) & (np.abs(beta) * jitter >= q)
-    quant = np.where(dithered, 0.0, _QUANT_BOUND * (q + np.abs(beta) * qe))
-    steps, thr = find_steps(t, enc, gyro, K, _level(th, 6.0 * m, m), quant, th.gyro_floor)
-    if not steps:
-        return gyro
-    gyro = gyro.copy()
-    count = [0, 0, 0]
-    for kind, k, j, d in steps:
-        if kind == "encoder":
-            findings.append(Finding("encoder", k, float(t[k]), "noted",
-                                    f"the encoder steps by {_arcsec(d)} more than the gyros turned and stays off "
-                                    "(below checks 1 and 3: it moves the heading by less than that)"))
-            continue
-        count[j] += 1
-        if count[j] > th.repair_samples:
-            findings.append(Finding("channel", k, float(t[k]), "refused",
-                                    f"{CHANNELS[j]}: more than {th.repair_samples} steps in its angle, each beyond "
-                                    f"{_arcsec(thr[j])} (lost or extra pulses); allowed: at most "
-                                    f"{th.repair_samples}, each repaired"))
-            return gyro
-        gyro[k, j] -= d
-        if any(f.check == "channel" and f.action == "repaired" and f.detail.startswith(f"{CHANNELS[j]} spike")
-               and abs(f.sample - k) <= K for f in findings):
-            continue            # what the spike's repair left (its neighbours' noise): part of that repair
-        findings.append(Finding("channel", k, float(t[k]), "repaired",
-                                f"{CHANNELS[j]} angle steps by {_arcsec(d)} here and stays off (one sample's error "
-                                f"below the window test; allowed within {_arcsec(thr[j])}): taken off the sample"))
+def _check_gyro_steps(t, enc, gyro, th, findings, resolution):
+    """Check 3b (:func:`hse_opt.align.steps.check_steps`, given the quanta and the jitter);
+    returns the gyros (a repaired copy, or ``gyro`` itself)."""
+    spikes = {(f.sample, CHANNELS.index(f.detail.split(" ")[0])) for f in findings
+              if f.check == "channel" and f.action == "repaired" and " spike of " in f.detail}
+    gyro, found = check_steps(t, enc, gyro, span=th.step_span_s, jitter=_step_stats(np.diff(enc))[1] / math.sqrt(2.0),
+                              q=_quantum(gyro[1:]), level=lambda m: _level(th, 6.0 * m, m), floor=th.gyro_floor,
+                              qe=max(float(_quantum(np.diff(enc[:_QUANTUM_SAMPLES + 2])[1:])), resolution),
+                              bound=_QUANT_BOUND, most=th.repair_samples, spikes=spikes)
+    findings += [Finding(*f) for f in found]
     return gyro
 
 
@@ -905,21 +833,6 @@ def _check_temperature(t, temp, L, m, th, findings):
 
 
 # -- the whole assessment ------------------------------------------------------------------------
-def _resolution(meta, counts, findings):
-    """The encoder's count, rad (0 when unknown): ``2 pi / counts`` of the argument or of the
-    metadata's ``encoder_counts_per_rev``; the two differing (by more than 1e-9 relative) is a
-    metadata refusal naming both (a metadata value of the wrong type is already one)."""
-    given = meta.get("encoder_counts_per_rev")
-    if given is not None and not _META_TYPES["encoder_counts_per_rev"][0](given):
-        given = None
-    if counts is not None and given is not None and abs(float(given) - counts) > 1e-9 * counts:
-        findings.append(Finding("metadata", None, None, "refused",
-                                f"'encoder_counts_per_rev' = {given!r} and the calibration's encoder.counts_per_rev "
-                                f"= {counts:g} differ; allowed: one encoder resolution (or only one of them)"))
-    counts = counts if counts is not None else given
-    return 0.0 if counts is None else 2.0 * math.pi / float(counts)
-
-
 def assess(log, *, thresholds=None, temperature=None, encoder_counts_per_rev=None):
     """Check a raw log and repair what a documented rule allows (module docstring).
 
@@ -944,7 +857,10 @@ def assess(log, *, thresholds=None, temperature=None, encoder_counts_per_rev=Non
     """
     th = thresholds or Thresholds()
     findings = check_metadata(log.meta)
-    resolution = _resolution(log.meta, encoder_counts_per_rev, findings)
+    counts, problem = encoder_counts(log.meta, encoder_counts_per_rev)
+    if problem:
+        findings.append(Finding("metadata", None, None, "refused", problem))
+    resolution = 0.0 if counts is None else 2.0 * math.pi / counts
     t, enc = log.t, log.encoder
     n = t.size
     dt = float(t[-1] - t[0]) / (n - 1)
@@ -956,7 +872,7 @@ def assess(log, *, thresholds=None, temperature=None, encoder_counts_per_rev=Non
         if not any(f.check == "rate" for f in findings):
             gyro, accel, enc2 = _check_channels(t, enc2, gyro, accel, turn, L, m, th, findings, resolution)
             if not any(f.action == "refused" for f in findings):
-                gyro = _check_gyro_steps(t, enc2, gyro, L, th, findings, resolution)
+                gyro = _check_gyro_steps(t, enc2, gyro, th, findings, resolution)
     if temperature is not None:
         _check_temperature(t, temperature, L, m, th, findings)
     findings.sort(key=lambda f: (-1 if f.sample is None else f.sample))

@@ -53,16 +53,17 @@ from __future__ import annotations
 
 import numpy as np
 
+from hse_opt import units
 from hse_opt.align.noise import _cos_sin
 
-__all__ = ["find_steps", "step_statistic", "GRID"]
+__all__ = ["check_steps", "find_steps", "step_statistic", "GRID"]
 
 #: the statistic is evaluated every K / GRID samples
 GRID = 8
 _MAD = 1.4826
 
 
-def step_statistic(t, enc, gyro, K):
+def step_statistic(t, enc, gyro, K, beta):
     """``D`` on its grid, the slow part fitted out (module docstring).
 
     Parameters
@@ -75,14 +76,14 @@ def step_statistic(t, enc, gyro, K):
         Gyro increments, rad.
     K : int
         The span, samples (a multiple of :data:`GRID`).
+    beta : numpy.ndarray, shape (3,)
+        Each gyro's share of the encoder's turn (its sum over the log's over the encoder's).
 
     Returns
     -------
     D : numpy.ndarray, shape (3, g)
         rad, at the increments ``p = K, K + h, ...`` (``h = K / GRID``).
     p : numpy.ndarray of int, shape (g,)
-    beta : numpy.ndarray, shape (3,)
-        Each gyro's share of the encoder's turn.
     local : callable
         ``local(j, a, b)``: gyro ``j``'s per-increment statistic at the splits ``a .. b - 1``
         (their exact step), the slow part's rate taken off.
@@ -92,7 +93,6 @@ def step_statistic(t, enc, gyro, K):
     nb = N // h
     M = nb * h
     g = np.asarray(gyro).T                           # (3, n): rows (a view for a column-major log)
-    beta = g[:, 1:].sum(axis=1) / float(enc[-1] - enc[0])
     w = np.empty((h, 2))
     w[:, 0] = 1.0
     w[:, 1] = np.arange(h, 0, -1)                    # increment i's weight in its block's sum of e
@@ -121,10 +121,10 @@ def step_statistic(t, enc, gyro, K):
         q = np.arange(K, K + b - a)
         return (cs[q + K] - 2.0 * cs[q] + cs[q - K]) / K
 
-    return D - model, p, beta, local
+    return D - model, p, local
 
 
-def find_steps(t, enc, gyro, K, level, quant, floor):
+def find_steps(t, enc, gyro, K, beta, level, quant, floor):
     """The steps of the three gyros (module docstring).
 
     Parameters
@@ -133,6 +133,8 @@ def find_steps(t, enc, gyro, K, level, quant, floor):
         As :func:`step_statistic`.
     K : int
         The span, samples (a multiple of :data:`GRID`).
+    beta : numpy.ndarray, shape (3,)
+        Each gyro's share of the encoder's turn.
     level : float
         The Bonferroni multiplier of the statistic's robust 1-sigma.
     quant : numpy.ndarray, shape (3,)
@@ -149,8 +151,9 @@ def find_steps(t, enc, gyro, K, level, quant, floor):
     thr : numpy.ndarray, shape (3,)
         Each gyro's threshold, rad.
     """
-    D, p, beta, local = step_statistic(t, enc, gyro, K)
-    sigma = _MAD * np.median(np.abs(D - np.median(D, axis=1, keepdims=True)), axis=1)
+    D, p, local = step_statistic(t, enc, gyro, K, beta)
+    sub = D[:, ::4]                                  # (a quarter of the grid pins the median)
+    sigma = _MAD * np.median(np.abs(sub - np.median(sub, axis=1, keepdims=True)), axis=1)
     thr = np.maximum(level * sigma + quant, floor)
     bad = np.abs(D) > thr[:, None]
     if not bad.any():
@@ -182,3 +185,71 @@ def find_steps(t, enc, gyro, K, level, quant, floor):
         done.add((p0, j))
         out.append(("gyro", p0 + 1, j, d))
     return out, thr
+
+
+def check_steps(t, enc, gyro, *, span, jitter, q, qe, level, floor, bound, most, spikes=()):
+    """Check 3b of :func:`hse_opt.align.quality.assess`: find the steps, repair or refuse.
+
+    Parameters
+    ----------
+    t, enc, gyro : numpy.ndarray
+        As :func:`step_statistic`.
+    span : float
+        The span ``K dt``, s (``Thresholds.step_span_s``).
+    jitter : float
+        The table's jitter in angle, rad (1/sqrt(2) of the encoder steps' robust 1-sigma).
+    q : numpy.ndarray, shape (3,)
+        Each gyro's pulse, rad; ``qe``: the encoder's count, rad (0: unquantized).
+    level : callable
+        ``level(m)``: the Bonferroni multiplier for ``m`` spans of the log.
+    floor : float
+        The smallest threshold, rad.
+    bound : float
+        Quanta a window sum's quantization is bounded by (where not dithered).
+    most : int
+        Steps repaired in one gyro; more refuse the log.
+    spikes : collection of (int, int)
+        ``(row, channel)`` of the spikes check 3 repaired: a step within a span of one is
+        what that repair left (the neighbours' noise), taken off without a finding of its own.
+
+    Returns
+    -------
+    gyro : numpy.ndarray
+        A repaired copy, or the input.
+    findings : list of tuple
+        ``(check, sample, time, action, detail)`` (:class:`hse_opt.align.quality.Finding`'s
+        fields).
+    """
+    N = t.size - 1
+    K = GRID * max(1, int(round(span * N / float(t[-1] - t[0]) / GRID)))
+    if N < 8 * K:
+        return gyro, []
+    beta = np.asarray(gyro)[1:].sum(axis=0) / float(enc[-1] - enc[0])
+    # the pulses and the encoder's counts are white only when the table's jitter dithers them
+    # (a noise of at least one quantum: Widrow); else their bounded error is added
+    dithered = (jitter >= qe) & (np.abs(beta) * jitter >= q)
+    quant = np.where(dithered, 0.0, bound * (q + np.abs(beta) * qe))
+    steps, thr = find_steps(t, enc, gyro, K, beta, level(N / K), quant, floor)
+    if not steps:
+        return gyro, []
+    gyro, out, count = gyro.copy(), [], [0, 0, 0]
+    for kind, k, j, d in steps:
+        if kind == "encoder":
+            out.append(("encoder", k, float(t[k]), "noted",
+                        f"the encoder steps by {d / units.ARCSEC:+.4g} arcsec more than the gyros turned and stays "
+                        "off (below checks 1 and 3: it moves the heading by less than that)"))
+            continue
+        name = ("gyro_x", "gyro_y", "gyro_z")[j]
+        count[j] += 1
+        if count[j] > most:
+            out.append(("channel", k, float(t[k]), "refused",
+                        f"{name}: more than {most} steps in its angle, each beyond {thr[j] / units.ARCSEC:.4g} "
+                        f"arcsec (lost or extra pulses); allowed: at most {most}, each repaired"))
+            return gyro, out
+        gyro[k, j] -= d
+        if not any(c == j and abs(r - k) <= K for r, c in spikes):
+            out.append(("channel", k, float(t[k]), "repaired",
+                        f"{name} angle steps by {d / units.ARCSEC:+.4g} arcsec here and stays off (one sample's "
+                        f"error below the window test; allowed within {thr[j] / units.ARCSEC:.4g} arcsec): taken "
+                        "off the sample"))
+    return gyro, out

@@ -63,17 +63,22 @@ def lab_calibration(truth):
     C~_s^b = (I - [xi x]) C_s^b(r_zb_s_calibrated) (Eq. 2), whose errors eps, xi are what the
     HSE calibration finds; the accelerometers as ideal (K_a = I: the truth's accelerometer
     scale factors and misalignments are residuals the lab left); the nominal pulse weights
-    (where the truth quantizes), the sensors' specified noise and the site latitude.
+    (where the truth quantizes), the encoder's counts per revolution (where it quantizes), the
+    sensors' specified noise and the site latitude.
 
     Returns
     -------
     hse_opt.align.LabCalibration
     """
     mats = gyro_matrices(truth)
+    res = truth.encoder.resolution
+    counts = 2.0 * np.pi / res if res else None
+    if counts is not None and abs(counts - round(counts)) < 1e-6 * counts:
+        counts = float(round(counts))          # 0.18 arcsec: 7,200,000 counts, not 7199999.999999999
     return LabCalibration(K_g=mats["K_g_cal"], K_a=np.eye(3), C_s_b=mats["C_s_b_cal"],
                           gyro_pulse=truth.gyro.pulse or None, accel_pulse=truth.accel.pulse or None,
                           arw=truth.gyro.arw, vrw=truth.accel.vrw, latitude=truth.site.latitude,
-                          source="<lab calibration of the simulated system>")
+                          encoder_counts_per_rev=counts, source="<lab calibration of the simulated system>")
 
 
 def align_config_from_truth(truth, **overrides):

@@ -174,8 +174,6 @@ def run(args):
     config, kw, suffixes = processor(args)
     paths = _expand(args.logs, suffixes)
     assumed = assumption(args)
-    if assumed:
-        message(f"hse-opt align: note: {assumed}")
     with dask_client(args.dask) as client, tqdm(total=len(paths), unit="log", desc="align", file=sys.stderr,
                                                 disable=None if args.progress else True) as bar:
         rows, errors = align_logs(paths, config, jobs=args.jobs, client=client, **kw,
@@ -186,7 +184,7 @@ def run(args):
         message(f"hse-opt align: none of the {len(paths)} logs could be aligned; nothing written")
         return 2
     runs, notes = runs_from_rows(rows)
-    for note in notes:
+    for note in [assumed] * bool(assumed) + notes:      # once the logs are read (bad input stays one line)
         message(f"hse-opt align: note: {note}")
     try:
         save_runs(runs, args.tx.path("output"))

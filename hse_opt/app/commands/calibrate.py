@@ -114,8 +114,6 @@ def run(args):
     _check(args)
     config, align_kw, suffixes = processor(args)
     assumed = assumption(args)
-    if assumed:
-        message(f"hse-opt calibrate: note: {assumed}")
     kw = dict(config=config, align_kw=align_kw, suffixes=suffixes, effects=_effects(args.effects),
               jobs=args.jobs, notes=(assumed,) if assumed else ())
     if args.watch:
@@ -130,6 +128,8 @@ def run(args):
         close()
     for err in result.errors:
         message(f"hse-opt calibrate: bad log left out: {' '.join(err.split())}")
+    if assumed:                 # once the logs are read (bad input stays one line)
+        message(f"hse-opt calibrate: note: {assumed}")
     data = write_outputs(result, args.tx.path("out"), shown=args.out)
     if args.json:
         print_json(data)
@@ -183,6 +183,8 @@ def _watch(args, kw):
                 with Transaction([("LOGS", p) for p in result.logs],
                                  [("out", "--out", args.out, OUTPUT_FILES)]) as tx:
                     write_outputs(result, tx.path("out"), shown=args.out)
+                if written is None and kw.get("notes"):
+                    message(f"hse-opt calibrate --watch: note: {kw['notes'][0]}")
                 written = result
     except (KeyboardInterrupt, Terminated) as err:
         what = "interrupted" if isinstance(err, KeyboardInterrupt) else f"terminated (signal {err.signum})"
