@@ -89,6 +89,8 @@ def test_the_shipped_example_loads_and_is_the_default_systems_calibration():
     ref = lab_calibration(TruthConfig.default())
     assert np.array_equal(cal.K_g, ref.K_g) and np.array_equal(cal.C_s_b, ref.C_s_b)
     assert cal.K_a == LabCalibration.orthogonal().K_a and cal.has_noise and cal.latitude == ref.latitude
+    # the encoder's 0.18 arcsec (TRUTH's resolution_arcsec) as whole counts per revolution: 1296000 / 0.18
+    assert cal.encoder_counts_per_rev == ref.encoder_counts_per_rev == 7_200_000
 
 
 def test_simulate_writes_the_calibration_that_align_reproduces(tmp_path, capsys):

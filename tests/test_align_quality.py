@@ -543,8 +543,9 @@ def test_the_calibrations_and_the_logs_encoder_resolution_differing_refuses_the_
 
 
 def test_align_takes_the_encoder_resolution_from_the_calibration_file(tmp_path, capsys):
-    """The 20-s alarm log: refused by ``hse-opt align`` with the default system's lab
-    calibration, aligned with the same file plus ``[encoder] counts_per_rev = 64800``."""
+    """The 20-s alarm log: refused by ``hse-opt align`` with its system's lab calibration
+    without the encoder's counts, aligned with them (``[encoder] counts_per_rev = 64800``, as
+    ``simulate --write-calibration`` writes it)."""
     import dataclasses
 
     from hse_opt.align import save_calibration
@@ -552,9 +553,10 @@ def test_align_takes_the_encoder_resolution_from_the_calibration_file(tmp_path, 
     spec, seed = ALARMS[0]
     (tmp_path / "logs").mkdir()
     save_rawlog(generate(COARSE, spec, np.random.default_rng(seed)), tmp_path / "logs" / "r.npz")
-    cal = lab_calibration(COARSE)
-    save_calibration(cal, tmp_path / "A.toml")
-    save_calibration(dataclasses.replace(cal, encoder_counts_per_rev=COARSE_COUNTS), tmp_path / "B.toml")
+    cal = lab_calibration(COARSE)                  # the simulated system's: its counts given
+    assert cal.encoder_counts_per_rev == COARSE_COUNTS
+    save_calibration(dataclasses.replace(cal, encoder_counts_per_rev=None), tmp_path / "A.toml")
+    save_calibration(cal, tmp_path / "B.toml")
     assert "[encoder]\n# " in (tmp_path / "B.toml").read_text()
     args = [str(tmp_path / "logs"), "--no-progress"]
     assert main(["align", *args, "-o", str(tmp_path / "A.csv"), "--calibration", str(tmp_path / "A.toml")]) == 2

@@ -322,18 +322,8 @@ class Quality:
 
 # -- metadata ------------------------------------------------------------------------------------
 def check_metadata(meta):
-    """Findings (refusals) for metadata keys of the wrong type or value
-    (:func:`hse_opt.align.metadata.metadata_problems`; keys it does not list are kept).
-
-    Parameters
-    ----------
-    meta : dict
-        A raw log's metadata.
-
-    Returns
-    -------
-    list of Finding
-    """
+    """The refusals (a list of :class:`Finding`) for a raw log's metadata ``meta`` (dict): its
+    keys of the wrong type or value (:func:`hse_opt.align.metadata.metadata_problems`)."""
     return [Finding("metadata", None, None, "refused", text) for text in metadata_problems(meta)]
 
 
