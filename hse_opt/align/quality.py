@@ -38,7 +38,9 @@ Checks, rules and thresholds (:class:`Thresholds`; the reasons are physical)
    *Refusal*: a step that does not come back (the encoder jumped: lost counts or a slipped
    zero, or the table jerked; the message gives the gyros' turn over that interval), or
    more than ``repair_samples`` bad samples in a row (the encoder stuck, or the table
-   stalled). An uncorrected jump of ``d`` turns b0 by ``d`` for the rest of the run: the
+   stalled); an encoder that holds one reading over half the log or more (its median step is
+   0) while the gyros turn more than a hundred times the Earth's rate is *frozen*, named from
+   the first sample that repeats the reading, with the gyros' turn meanwhile. An uncorrected jump of ``d`` turns b0 by ``d`` for the rest of the run: the
    heading moves by about ``d`` times the fraction of the run after it.
 2. **Table rate** (windows of ``window_s``, 0.5 s). The rate over each window from the
    (repaired) encoder against the median: a window below ``stall`` (0.5) times it is a
@@ -91,7 +93,10 @@ Checks, rules and thresholds (:class:`Thresholds`; the reasons are physical)
      ``stuck_samples`` (25) or more samples in the bad windows and that run explains the
      windows' residual: its samples' excess over the fitted values; a coarse channel holding
      one count while its true value stays within it explains nothing; the finding names the
-     run's first sample), or a fault that does not follow the table's turn.
+     run's first sample), a *bias step* (the windows' residuals sit at one level before a
+     window and another after it, the step dominating them: named at its sample, placed
+     within the two windows at the change by their share of the step, with its size per
+     second), or a fault that does not follow the table's turn.
 
    What the window test lets pass: a gyro error in one sample below the gyro threshold (0.8
    arcsec for the paper-like system), which the filter takes like a rate error ``d / T``
