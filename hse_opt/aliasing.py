@@ -368,22 +368,22 @@ class _Mixture:
         self._state = (np.array([min(i0, 1.0)]), i0, 0.0, None)
 
     def _extend(self, size):
+        """Grow the table toward ``size`` entries, doubling, until it is complete."""
         factors, total, steps, flat = self._state
-        m = factors.size
-        if flat is not None or m >= min(size, self.MAX):
-            return
-        size = min(self.MAX, max(size, 2 * m, 64))
         a, x = self.a, self.x
-        b = self.b0 + np.arange(m - 1, size, dtype=float)      # terms m-1 .. size-1 give factors m ..
-        s = np.cumsum(np.concatenate([[steps], np.log(a + b[:-1]) - np.log(b[:-1])]))
-        lg = (math.lgamma(a + self.b0) - math.lgamma(self.b0)) + s[:-1]
-        log_term = lg - math.lgamma(a) + a * math.log(x) + b[:-1] * math.log1p(-x) - np.log(b[:-1])
-        sums = np.cumsum(np.concatenate([[total], np.exp(log_term)]))[1:]
-        factors = np.concatenate([factors, np.minimum(sums, 1.0)])
-        past_peak = log_term.size < 2 or log_term[-1] < log_term[-2]
-        if sums[-1] >= 1.0 or (math.exp(log_term[-1]) == 0.0 and past_peak):
-            flat = int(np.argmax(factors == factors[-1]))   # the factors do not decrease
-        self._state = (factors, float(sums[-1]), float(s[-1]), flat)
+        while flat is None and factors.size < min(size, self.MAX):
+            m = factors.size
+            b = self.b0 + np.arange(m - 1, min(self.MAX, max(2 * m, 64)), dtype=float)  # terms m-1 .. give factors m ..
+            s = np.cumsum(np.concatenate([[steps], np.log(a + b[:-1]) - np.log(b[:-1])]))
+            lg = (math.lgamma(a + self.b0) - math.lgamma(self.b0)) + s[:-1]
+            log_term = lg - math.lgamma(a) + a * math.log(x) + b[:-1] * math.log1p(-x) - np.log(b[:-1])
+            sums = np.cumsum(np.concatenate([[total], np.exp(log_term)]))[1:]
+            factors = np.concatenate([factors, np.minimum(sums, 1.0)])
+            total, steps = float(sums[-1]), float(s[-1])
+            past_peak = log_term.size < 2 or log_term[-1] < log_term[-2]
+            if sums[-1] >= 1.0 or (math.exp(log_term[-1]) == 0.0 and past_peak):
+                flat = int(np.argmax(factors == factors[-1]))   # the factors do not decrease
+        self._state = (factors, total, steps, flat)
 
     def sf(self, lam):
         """``f_sf(crit, d1, d2, lam)`` (``lam > 0``)."""

@@ -152,3 +152,42 @@ def test_settings_alike_in_every_factor_keep_all_their_runs():
     settings = Candidates(np.array([1.0, 1.0, 0.5]), np.zeros(3), 0 * one, 0 * one, 600 * one, 3600 * one, 0 * one)
     for seq in orders(settings, np.array([2, 3, 1]), Costs(), np.random.default_rng(0), n_random=5):
         assert sorted(seq.tolist()) == [0, 0, 1, 1, 1, 2]
+
+
+def test_a_power_floor_gives_the_conic_program_the_data_of_its_textbook_form():
+    """A floor's constraint as the convex program writes it (the information as Q u plus the
+    prior, symmetric as it is; F - t e e' >= 0) against its textbook form (the symmetrised
+    information, the Schur complement's blocks around the corner F_kk - t): cvxpy must hand
+    the conic solver the very same matrices, so the plans cannot change."""
+    import cvxpy as cp
+    from hse_opt.design.criteria import CvxOps, Scaled
+    rng = np.random.default_rng(5)
+    n, k = 40, 4
+    rows = rng.standard_normal((n, k))
+    Q = np.einsum("ni,nj->ijn", rows, rows).reshape(k * k, n)
+    prior = rng.standard_normal((k, k))
+    prior = prior @ prior.T + 1e-9 * np.triu(np.ones((k, k)), 1)    # a prior summed in some order
+    d = rng.uniform(0.5, 2.0, k)
+
+    def data(textbook):
+        u = cp.Variable(n, nonneg=True)
+        P = prior / np.outer(d, d)
+        if textbook:
+            F = cp.reshape(Q @ u, (k, k), order="C") + P
+            F = (F + F.T) / 2
+            t = cp.Variable()
+            corner = F[-1:, -1:] - cp.reshape(t, (1, 1), order="C")
+            cons, value = [cp.bmat([[F[:-1, :-1], F[:-1, -1:]], [F[-1:, :-1], corner]]) >> 0], t * d[-1] ** 2
+        else:
+            F = cp.reshape(Q @ u, (k, k), order="C") + (P + P.T) / 2
+            ops = CvxOps()
+            value = ops.schur(Scaled(F, d))
+            cons = ops.constraints
+        problem = cp.Problem(cp.Maximize(value), cons + [cp.sum(u) <= 1])
+        return problem.get_problem_data(cp.CLARABEL)[0]
+
+    ours, textbook = data(False), data(True)
+    for key in ("A", "b", "c"):
+        a, b = ours[key], textbook[key]
+        a, b = (a.toarray(), b.toarray()) if hasattr(a, "toarray") else (a, b)
+        assert a.shape == b.shape and np.array_equal(a, b), key

@@ -15,7 +15,8 @@ the information matrix into a loss; :func:`design` minimises it within a test-ti
    warm-up``, ``sum w_i <= max_runs``. Certified by the general equivalence theorem: the
    Frank-Wolfe gap of the (Lagrangian) objective over all candidates bounds the loss of
    optimality (``ApproximateDesign.certified_efficiency``). Each conic solution is re-solved
-   on its support with IPOPT (conic solvers leave ~1e-4 in the weights). The solver's
+   on its support with IPOPT (conic solvers leave ~1e-4 in the weights; not with the power
+   floors of the default criterion, where the conic solution is certified as it is). The solver's
    ``problem.status`` is checked: a failure raises :class:`DesignError` (a
    :class:`~hse_opt.fit.SolverError`) with it; an ``optimal_inaccurate`` end is judged by the
    certificate (kept at >= 0.99, and said in the result's notes below 0.999), and below that

@@ -5,7 +5,8 @@ A convex program (cvxpy) over the runs ``w_i >= 0`` of the candidates, the align
 growing active set. The general equivalence theorem certifies the solution over every
 candidate: the Frank-Wolfe gap of the Lagrangian bounds the loss of optimality
 (:attr:`ApproximateDesign.certified_efficiency`). Each conic solution is re-solved on its
-support with IPOPT (:func:`polish_weights`; conic solvers leave ~1e-4 in the weights).
+support with IPOPT (:func:`polish_weights`; conic solvers leave ~1e-4 in the weights), except
+with power floors, where the conic solution is certified as it is.
 """
 from __future__ import annotations
 
@@ -306,8 +307,13 @@ def _convex(prob):
                 raise UnidentifiableError(f"no candidate run carries information on {', '.join(blind)}", blind)
             rs = r[s] / d[None, :]
             Q = np.einsum("ni,nj->ijn", rs, rs).reshape(sp.k * sp.k, n) * scale[None, :]
-            F = cp.reshape(Q @ u, (sp.k, sp.k), order="C") + sp.prior / np.outer(d, d)
-            out.append(Scaled((F + F.T) / 2, d))
+            # symmetric as it is (Q's rows (i, j) and (j, i) are the same products; the prior
+            # made so) and only ever used in PSD constraints, which take the symmetric part: an
+            # explicit (F + F.T) / 2 gives cvxpy the same conic data with a third more to
+            # canonicalise
+            P = sp.prior / np.outer(d, d)
+            F = cp.reshape(Q @ u, (sp.k, sp.k), order="C") + (P + P.T) / 2
+            out.append(Scaled(F, d))
         return out
 
     ops, spec = CvxOps(), prob.spec

@@ -11,6 +11,7 @@ from __future__ import annotations
 import casadi as ca
 import cvxpy as cp
 import numpy as np
+from scipy import sparse
 
 from ..model.composition import as_model
 
@@ -108,14 +109,15 @@ class CvxOps:
         return t
 
     def schur(self, S):
+        # F - t e e' >= 0 (e the last unit vector): the same conic data as the blocks of F
+        # reassembled around the corner F_kk - t, without cvxpy slicing F's dense coefficients
         k = S.shape[0]
         t = cp.Variable()
         F = S.F
         if k == 1:
             self.constraints.append(F[0, 0] >= t)
         else:
-            corner = F[-1:, -1:] - cp.reshape(t, (1, 1), order="C")
-            self.constraints.append(cp.bmat([[F[:-1, :-1], F[:-1, -1:]], [F[-1:, :-1], corner]]) >> 0)
+            self.constraints.append(F - t * sparse.csc_matrix(([1.0], ([k - 1], [k - 1])), shape=(k, k)) >> 0)
         return t * S.d[-1] ** 2
 
 

@@ -69,6 +69,15 @@ def orders(settings, counts, costs, rng=None, n_random=0, labels=None):
     return [np.array(s) for s in dict.fromkeys(tuple(s) for s in out)]
 
 
+def _labels(settings, costs, cache):
+    """:func:`group_labels`, kept in ``cache`` (None: computed, not kept)."""
+    if cache is None:
+        return None
+    if "labels" not in cache:
+        cache["labels"] = group_labels(settings, costs)
+    return cache["labels"]
+
+
 def min_time(settings, counts, costs, cache=None):
     """Least total time (s) of a plan in one time slot with these counts over the
     deterministic orders: its setups (which depend only on which settings are used, so
@@ -76,7 +85,7 @@ def min_time(settings, counts, costs, cache=None):
     used = counts > 0
     key = used.tobytes()
     if cache is None or key not in cache:
-        labels = None if cache is None else cache.setdefault("labels", group_labels(settings, costs))
+        labels = _labels(settings, costs, cache)
         setup = min(float(costs.setups(s.rate, s.azimuth, s.tilt_x, s.tilt_y).sum())
                     for s in (settings.take(seq) for seq in orders(settings, used.astype(int), costs, labels=labels)))
         if cache is None:
@@ -104,7 +113,7 @@ def fits(settings, counts, costs, budget, slot_length=None, cache=None):
         return True
     key = ("slots", counts.tobytes())
     if cache is None or key not in cache:
-        labels = None if cache is None else cache.setdefault("labels", group_labels(settings, costs))
+        labels = _labels(settings, costs, cache)
         ok = any(in_slots(settings, seq, costs, budget, slot_length)
                  for seq in orders(settings, counts, costs, labels=labels))
         if cache is None:
