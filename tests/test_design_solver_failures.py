@@ -6,6 +6,7 @@ the input's fault (exit 2). References: the D-optimal design of quadratic regres
 [-1, 1] (a third of the runs at -1, 0 and 1: Kiefer-Wolfowitz), the candidate grid."""
 import csv
 import io
+import re
 from contextlib import redirect_stderr, redirect_stdout
 
 import cvxpy as cp
@@ -75,6 +76,11 @@ def test_the_trials_design_is_the_inputs_fault_and_a_failed_refinement_keeps_the
                            "--reverse", "-o", str(tmp_path / "B.csv")])
     assert code == 0, err
     assert "refinement Invalid_Number_Detected (IPOPT failed: the grid settings are kept)" in out
+    # a guard the whole runs miss is said as missed, never "also identifies ... (at least ... required)"
+    for line in out.splitlines():
+        if line.startswith("also identifies"):
+            got, need = (float(x) for x in re.findall(r"D-efficiency ([\d.]+) \(at least ([\d.]+)", line)[0])
+            assert got >= need, line
     with open(tmp_path / "B.csv", newline="") as fh:
         rows = list(csv.DictReader(fh))
     # the grid's rates and azimuths, up to the stand's resolution steps (0.1 deg/s, 0.1 deg)

@@ -125,8 +125,14 @@ class DesignResult:
                  f"{self.budget_efficiency:.4f} against the whole budget"]
         lines += self.evaluation.summary()
         for g in self.guards:
-            lines.append(f"also identifies {'+'.join(g['effects'])}: D-efficiency {g['d_efficiency']:.3f} "
-                         f"(at least {g['min_efficiency']:.3f} required)")
+            if g["d_efficiency"] >= g["min_efficiency"]:
+                lines.append(f"also identifies {'+'.join(g['effects'])}: D-efficiency {g['d_efficiency']:.3f} "
+                             f"(at least {g['min_efficiency']:.3f} required)")
+            else:   # whole runs lost what the approximate design kept: said, not claimed
+                lines.append(f"does not identify {'+'.join(g['effects'])} as required: D-efficiency "
+                             f"{g['d_efficiency']:.3f}, below the {g['min_efficiency']:.3f} required (the plan's "
+                             "whole runs in this budget lost it; a longer --budget-h or a lower "
+                             "--identify-efficiency)")
         lines += describe_protection(self.protection)
         return lines + [f"note: {n}" for n in self.notes]
 
