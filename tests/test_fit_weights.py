@@ -116,3 +116,24 @@ def test_f_tail_matches_scipy():
             for F in (1e-4, 0.3, 1.0, 4.0, 50.0, 1e4):
                 assert f_sf(F, d1, d2) == pytest.approx(stats.f.sf(F, d1, d2), rel=1e-9, abs=1e-300)
     assert f_sf(0.0, 3, 4) == 1.0 and f_sf(np.inf, 3, 4) == 0.0
+
+
+def test_fit_json_carries_the_lack_of_fit_and_refuses_a_malformed_one(tmp_path):
+    """FIT.json keeps the test (the same F, dof, p back); a file whose entry is malformed is
+    refused naming the entry, and one written before it (no entry) loads without it."""
+    import json
+
+    from hse_opt.fit import load_fit, save_fit
+    runs = model_runs(_sheet(2), TRUTH, np.random.default_rng(5), sigma=SIGMA,
+                      base_tilt=(7e-4, 3e-4)).replace(heading_std=None)
+    f = fit(runs)
+    save_fit(f, tmp_path / "FIT.json")
+    assert load_fit(tmp_path / "FIT.json").lack_of_fit == f.lack_of_fit
+    d = json.loads((tmp_path / "FIT.json").read_text())
+    d["lack_of_fit"]["dof"] = [0, 2]
+    (tmp_path / "BAD.json").write_text(json.dumps(d))
+    with pytest.raises(ValueError, match="lack_of_fit.*allowed"):
+        load_fit(tmp_path / "BAD.json")
+    del d["lack_of_fit"]
+    (tmp_path / "OLD.json").write_text(json.dumps(d))
+    assert load_fit(tmp_path / "OLD.json").lack_of_fit is None
