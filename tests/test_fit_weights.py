@@ -137,3 +137,21 @@ def test_fit_json_carries_the_lack_of_fit_and_refuses_a_malformed_one(tmp_path):
     del d["lack_of_fit"]
     (tmp_path / "OLD.json").write_text(json.dumps(d))
     assert load_fit(tmp_path / "OLD.json").lack_of_fit is None
+
+
+def test_a_lack_of_fit_is_said_among_the_checks_with_a_pure_error_sigma():
+    """12 replicate degrees of freedom (a pure-error sigma) and a 25-arcsec 2nd azimuth
+    harmonic the model lacks: the check names the lack of fit with its F test (p < 0.01, the
+    checks' level); without the harmonic, nothing is said (the chi-square check is for the
+    runs' own sigmas only: with a pure-error sigma chi2 = dof_pe + F-part, not chi-square)."""
+    from hse_opt.fit.checks import ALPHA, check_lines
+    runs = model_runs(_sheet(12), TRUTH, np.random.default_rng(1), sigma=SIGMA,
+                      base_tilt=(7e-4, 3e-4)).replace(heading_std=None)
+    clean = fit(runs)
+    assert clean.weighting == "pure-error" and clean.lack_of_fit.p_value > ALPHA and check_lines(clean, runs) == []
+    bent = runs.replace(heading_err=runs.heading_err + 25 * units.ARCSEC * np.cos(2 * runs.azimuth))
+    f = fit(bent)
+    assert f.lack_of_fit.p_value < ALPHA
+    assert [ln for ln in check_lines(f, bent) if ln.startswith("the replicate groups' means stray")] == [
+        f"the replicate groups' means stray from the model more than the replicates scatter ({f.lack_of_fit.text()}): "
+        "a missing effect (hse-opt diagnose), or replicates that are not independent"]
