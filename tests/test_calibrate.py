@@ -211,9 +211,10 @@ def test_the_report_renders_in_chromium_with_the_verdict_first(campaigns, tmp_pa
 
 def test_the_next_plans_sigma_says_its_model_and_the_report_fits_the_page(tmp_path, capsys):
     """The README's session (three positions, only A surveyed, 2 h left): the plan's sigma of
-    lambda2 is in a model with a systematic risk estimated too, so the line names it and the
-    fit's own statistical sigma it differs from (summary.json's); the raw-log table lists
-    run_1 ... run_12 in natural order; nothing in the report is wider than the browser's page."""
+    lambda2 is in the fit's model with the fit's weights, so it starts from the fit's own
+    statistical sigma (summary.json's), and the line says what the plan protects against; the
+    raw-log table lists run_1 ... run_12 in natural order; nothing in the report is wider than
+    the browser's page."""
     import re
 
     from browser import WIDTH
@@ -234,12 +235,15 @@ def test_the_next_plans_sigma_says_its_model_and_the_report_fits_the_page(tmp_pa
     stdout = capsys.readouterr().out
     assert status == 0
     summary = json.loads((out / "summary.json").read_text())
-    extra = [e for e in summary["next"]["effects"] if e not in summary["effects"]]
-    assert extra, summary["next"]["effects"]        # the case: the plan's model is not the fit's
+    assert summary["next"]["effects"] == summary["effects"]     # one model: the fit's
     std = summary["parameters"]["lambda2"]["std"]
+    assert summary["next"]["sigma_now"] == pytest.approx(std, rel=1e-3)
     line = next(ln for ln in stdout.splitlines() if "takes sigma(lambda2)" in ln)
-    assert f"with {', '.join(extra)} - a systematic risk now - estimated too" in line, line
-    assert f"the fit above, without it, gives +- {std:.3g} arcsec" in line, line
+    assert f"from {summary['next']['sigma_now']:.3g} to" in line, line
+    # the plan is the protected continuation (design --field --runs): what it protects, said
+    guarded = [p["effect"] for p in summary["next"]["protection"] if p["protected"]]
+    assert summary["next"]["criterion"] == "protect:lambda2" and guarded
+    assert f"(statistical; the diagnosis would see {', '.join(guarded)} with power >= 0.8)" in line, line
     assert f"+- {std:.3g} arcsec (statistical, 1-sigma)" in stdout
     # one precision in the box: the verdict's sentence and the line below give lambda2's sigma alike
     assert f"lambda2 = {summary['parameters']['lambda2']['value']:.4g} +- {std:.3g} arcsec statistical" in stdout

@@ -108,8 +108,22 @@ def test_target_sigma_stops_the_plan():
     full = next_runs(runs, "hse", 6 * units.HOUR, costs=COSTS)
     target = 0.5 * (full.sigma_now + full.sigma_end)
     short = next_runs(runs, "hse", 6 * units.HOUR, costs=COSTS, target_sigma=target)
-    assert len(short.runs) < len(full.runs)
-    assert short.sigma_end <= target < short.runs[-2].sigma_after
+    assert len(short.runs) < len(full.runs) and short.runs == full.runs[:len(short.runs)]
+    assert short.sigma_end <= target
+    # it ends at the first run that reaches the target with every effect the whole plan
+    # protects still protected (the diagnosis's power on the runs so far and the runs to it)
+    guarded = [p.effect for p in full.protection if p.protected]
+    assert guarded and all(p.power >= 0.8 for p in short.protection if p.effect in guarded)
+    plan, n = _union(runs, full, field=False)
+    k = len(short.runs) - 1                  # the plan one run shorter
+    shorter = Plan.from_columns({c: v[:n + k] for c, v in _columns(plan).items()}, source="shorter")
+    from hse_opt.aliasing import effect_power
+    from hse_opt.model import as_model
+    X = STAND.inputs(as_model("hse").measurement(True), shorter.rate, shorter.azimuth, 0.0, 0.0, shorter.duration,
+                     shorter.t_start)
+    weaker = min(effect_power("hse", X, e, sigma=STAND.sigma(shorter.duration), positions=np.zeros(n + k, int))
+                 for e in guarded)
+    assert short.runs[-2].sigma_after > target or weaker < 0.8
 
 
 def test_bad_arguments_are_named():

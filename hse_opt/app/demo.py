@@ -512,6 +512,9 @@ def run_demo(seed=0, progress=None):
 SESSION_START = (("A", 20.0, 20.0), ("A", 20.0, 60.0))
 SESSION_LOGS = 7
 SESSION_DURATION_S = 120.0
+#: the stand time the session is told each log left takes: the log and a move (a position
+#: change takes 600 s by default), so it plans for the logs it will run, not for hours
+SESSION_SLOT_S = SESSION_DURATION_S + 600.0
 
 
 def live_session(truth, seed, n_logs=SESSION_LOGS):
@@ -546,7 +549,7 @@ def live_session(truth, seed, n_logs=SESSION_LOGS):
                                      source="demo live session")
             run_campaign(plan, truth, int(seed) + k, field=True, raw_logs=folder)
             logs.append(os.path.join(folder, f"run_{k}.npz"))
-            result = calibrate(logs, config=config, cache=cache, time_left_h=2.0)
+            result = calibrate(logs, config=config, cache=cache, time_left_h=(n_logs - k) * SESSION_SLOT_S / 3600.0)
             lines.append(result.line())
             nxt = None if result.continuation is None else result.continuation.next
             if nxt is None:

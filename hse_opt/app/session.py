@@ -15,8 +15,10 @@
    (:mod:`hse_opt.fit.export_vectors`).
 5. **Plan the rest** of the campaign for the time left, continuing it
    (:func:`hse_opt.design.sequential.next_runs`: the runs so far, their measured tilts and
-   times since power-on, the fit's estimate, the model extended by the effects that are a
-   systematic risk to lambda2, step 6): ``runs[0]`` is the next alignment.
+   times since power-on, the fit's estimate and weights; the smallest sigma of lambda2 with
+   power >= 0.8 of the diagnosis against each effect outside the model the time left can
+   show, those at systematic risk (step 6) among them, as ``hse-opt design --field --runs``
+   plans it): ``runs[0]`` is the next alignment.
 6. **Systematic risk**: what the campaign cannot rule out (:func:`hse_opt.aliasing.alias_budget`):
    each missing catalogue effect at the edge of its plausible range, its power under the
    diagnosis's own test and the shift it would cause in every parameter; a parameter's
@@ -398,7 +400,7 @@ def calibrate(logs, *, config=None, align_kw=None, suffixes=_SUFFIXES, effects=(
 
     t0 = time.perf_counter()
     step("plan")
-    continuation = _plan(runs, steps, model, time_left, target_sigma, costs, notes, budget)
+    continuation = _plan(runs, steps, model, time_left, target_sigma, costs, notes)
     seconds["plan"] = time.perf_counter() - t0
 
     result = SessionResult(tuple(paths), tuple(rows), tuple(errors), runs, _campaign(runs), steps, failure,
@@ -408,36 +410,27 @@ def calibrate(logs, *, config=None, align_kw=None, suffixes=_SUFFIXES, effects=(
                             "reasons": tuple(reasons)})
 
 
-def _plan(runs, steps, model, time_left, target_sigma, costs, notes, budget=None):
-    """The rest of the campaign (:func:`hse_opt.design.sequential.next_runs`) for the final
-    model at its estimate (the nominal values without a fit), extended by every effect that is
-    a systematic risk to lambda2 (``budget``): the criterion is lambda2's sigma with them
-    estimated too, so the plan prefers the runs that separate lambda2 from them - the runs
-    that rule them out."""
+def _plan(runs, steps, model, time_left, target_sigma, costs, notes):
+    """The rest of the campaign (:func:`hse_opt.design.sequential.next_runs`, the protected
+    continuation ``hse-opt design --field --runs`` plans too) for the final model at its
+    estimate (the nominal values without a fit), the runs so far weighted as the fit weighs
+    them: the smallest sigma of lambda2 with power >= 0.8 of the diagnosis against each effect
+    outside the model that the time left can show - among them those a systematic risk to
+    lambda2 now, so the plan takes the runs that would detect them (or names why none can).
+    (Estimating the risks too, the old criterion, made the session chase a model that changed
+    with every log: the demo's live session then never moved on, its sigma stayed 34 arcsec.)"""
     from ..design.sequential import next_runs
     from ..information import UnidentifiableError
-    from ..model import as_model
     kw = dict(costs=costs, target_sigma=target_sigma)
     if steps:
         f = steps[-1].fit
-        risky = _risks_to(budget, TARGET)
-        model = as_model([*f.model.effect_names, *risky])
-        new = [q.name for q in model.measurement(f.tilt_known).params if q.name not in f.names]
-        kw.update(values=dict(zip(f.names, f.values)), free=[n for n, fr in zip(f.names, f.free) if fr] + new,
-                  tilt_known=f.tilt_known, sigma=f.sigma)
+        model = f.model
+        kw.update(values=dict(zip(f.names, f.values)), tilt_known=f.tilt_known, sigma=f.sigma)
     try:
         return next_runs(runs, model, time_left, **kw)
     except (ValueError, UnidentifiableError, np.linalg.LinAlgError) as err:
         notes.append(f"the rest of the campaign could not be planned: {' '.join(str(err).split())}")
         return None
-
-
-def _risks_to(budget, name):
-    """The effects that are a systematic risk to parameter ``name`` (worst first)."""
-    if budget is None or name not in budget.names:
-        return []
-    by = budget.systematic_by[budget.names.index(name)]
-    return sorted(by, key=lambda e: -by[e])
 
 
 def _reasons(result):

@@ -92,7 +92,7 @@ class Evaluation:
 
 
 def evaluate(plan, model=None, *, stand=None, tilt_known=True, criterion=None, nominal=None, prior=None,
-             field=False):
+             field=False, sigma=None):
     """Predicted sigmas of a plan for a model.
 
     Parameters
@@ -114,6 +114,9 @@ def evaluate(plan, model=None, *, stand=None, tilt_known=True, criterion=None, n
         eliminated as the fit does (:func:`hse_opt.fit.problem.position_projector`), so only
         the differences within positions count; ``offset`` is then not estimable and left out.
         The plan's ``tilt_x_arcsec``/``tilt_y_arcsec`` give each placement's own tilt.
+    sigma : array_like, shape (n,), optional
+        Each run's heading 1-sigma, rad (e.g. measured runs' own); default the stand's noise
+        model for the run's duration (:meth:`Stand.sigma`).
 
     Returns
     -------
@@ -139,7 +142,8 @@ def evaluate(plan, model=None, *, stand=None, tilt_known=True, criterion=None, n
         raise ValueError(f"nominal: {', '.join(unknown)} {'is not a parameter' if len(unknown) == 1 else 'are not parameters'} "
                          f"of {'+'.join(model.effect_names)}; allowed: {', '.join(mm.names)}")
     X = stand.inputs(mm, plan.rate, plan.azimuth, tx, ty, plan.duration, plan.t_start)
-    sigma = stand.sigma(plan.duration)
+    sigma = stand.sigma(plan.duration) if sigma is None else np.broadcast_to(np.asarray(sigma, float),
+                                                                             plan.duration.shape)
     p = mm.vector(own(nominal or {}, mm))
     Aw = weighted_jacobian(mm.jacobian(p, X), sigma, mm.scale)
     F0 = prior_information(prior, mm.names)

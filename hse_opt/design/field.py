@@ -24,6 +24,10 @@ from .space import Costs, Stand
 
 __all__ = ["FieldDesign", "field_plan", "design_field", "continue_campaign", "runs_as_plan", "RATE_PATTERNS_DPS"]
 
+#: the position label of surveyed rows in :func:`runs_as_plan` (the stand reading's one constant)
+SURVEYED = "surveyed"
+#: label prefix of a continued campaign's new positions (``new1``, ``new2``, ...)
+NEW_POSITION = "new"
 #: rate patterns a field design tries at each position, deg/s, in execution order
 RATE_PATTERNS_DPS = ((20.0, 40.0, 60.0), (20.0, 60.0), (60.0, -60.0), (40.0, -40.0), (20.0, 60.0, -60.0),
                      (60.0, -60.0, 20.0, -20.0))
@@ -170,7 +174,7 @@ def design_field(budget, model="hse", *, criterion="protect:lambda2", costs=None
                     lambda plan: evaluate(plan, model, stand=stand, field=True, prior=prior)):
                 s = _target_std(ev, crit.target)
                 tried.append((n_pos, tuple(pattern), rep, s, end / units.HOUR))
-                cands.append((s, plan, FieldDesign(plan, ev, n_pos, rep, tuple(pattern), ())))
+                cands.append((s, plan, FieldDesign(plan, ev, n_pos, rep, tuple(pattern), ()), None))
     if not cands:
         raise ValueError(f"budget {budget / units.HOUR:g} h: no field plan fits it and identifies {crit.target}; "
                          f"allowed: at least the warm-up ({costs.warmup / units.HOUR:g} h) and two alignments "
@@ -186,10 +190,12 @@ def _target_std(ev, target):
     return ev.std_of(target)
 
 
-def _chosen(cands, tried, model, crit, stand):
-    """The candidate ``(sigma, plan the diagnosis tests, FieldDesign)`` the criterion picks,
-    with its protection and the tried list."""
-    k, protection, unprotected = choose([(s, plan) for s, plan, _ in cands], model, crit, stand)
+def _chosen(cands, tried, model, crit, stand, tilt_known=True, nominal=None, prefer=None):
+    """The candidate ``(sigma, plan the diagnosis tests, FieldDesign, its runs' heading sigmas
+    or None)`` the criterion picks,
+    with its protection and the tried list (``prefer``: :func:`~.field_protection.choose`)."""
+    k, protection, unprotected = choose([(s, plan, sig) for s, plan, _, sig in cands], model, crit, stand,
+                                        tilt_known, nominal, prefer)
     return dataclasses.replace(cands[k][2], tried=tuple(tried), criterion=crit.label, protection=protection,
                                unprotected_std=unprotected)
 
@@ -209,22 +215,32 @@ def runs_as_plan(runs, stand=None):
     tx = np.zeros(n) if runs.roll is None else np.asarray(runs.roll, float) - stand.tilt[0]
     ty = np.zeros(n) if runs.pitch is None else np.asarray(runs.pitch, float) - stand.tilt[1]
     group, labels = runs.reference_groups()
-    pos = np.array(["surveyed" if g < 0 else str(labels[g]) for g in group])
+    pos = np.array([SURVEYED if g < 0 else str(labels[g]) for g in group])
     return Plan(run=np.asarray(runs.run), rate=np.asarray(runs.rate, float), azimuth=np.asarray(runs.azimuth, float),
                 t_start=np.asarray(runs.t_start, float), duration=np.asarray(runs.duration, float), tilt_x=tx,
                 tilt_y=ty, position=pos, source=runs.source)
 
 
 def continue_campaign(runs_so_far, model="hse", time_left=None, *, criterion="protect:lambda2", prior=None,
-                      costs=None, stand=None, duration=600.0, max_positions=3, patterns_dps=RATE_PATTERNS_DPS):
+                      costs=None, stand=None, duration=600.0, max_positions=3, patterns_dps=RATE_PATTERNS_DPS,
+                      tilt_known=True, nominal=None, sigma=None):
     """The rest of a field campaign: the new runs that, with the runs so far, give the
     smallest predicted sigma of lambda2 in the time left, protected as :func:`design_field`
     protects (the diagnosis's power on the runs so far and the new runs together).
 
     Searched: stay at the last position of the runs so far (its measured tilt and heading,
     no move) or not, then 0 to ``max_positions`` new positions (headings spread evenly from
-    the last one; the stand's tilt), one rate pattern of ``patterns_dps`` everywhere,
-    repeated as often as the time allows. The runs so far count in the information
+    the last one; the stand's tilt; labels ``new1``, ``new2``, ... that no position has yet),
+    one rate pattern of ``patterns_dps`` (or a rotation of it: any of its rates first)
+    everywhere, repeated as often as the time allows
+    (more repeats never raise the predicted sigma nor lower a power: only the most that fit
+    are scored); among plans as good (:data:`~.field_protection.TIE`) the one whose first run
+    lowers the sigma most is taken, as a campaign is planned again after each run. Staying
+    completes the pattern x repeats of the last position's current visit: the runs done there
+    since the system came count among them (planned again after each run, the plan would
+    otherwise stay at one position for ever). When the last runs were surveyed (a stand with a heading reference), the
+    new placements are stand azimuths: they share the stand reading's one constant and the
+    tilt measured on the stand (fixed in b0 as the stand turns). The runs so far count in the information
     (:func:`runs_as_plan`: their positions' unknown constants, measured tilts and times
     since power-on); the new runs start after the last one ends (a move to a new position
     costs ``costs.azimuth_change``, a rate or sense change ``costs.rate_change``; the
@@ -243,6 +259,14 @@ def continue_campaign(runs_so_far, model="hse", time_left=None, *, criterion="pr
         An earlier calibration (not of these runs) as prior information.
     costs, stand, duration, max_positions, patterns_dps
         As :func:`design_field`.
+    tilt_known : bool
+        Whether the runs carry pitch and roll (else the tilt-coupled terms are free
+        coefficients, :func:`hse_opt.design.evaluate`).
+    nominal : mapping name -> value, optional
+        Where the model is linearised (display units; e.g. the current estimate).
+    sigma : array_like, shape (n,), optional
+        The runs so far's heading 1-sigma, rad (e.g. the fit's weights); default the stand's
+        noise model, which the new runs always get.
 
     Returns
     -------
@@ -259,41 +283,107 @@ def continue_campaign(runs_so_far, model="hse", time_left=None, *, criterion="pr
     if time_left is None or not np.isfinite(time_left) or time_left <= 0:
         raise ValueError(f"time_left = {time_left!r}; allowed: the time left after the last run, s > 0")
     before = runs_as_plan(runs_so_far, stand)
+    s_before = stand.sigma(before.duration) if sigma is None else np.broadcast_to(np.asarray(sigma, float),
+                                                                                  before.duration.shape)
     t_end = float(np.max(before.t_start + before.duration))
     last = int(np.argmax(before.t_start))
     last_az, last_pos = float(before.azimuth[last]), str(before.position[last])
     at_last = before.position == last_pos
     last_tilt = (float(np.mean(before.tilt_x[at_last])), float(np.mean(before.tilt_y[at_last])))
     first_id = int(np.max(before.run)) + 1
+    stand_reference = last_pos == SURVEYED
+    taken = set(before.position.tolist())
+    fresh = [f"{NEW_POSITION}{j}" for j in range(1, len(taken) + int(max_positions) + 2)
+             if f"{NEW_POSITION}{j}" not in taken][:int(max_positions)]
+    # this visit of the last position: its runs since the system came there, rates in deg/s
+    order = np.argsort(before.t_start, kind="stable")
+    same = (before.position[order] == last_pos) & (np.abs(before.azimuth[order] - last_az) < 1e-9)
+    n_visit = len(order) - (int(np.flatnonzero(~same)[-1]) + 1 if (~same).any() else 0)
+    visit = [float(r / units.DEG_PER_S) for r in before.rate[order][len(order) - n_visit:]]
+    def both(new):
+        """The heading sigmas of the runs so far and the new runs, rad."""
+        return np.concatenate([s_before, stand.sigma(new.duration)])
+
     cands, tried = [], []
     for stay in (True, False):
         for n_new in range(0 if stay else 1, int(max_positions) + 1):
             headings = ([last_az] if stay else []) + [last_az + 2 * np.pi * k / (n_new + 1) for k in range(1, n_new + 1)]
-            labels = ([last_pos] if stay else []) + [f"new{k}" for k in range(1, n_new + 1)]
-            tilts = ([last_tilt] if stay else []) + [(0.0, 0.0)] * n_new
-            for pattern in patterns_dps:
-                move = 0.0 if stay else costs.azimuth_change
-                if stay and abs(pattern[0] * units.DEG_PER_S - before.rate[last]) > 1e-12:
-                    move = costs.rate_change
-                c = dataclasses.replace(costs, warmup=t_end + move)
+            if stand_reference:  # other azimuths of the surveyed stand: its constant, its tilt
+                labels, tilts = [SURVEYED] * len(headings), [last_tilt] * len(headings)
+            else:
+                labels = ([last_pos] if stay else []) + fresh[:n_new]
+                tilts = ([last_tilt] if stay else []) + [(0.0, 0.0)] * n_new
+            for pattern in _rotations(patterns_dps):
                 def make(rep):
-                    new = field_plan([pattern] * len(headings), [rep] * len(headings), headings, c, duration)
+                    # staying completes the pattern x rep of this visit: the runs done count
+                    pats = [_rest(pattern, rep, visit) if stay else pattern] + [pattern] * n_new
+                    reps = [1 if stay else rep] + [rep] * n_new
+                    first_rate = next(iter(p[0] for p in pats if p), pattern[0])
+                    move = costs.azimuth_change if not (stay and pats[0]) else (
+                        costs.rate_change if abs(first_rate * units.DEG_PER_S - before.rate[last]) > 1e-12 else 0.0)
+                    c = dataclasses.replace(costs, warmup=t_end + move)
+                    new = field_plan(pats[len(pats) - len(headings):], reps[len(pats) - len(headings):], headings, c,
+                                     duration)
                     k = [int(p[1:]) - 1 for p in new.position]
                     return new.replace(run=first_id + np.arange(len(new)), position=np.array(labels)[k],
                                        tilt_x=np.array([tilts[i][0] for i in k]),
                                        tilt_y=np.array([tilts[i][1] for i in k]))
 
-                for rep, new, ev, end in _by_repeats(
+                for rep, new, ev, end in _most_repeats(
                         make, t_end + time_left + 1e-6,
-                        lambda new: evaluate(_concat(before, new), model, stand=stand, field=True, prior=prior)):
+                        lambda new: evaluate(_concat(before, new), model, stand=stand, tilt_known=tilt_known,
+                                             field=True, prior=prior, nominal=nominal, sigma=both(new))):
                     sd = _target_std(ev, crit.target)
                     tried.append((len(headings), tuple(pattern), rep, sd, (end - t_end) / units.HOUR))
                     cands.append((sd, _concat(before, new),
-                                  FieldDesign(new, ev, len(headings), rep, tuple(pattern), (), before, stay)))
+                                  FieldDesign(new, ev, len(headings), rep, tuple(pattern), (), before, stay),
+                                  both(new)))
     if not cands:
         raise ValueError(f"time left {time_left / units.HOUR:g} h: no new run fits it and, with the runs so far, "
                          f"identifies {crit.target}; allowed: at least one alignment ({duration:g} s) and its setup")
-    return _chosen(cands, tried, model, crit, stand)
+
+    def first(i):
+        """The target's sigma once the candidate's first run is done (inf: not yet estimable)."""
+        from ..information import UnidentifiableError
+        try:
+            one = cands[i][2].plan.subset([0])
+            ev = evaluate(_concat(before, one), model, stand=stand, tilt_known=tilt_known, field=True, prior=prior,
+                          nominal=nominal, sigma=both(one))
+        except UnidentifiableError:
+            return np.inf
+        return ev.std_of(crit.target) if crit.target in ev.names else np.inf
+
+    return _chosen(cands, tried, model, crit, stand, tilt_known, nominal, first)
+
+
+def _rest(pattern, rep, done):
+    """``pattern`` repeated ``rep`` times without the runs ``done`` (rates, deg/s; each taken
+    out once where it first occurs)."""
+    seq = list(pattern) * int(rep)
+    for r in done:
+        hit = next((i for i, v in enumerate(seq) if abs(v - r) < 1e-9), None)
+        if hit is not None:
+            del seq[hit]
+    return tuple(seq)
+
+
+def _rotations(patterns):
+    """Each pattern and its rotations (each rate of it first), once: a campaign continued
+    after every run would otherwise restart every pattern at its first rate."""
+    out = {}
+    for p in patterns:
+        for k in range(len(p)):
+            out.setdefault(tuple(p[k:]) + tuple(p[:k]), None)
+    return tuple(out)
+
+
+def _most_repeats(make, end_limit, score):
+    """The last of :func:`_by_repeats` (the most repeats that fit and identify), or nothing."""
+    last = None
+    for last in _by_repeats(make, end_limit, score):
+        pass
+    if last is not None:
+        yield last
 
 
 def _by_repeats(make, end_limit, score):
@@ -305,6 +395,8 @@ def _by_repeats(make, end_limit, score):
     while True:
         rep += 1
         plan = make(rep)
+        if not len(plan):    # a position's pattern x rep all done already: more repeats
+            continue
         end = float(np.max(plan.t_start + plan.duration))
         if end > end_limit:
             return

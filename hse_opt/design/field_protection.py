@@ -62,7 +62,7 @@ def field_criterion(criterion):
     return FieldCriterion(crit.label, crit.name, bool(getattr(crit, "protects", False)))
 
 
-def field_powers(plan, model, effects, stand, tilt_known=True):
+def field_powers(plan, model, effects, stand, tilt_known=True, nominal=None, sigma=None):
     """Power of the diagnosis against each of ``effects`` at its plausible edge on a field plan.
 
     Parameters
@@ -76,6 +76,10 @@ def field_powers(plan, model, effects, stand, tilt_known=True):
     stand : hse_opt.design.Stand
         Its tilt, latitude and heading noise (the plan's tilts are offsets from its tilt).
     tilt_known : bool
+    nominal : mapping name -> value, optional
+        Where the test is linearised (display units; default nominal).
+    sigma : array_like, shape (n,), optional
+        Each run's heading 1-sigma, rad (default the stand's noise model).
 
     Returns
     -------
@@ -87,9 +91,10 @@ def field_powers(plan, model, effects, stand, tilt_known=True):
     tx = plan.tilt_x if plan.tilt_x is not None else 0.0
     ty = plan.tilt_y if plan.tilt_y is not None else 0.0
     X = stand.inputs(mm, plan.rate, plan.azimuth, tx, ty, plan.duration, plan.t_start)
-    sigma = stand.sigma(plan.duration)
+    sigma = stand.sigma(plan.duration) if sigma is None else np.asarray(sigma, float)
     _, positions = np.unique(plan.position, return_inverse=True)
-    return [effect_test(model, X, e, 1.0, sigma=sigma, tilt_known=tilt_known, positions=positions)
+    p = {k: v for k, v in (nominal or {}).items() if k in mm.names}
+    return [effect_test(model, X, e, 1.0, sigma=sigma, p=p, tilt_known=tilt_known, positions=positions)
             for e in effects]
 
 
@@ -117,18 +122,30 @@ def _hint(effect):
     return ""
 
 
-def choose(candidates, model, criterion, stand, tilt_known=True):
+#: candidates whose sigma is within this fraction of the best (and that protect as many
+#: effects) are as good: ``prefer`` breaks the tie
+TIE = 0.01
+
+
+def choose(candidates, model, criterion, stand, tilt_known=True, nominal=None, prefer=None):
     """The candidate the criterion picks, and its protection.
 
     Parameters
     ----------
-    candidates : sequence of (float, Plan)
-        Each candidate's predicted sigma of the target (display unit) and the plan the
-        diagnosis would test (a continued campaign: the runs so far and the new runs).
+    candidates : sequence of (float, Plan, numpy.ndarray or None)
+        Each candidate's predicted sigma of the target (display unit), the plan the
+        diagnosis would test (a continued campaign: the runs so far and the new runs) and its
+        runs' heading sigmas, rad (None: the stand's noise model).
     model : Model, str or sequence of str
     criterion : FieldCriterion
     stand : hse_opt.design.Stand
     tilt_known : bool
+    nominal : mapping name -> value, optional
+        Where the tests are linearised (display units).
+    prefer : callable, optional
+        ``prefer(i)``: a score (smaller is better) that decides among the candidates as good
+        as the best (the same effects protected, sigma within :data:`TIE` of it); e.g. the
+        sigma after a continued plan's first run, when the campaign is planned again after it.
 
     Returns
     -------
@@ -139,14 +156,14 @@ def choose(candidates, model, criterion, stand, tilt_known=True):
     unprotected : float
         The smallest sigma among all candidates (what ``c:NAME`` would choose).
     """
-    sigma = np.array([float(s) for s, _ in candidates])
+    sigma = np.array([float(c[0]) for c in candidates])
     if not sigma.size:
         raise ValueError("no candidate field plan to choose from")
     unprotected = float(np.min(sigma))
     if not criterion.protects:
-        return int(np.argmin(sigma)), (), unprotected
+        return _prefer(int(np.argmin(sigma)), sigma, np.ones(sigma.size, bool), prefer), (), unprotected
     effects, skipped = _threats(model)
-    tests = [field_powers(plan, model, effects, stand, tilt_known) for _, plan in candidates]
+    tests = [field_powers(plan, model, effects, stand, tilt_known, nominal, sig) for _, plan, sig in candidates]
     P = np.array([[t.power for t in row] for row in tests]).reshape(len(candidates), len(effects))
     Q = np.array([[t.q for t in row] for row in tests], int).reshape(P.shape)
     D = np.array([[t.dof for t in row] for row in tests], int).reshape(P.shape)
@@ -155,6 +172,8 @@ def choose(candidates, model, criterion, stand, tilt_known=True):
     count = ok[:, reachable].sum(axis=1)
     # the most effects protected, then the smallest sigma (lexicographic)
     best = int(np.lexsort((sigma, -count))[0])
+    same = np.all(ok[:, reachable] == ok[best, reachable], axis=1)
+    best = _prefer(best, sigma, same, prefer)
     out = []
     for j, name in enumerate(effects):
         size, power = plausible_sizes(CATALOGUE[name]()), float(P[best, j])
@@ -176,3 +195,15 @@ def choose(candidates, model, criterion, stand, tilt_known=True):
             out.append(Protection(name, size, power, False, f"{OUT_OF_REACH} in any candidate field plan "
                                   f"(best power {P[:, j].max():.2g}{_hint(name)})"))
     return best, tuple(out) + tuple(skipped), unprotected
+
+
+def _prefer(best, sigma, same, prefer):
+    """``best``, or the candidate ``prefer`` scores lowest among those as good (``same``
+    protection, sigma within :data:`TIE` of ``best``'s)."""
+    if prefer is None:
+        return best
+    near = np.flatnonzero(same & (sigma <= sigma[best] * (1 + TIE)))
+    scores = np.array([prefer(int(i)) for i in near])
+    if not np.any(np.isfinite(scores)):
+        return best
+    return int(near[np.lexsort((sigma[near], scores))[0]])

@@ -43,15 +43,11 @@ def _uncertainty(result):
 
 
 def _with_risks(result):
-    """How the plan's sigma of lambda2 is meant: which effects it estimates besides the model
-    (then its model is not the fit's, and its sigma now is not the fit's statistical one)."""
-    c = result.continuation
-    fitted = () if result.fit is None else result.fit.model.effect_names
-    extra = [e for e in c.effects if e not in fitted]
-    if not extra:
-        return " (statistical)"
-    return (f" (statistical, with {', '.join(extra)} - a systematic risk now - estimated too; the fit "
-            f"above, without {'it' if len(extra) == 1 else 'them'}, gives +- {result.target()[1]:.3g} {c.unit})")
+    """How the plan's sigma of lambda2 is meant: statistical, in the fit's model with its
+    weights (it starts from the fit's own sigma), and what the plan protects against."""
+    guarded = [p.effect for p in result.continuation.protection if p.protected]
+    sees = f"; the diagnosis would see {', '.join(guarded)} with power >= 0.8" if guarded else ""
+    return f" (statistical{sees})"
 
 
 def summary_lines(result):
@@ -149,16 +145,19 @@ def interface_section(calibration):
 
 def next_section(result):
     """The next alignment and the plan for the time left."""
+    from ..design.protection import describe as describe_protection
     c = result.continuation
     if c is None or c.plan is None:
         notes = list(c.notes) if c is not None else []
         return text_section("The next plan", notes or ["The rest of the campaign could not be planned "
                                                        "(see the notes of Raw logs)."])
-    text = (f"Next alignment: {c.next.describe()}. Each following alignment is the one that adds the most "
-            f"precision to lambda2 per hour of stand time, counting the runs so far (their measured tilts "
-            f"and times since power-on) at the current estimate, in the model {' + '.join(c.effects)}"
-            f"{_with_risks(result)}; {len(c.runs)} alignments fit the {c.time_left / units.HOUR:.3g} h left "
-            "(NEXT_PLAN.csv).")
+    text = (f"Next alignment: {c.next.describe()}. The plan for the time left is the one with the smallest "
+            f"sigma of lambda2 among those that give the diagnosis power >= 0.8 against each effect outside the "
+            f"model the time left can show ({c.criterion}, as hse-opt design --field --runs plans it), counting "
+            f"the runs so far (their positions, measured tilts and times since power-on) at the current "
+            f"estimate, in the model {' + '.join(c.effects)}{_with_risks(result)}; {len(c.runs)} alignments fit "
+            f"the {c.time_left / units.HOUR:.3g} h left (NEXT_PLAN.csv). "
+            + " ".join(describe_protection(c.protection)))
     section = plan_section(c.plan, "The next plan", text)
     rows = [[str(i + 1), html.escape(run.describe()), _cell(run.t_start_s / units.HOUR),
              _cell(run.sigma_after if np.isfinite(run.sigma_after) else None)]

@@ -13,8 +13,9 @@ Align every raw log (a folder, or files), recognise the campaign (surveyed: ever
 stand reading azimuth_deg; field: none has; mixed), fit the paper's model plus --effects,
 diagnose and add the effects the runs show (diagnose --refine), export the final calibration
 for the navigation computer (C, calibration.json, test vectors and a C test driver in
-DIR/nav), plan the rest of the campaign for the time left (each next alignment the one that
-adds the most precision to lambda2 per hour, counting the runs so far), and write ONE report
+DIR/nav), plan the rest of the campaign for the time left (as design --field --runs plans
+it: the smallest sigma of lambda2 with power >= 0.8 of the diagnosis against each effect
+outside the model the time left can show, counting the runs so far), and write ONE report
 DIR/report.html - the verdict first: usable, or not yet and why - with DIR/summary.json (what
 --json prints), DIR/RUNS.csv, DIR/FIT.json, DIR/nav/ and DIR/NEXT_PLAN.csv, all together or
 none. The first line printed is the verdict. Exit status 0 whenever the report was written
