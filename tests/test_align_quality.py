@@ -365,6 +365,29 @@ def test_an_accelerometer_spike_is_repaired(clean):
     _same_heading(q, clean)
 
 
+
+def test_the_windows_shared_with_the_allan_analysis_are_the_samples_summed_and_find_a_spike(clean):
+    """hse-opt align sums the channels once for the checks and the Allan analysis
+    (hse_opt.align.noise.block_sums): at 500 Hz a window is 8 of the analysis' 64-ms blocks.
+    The window sums taken from those blocks are the samples' own (numpy's reduceat over the
+    rows, here), and a spike is found at its sample with them; another log's sums (the clean
+    log's, which hold no spike) are not used for this one."""
+    from hse_opt.align.noise import block_sums
+    from hse_opt.align.quality import _channel_sums, _windows
+    log, _ = clean
+
+    def spike(g):
+        g[K, 1] += 5 * units.ARCSEC
+    bad = _faulty(log, gyro=spike)
+    sums = block_sums(bad)
+    L, m = _windows(len(bad), bad.sample_period, Thresholds())
+    assert (sums.block, L) == (32, 256)
+    ref = np.add.reduceat(np.hstack([bad.gyro, bad.accel])[1:m * L + 1], np.arange(0, m * L, L), axis=0)
+    assert np.allclose(_channel_sums(bad, L, m, sums), ref, rtol=1e-12, atol=1e-15)
+    for q in (assess(bad, sums=sums), assess(bad, sums=block_sums(log))):
+        f = _only(q, "repaired")
+        assert (f.check, f.sample, f.time) == ("channel", K, log.t[K]) and "gyro_y spike of +" in f.detail
+
 @pytest.mark.parametrize("j, name", [(0, "gyro_x"), (3, "accel_x")])
 def test_a_stuck_channel_is_refused_from_its_first_sample(clean, j, name):
     log, _ = clean

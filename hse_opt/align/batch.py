@@ -13,7 +13,7 @@ from concurrent.futures import ProcessPoolExecutor, as_completed
 import numpy as np
 
 from hse_opt import units
-from hse_opt.align.noise import NOISE_COLUMNS, combine_noise, noise_from_log
+from hse_opt.align.noise import NOISE_COLUMNS, block_sums, combine_noise, noise_from_log
 from hse_opt.align.processor import align, latitude_of
 from hse_opt.align.mapping import read_mapped
 from hse_opt.align.quality import assess
@@ -53,14 +53,21 @@ def single_blas_thread():
 def _checked_log(path, mapping=None, pulse_weights=None, counts=None):
     """Load ``path`` (through ``mapping`` when given; ``pulse_weights`` for a pulse-count log
     whose sidecar gives none) and run the quality checks (``counts``: the encoder's counts per
-    revolution when the calibration gives them): the (repaired) log and its Quality."""
+    revolution when the calibration gives them): the (repaired) log, its Quality and the block
+    sums its checks and its Allan analysis share (None for a log too short for that analysis,
+    which then names the log)."""
     if mapping is None:
-        quality = assess(load_rawlog(path, pulse_weights=pulse_weights), encoder_counts_per_rev=counts)
+        log, temperature = load_rawlog(path, pulse_weights=pulse_weights), None
     else:
         mapped = read_mapped(path, mapping)
-        quality = assess(mapped.log, temperature=mapped.temperature, encoder_counts_per_rev=counts)
+        log, temperature = mapped.log, mapped.temperature
+    try:
+        sums = block_sums(log)
+    except ValueError:
+        sums = None
+    quality = assess(log, temperature=temperature, encoder_counts_per_rev=counts, sums=sums)
     quality.raise_if_refused(path)
-    return quality.log, quality
+    return quality.log, quality, sums
 
 
 def _error_line(path, exc):
@@ -74,7 +81,8 @@ def _error_line(path, exc):
 def _noise_one(path, config, mapping=None, noise=None, pulse_weights=None):
     """Worker: the noise figures of one raw log; ``(path, figures, error)``."""
     try:
-        return path, noise_from_log(_checked_log(path, mapping, pulse_weights, config.encoder_counts_per_rev)[0]), None
+        log, _, sums = _checked_log(path, mapping, pulse_weights, config.encoder_counts_per_rev)
+        return path, noise_from_log(log, sums=sums), None
     except (ValueError, OSError) as exc:
         return path, None, _error_line(path, exc)
 
@@ -87,8 +95,8 @@ def _align_one(path, config, mapping=None, noise=None, pulse_weights=None):
     from hse_opt.data import DEFAULT_MIN_RATE_DPS
 
     try:
-        log, quality = _checked_log(path, mapping, pulse_weights, config.encoder_counts_per_rev)
-        noise = noise_from_log(log) if noise is None else noise
+        log, quality, sums = _checked_log(path, mapping, pulse_weights, config.encoder_counts_per_rev)
+        noise = noise_from_log(log, sums=sums) if noise is None else noise
         res = align(log, config)
         lat = latitude_of(log, config)
         if abs(res.rate) < DEFAULT_MIN_RATE_DPS * units.DEG_PER_S:

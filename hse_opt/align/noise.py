@@ -96,10 +96,11 @@ import numpy as np
 
 from hse_opt import units
 from hse_opt.align._angles import rotate
+from hse_opt.align.processor import _vecdot
 
 __all__ = ["NoiseFigures", "noise_from_log", "combine_noise", "allan_deviation", "fit_allan",
-           "deterministic_residual", "Residual", "CHANNELS", "TERMS", "NOISE_COLUMNS", "BLOCK_PERIOD", "MAX_TERMS",
-           "MODEL_ERROR", "MISFIT"]
+           "deterministic_residual", "Residual", "BlockSums", "block_sums", "CHANNELS", "TERMS", "NOISE_COLUMNS",
+           "BLOCK_PERIOD", "MAX_TERMS", "MODEL_ERROR", "MISFIT"]
 
 #: the six channels, in this order in every (6, ...) array
 CHANNELS = ("gyro_x", "gyro_y", "gyro_z", "accel_x", "accel_y", "accel_z")
@@ -256,6 +257,77 @@ def _block_sums(x, stop, nb, block):
     return np.add.reduceat(x[1:stop], np.arange(0, nb * block, block), axis=0).T
 
 
+
+def _blocking(log, block_period):
+    """``(block, nb)``: samples per block (the whole number nearest ``block_period``, s, at the
+    log's mean sample period) and whole blocks over rows 1..n-1.
+
+    Raises
+    ------
+    ValueError
+        The log has fewer than :data:`MIN_BLOCKS` blocks.
+    """
+    t = np.asarray(log.t, dtype=float)
+    n = t.shape[0]
+    block = max(1, int(round(block_period * (n - 1) / (t[-1] - t[0]))))
+    nb = (n - 1) // block
+    if nb < MIN_BLOCKS:
+        raise ValueError(f"the log has {n} samples, {nb} blocks of {block} for the Allan analysis; allowed: at "
+                         f"least {MIN_BLOCKS * block + 1} samples")
+    return block, nb
+
+
+@dataclass(frozen=True, eq=False)
+class BlockSums:
+    """A raw log's six channels summed over blocks (module docstring, step 1): one pass over
+    the samples that the Allan analysis (:func:`noise_from_log`) and the quality checks'
+    windows (:func:`hse_opt.align.quality.assess`, whose windows are whole numbers of blocks
+    at the default sample rates) share.
+
+    Attributes
+    ----------
+    log : RawLog
+        The log summed: the sums serve this object only (a repaired copy is summed anew).
+    block : int
+        Samples per block.
+    sums : numpy.ndarray, shape (6, nb)
+        Block ``b``'s sums of rows ``1 + b block .. (b + 1) block`` of the gyros (rad) and
+        the accelerometers (m/s), in :data:`CHANNELS` order.
+    """
+
+    log: object
+    block: int
+    sums: np.ndarray
+
+    def of(self, log, block):
+        """The sums when they are ``log``'s over blocks of ``block`` samples, else None."""
+        return self.sums if self.log is log and self.block == block else None
+
+
+def block_sums(log, *, block_period=BLOCK_PERIOD):
+    """The six channels of ``log`` summed over the Allan analysis' blocks, once for both
+    :func:`noise_from_log` and :func:`hse_opt.align.quality.assess` (their ``sums``).
+
+    Parameters
+    ----------
+    log : RawLog
+    block_period : float
+        Target block length, s (rounded to whole samples).
+
+    Returns
+    -------
+    BlockSums
+
+    Raises
+    ------
+    ValueError
+        The log has fewer than :data:`MIN_BLOCKS` blocks.
+    """
+    block, nb = _blocking(log, block_period)
+    stop = nb * block + 1
+    return BlockSums(log=log, block=block, sums=np.concatenate([_block_sums(log.gyro, stop, nb, block),
+                                                                _block_sums(log.accel, stop, nb, block)]))
+
 #: largest angle the series of :func:`_cos_sin_small` takes, rad (error |d|^7 / 5040 < 3e-9)
 _SERIES_MAX = 0.2
 #: entries of the short phase table of :func:`_cos_sin`
@@ -336,7 +408,7 @@ class Residual:
     edge_sin: np.ndarray
 
 
-def deterministic_residual(log, *, block_period=BLOCK_PERIOD):
+def deterministic_residual(log, *, block_period=BLOCK_PERIOD, sums=None):
     """Block sums of the six channels with the table's deterministic part fitted out
     (module docstring, steps 1-2).
 
@@ -347,6 +419,9 @@ def deterministic_residual(log, *, block_period=BLOCK_PERIOD):
         ``encoder`` (n,) rad (unwrapped).
     block_period : float
         Target block length, s (rounded to whole samples).
+    sums : BlockSums, optional
+        The log's block sums when already taken (:func:`block_sums`; used when they are this
+        log's over these blocks).
 
     Returns
     -------
@@ -358,14 +433,11 @@ def deterministic_residual(log, *, block_period=BLOCK_PERIOD):
         The log has fewer than :data:`MIN_BLOCKS` blocks.
     """
     t, enc = np.asarray(log.t, dtype=float), np.asarray(log.encoder, dtype=float)
-    n = t.shape[0]
-    block = max(1, int(round(block_period * (n - 1) / (t[-1] - t[0]))))
-    nb = (n - 1) // block
-    if nb < MIN_BLOCKS:
-        raise ValueError(f"the log has {n} samples, {nb} blocks of {block} for the Allan analysis; allowed: at "
-                         f"least {MIN_BLOCKS * block + 1} samples")
+    block, nb = _blocking(log, block_period)
     stop = nb * block + 1
-    y = np.concatenate([_block_sums(log.gyro, stop, nb, block), _block_sums(log.accel, stop, nb, block)])
+    y = None if sums is None else sums.of(log, block)
+    if y is None:
+        y = block_sums(log, block_period=block_period).sums
     a, te = enc[:stop:block], t[:stop:block]
     rate = float((a[-1] - a[0]) / (te[-1] - te[0]))
     ce, se = _cos_sin(a)
@@ -399,17 +471,20 @@ def _short_allan(log, residual, sizes, segments=SEGMENTS, length=SEGMENT_SAMPLES
     length = min(length, n)
     count = max(1, min(segments, n // length))
     first = np.round(np.linspace(0, (n - length) // block, count)).astype(np.int64) * block
-    edges = first[:, None] + np.arange(length + 1)                # (count, length + 1) sample edges
-    a, te = enc[edges], t[edges]
+    a, te, r = np.empty((count, length + 1)), np.empty((count, length + 1)), np.empty((6, count, length))
+    gyro, accel = np.asarray(log.gyro), np.asarray(log.accel)
+    for j, s0 in enumerate(first.tolist()):                      # sample edges s0 .. s0 + length
+        a[j], te[j] = enc[s0:s0 + length + 1], t[s0:s0 + length + 1]
+        r[:3, j] = gyro[s0 + 1:s0 + 1 + length].T
+        r[3:, j] = accel[s0 + 1:s0 + 1 + length].T
     da, h = np.diff(a, axis=1), np.diff(te, axis=1)
-    start = edges[:, :-1] // block                                # the block edge each sample starts in
-    cd, sd = _cos_sin_small(a[:, :-1] + 0.5 * da - enc[start * block])
-    ce, se = residual.edge_cos[start], residual.edge_sin[start]
+    # the block edge each sample starts in (a segment starts at one): its angle, cos and sin
+    # repeated over the block's samples
+    edge = (first // block)[:, None] + np.arange(-(-length // block))
+    cd, sd = _cos_sin_small(a[:, :-1] + 0.5 * da - np.repeat(enc[edge * block], block, axis=1)[:, :length])
+    ce = np.repeat(residual.edge_cos[edge], block, axis=1)[:, :length]
+    se = np.repeat(residual.edge_sin[edge], block, axis=1)[:, :length]
     X = np.stack([h, (ce * cd - se * sd) * h, (se * cd + ce * sd) * h, da - residual.rate * h])
-    r = np.empty((6, count, length))
-    for j, s0 in enumerate(first.tolist()):                      # rows s0 + 1 .. s0 + length
-        r[:3, j] = np.asarray(log.gyro)[s0 + 1:s0 + 1 + length].T
-        r[3:, j] = np.asarray(log.accel)[s0 + 1:s0 + 1 + length].T
     r -= np.tensordot(residual.coefficients.T, X, axes=1)
     # sums of m consecutive samples by doubling (sizes are powers of two): cheaper than the
     # cumulative sum; the Allan difference is then of two adjacent sums. The 6 x count rows
@@ -430,7 +505,7 @@ def _short_allan(log, residual, sizes, segments=SEGMENTS, length=SEGMENT_SAMPLES
         np.subtract(sums[m:], sums[:size - m], out=d[:size - m])
         valid = np.lib.stride_tricks.as_strided(d, shape=(rows, length - 2 * m + 1), strides=(length * d.itemsize,
                                                                                               d.itemsize))
-        np.einsum("sl,sl->s", valid, valid, out=ss[:, i])
+        _vecdot(valid, valid, out=ss[:, i])
         clusters[i] = count * length / m
     sizes = np.asarray(sizes)
     adev = np.sqrt(ss.reshape(6, count, -1).sum(axis=1) / (2.0 * count * (length - 2 * sizes + 1))) / (sizes * dt)
@@ -441,6 +516,8 @@ def cluster_sizes(n, steps_per_octave=2):
     """Cluster sizes ``m = round(2^(j / steps))``, unique, 1 <= m <= n // 2 (int array)."""
     top = max(1, n // 2)
     j = np.arange(int(math.floor(steps_per_octave * math.log2(top))) + 1)
+    if steps_per_octave == 1:                                 # whole octaves: distinct already
+        return np.left_shift(1, j)
     return np.unique(np.round(2.0 ** (j / steps_per_octave)).astype(np.int64))
 
 
@@ -477,31 +554,20 @@ def allan_deviation(increments, tau0, *, max_terms=MAX_TERMS, sizes=None):
     ms = cluster_sizes(n) if sizes is None else np.asarray(sizes, dtype=np.int64)
     if ms.size == 0 or ms.min() < 1 or ms.max() > n // 2:
         raise ValueError(f"cluster sizes must lie in 1..{n // 2} for {n} intervals")
-    # the start points k = 0, s, 2s, ... of theta_k, theta_{k+m}, theta_{k+2m} are read from
-    # contiguous copies of theta taken every s-th entry from each phase (a strided operand
-    # costs numpy five times a contiguous one; a few phases serve every cluster time)
-    phases = {}
-
-    def every(step, first, cnt):
-        if step == 1:
-            return theta[:, first:first + cnt]
-        p, q = first % step, first // step
-        if (step, p) not in phases:
-            phases[step, p] = np.ascontiguousarray(theta[:, p::step])
-        return phases[step, p][:, q:q + cnt]
-
-    ss = np.empty((ms.size, c))
-    clusters = np.empty(ms.size)
-    d = np.empty(c * (n + 1))
-    for i, m in enumerate(ms.tolist()):
+    plan = []
+    for m in ms.tolist():
         span = n + 1 - 2 * m
         step = max(1, span // max_terms)
-        cnt = (span - 1) // step + 1
+        plan.append((m, step, (span - 1) // step + 1))
+    ss = np.empty((ms.size, c))
+    clusters = np.empty(ms.size)
+    d = np.empty(c * max(cnt for _, _, cnt in plan))         # one small buffer for every cluster time
+    for i, (m, step, cnt) in enumerate(plan):
         di = d[:c * cnt].reshape(c, cnt)
-        np.multiply(every(step, m, cnt), 2.0, out=di)
-        np.subtract(every(step, 2 * m, cnt), di, out=di)
-        di += every(step, 0, cnt)
-        np.einsum("ij,ij->i", di, di, out=ss[i])
+        np.multiply(theta[:, m::step][:, :cnt], 2.0, out=di)
+        np.subtract(theta[:, 2 * m::step][:, :cnt], di, out=di)
+        di += theta[:, :(cnt - 1) * step + 1:step]
+        _vecdot(di, di, out=ss[i])
         ss[i] /= 2.0 * cnt
         clusters[i] = min(n / m, cnt)
     adev = np.sqrt(ss.T) / (ms * tau0)
@@ -575,7 +641,7 @@ def _weighted_fit(tau, avar, rel, iterations):
     return coef, std, chi2
 
 
-def noise_from_log(log, *, block_period=BLOCK_PERIOD, max_terms=MAX_TERMS):
+def noise_from_log(log, *, block_period=BLOCK_PERIOD, max_terms=MAX_TERMS, sums=None):
     """The Allan curves and IEEE 952 terms of one raw log's six channels.
 
     Parameters
@@ -586,6 +652,9 @@ def noise_from_log(log, *, block_period=BLOCK_PERIOD, max_terms=MAX_TERMS):
         clusters come from the raw samples (step 3).
     max_terms : int
         Start points per cluster time (step 3).
+    sums : BlockSums, optional
+        The log's block sums when already taken (:func:`block_sums`, shared with the quality
+        checks); used when they are this log's over these blocks, else taken here.
 
     Returns
     -------
@@ -596,7 +665,7 @@ def noise_from_log(log, *, block_period=BLOCK_PERIOD, max_terms=MAX_TERMS):
     ValueError
         The log is too short (fewer than :data:`MIN_BLOCKS` blocks).
     """
-    res = deterministic_residual(log, block_period=block_period)
+    res = deterministic_residual(log, block_period=block_period, sums=sums)
     short = [m for m in cluster_sizes(res.block, steps_per_octave=1).tolist() if m < res.block]
     tau, adev, clusters = allan_deviation(res.blocks, res.tau0, max_terms=max_terms,
                                           sizes=cluster_sizes(res.blocks.shape[1], steps_per_octave=1))

@@ -42,12 +42,13 @@ Checks, rules and thresholds (:class:`Thresholds`; the reasons are physical)
    0) while the gyros turn more than a hundred times the Earth's rate is *frozen*, named from
    the first sample that repeats the reading, with the gyros' turn meanwhile. An uncorrected jump of ``d`` turns b0 by ``d`` for the rest of the run: the
    heading moves by about ``d`` times the fraction of the run after it.
-2. **Table rate** (windows of ``window_s``, 0.5 s). The rate over each window from the
+2. **Table rate** (windows of ``window_s``, 0.512 s: 8 of the Allan analysis' 64-ms blocks,
+   whose sums the channel check shares at 500 Hz). The rate over each window from the
    (repaired) encoder against the median: a window below ``stall`` (0.5) times it is a
    stall; a relative deviation above ``rate_ripple`` (5e-3) plus ``rate_sigmas`` (5) times
    the windows' own noise (the jitter at their edges, from the differences of neighbouring
    windows: 1e-4 to 6e-4 for 0.5 to 5 arcsec of jitter at 7 deg/s; the multiplier raised to
-   the Bonferroni level of the false-alarm figure below, 5.9 for a 10-minute log's 1200
+   the Bonferroni level of the false-alarm figure below, 5.9 for a 10-minute log's 1171
    windows) refuses the log. Reason: the
    filter assumes the table-fixed errors turn at one rate; a once-per-revolution ripple of
    1e-2 moves a noise-free 10-minute heading by 2.0 arcsec at 5 deg/s and 0.56 arcsec at
@@ -71,9 +72,9 @@ Checks, rules and thresholds (:class:`Thresholds`; the reasons are physical)
    ``max(channel_sigmas x s, z x s + 2 q, floor)`` (``s`` the channel's robust 1-sigma; the
    floors: ``gyro_floor`` 1e-3 arcsec, ``accel_floor`` 1e-7 m/s, one per mille of the
    paper's pulses, above a noise-free log's model residual) is a fault. The middle term is
-   the false-alarm design figure (*Noise model and false alarms* below): 0.78-0.81 arcsec
-   for the gyros of the paper-like system at 10 deg/s (0.66 from the 10 sigma alone), 4e-4
-   to 5.5e-4 m/s for its accelerometers. A window:
+   the false-alarm design figure (*Noise model and false alarms* below): 0.78-0.83 arcsec
+   for the gyros of the paper-like system at 10 deg/s (0.67 from the 10 sigma alone), 4.7e-4
+   to 5e-4 m/s for its accelerometers (six 10-minute logs). A window:
 
    * all three gyros in one window, in the ratio of their ``beta_j`` and the accelerometers
      not: an encoder jump too small for check 1 (the encoder turned by ``d`` the gyros did
@@ -113,7 +114,7 @@ Checks, rules and thresholds (:class:`Thresholds`; the reasons are physical)
    ``2 q`` bounds it. The Gaussian part is tested at ``z``, the Bonferroni level of
    ``false_alarm`` (1e-4 per log) over the log's windows and eight channels (six sensors,
    two norms), widened by three standard errors of ``s`` (relative 1.166 / sqrt(m) for m
-   windows): 6.3 for a 10-minute log, 7.9 for 20 s. So the window tests' false-alarm
+   windows): 6.3 for a 10-minute log, 8.0 for 20 s. So the window tests' false-alarm
    probability on a clean log is below 1e-4 by construction; the 10-sigma floor keeps the margin for the
    residual's non-Gaussian part (drifts the quadratic does not follow). Measured on clean
    simulated logs (``studies/quality_false_alarms.py --full``: six systems, 20 s, 2 and
@@ -236,7 +237,7 @@ class Thresholds:
     encoder_sigmas: float = 10.0
     encoder_floor: float = 2.0 * units.ARCSEC
     repair_samples: int = 3
-    window_s: float = 0.5
+    window_s: float = 0.512
     rate_ripple: float = 5e-3
     rate_sigmas: float = 5.0
     stall: float = 0.5
@@ -518,12 +519,22 @@ def _window_sums(x, L, m):
     return _block_sums(x, m * L + 1, m, L).T
 
 
+def _channel_sums(log, L, m, sums):
+    """The six channels' window sums, shape (m, 6): from the Allan analysis' block sums
+    ``sums`` (:class:`~hse_opt.align.noise.BlockSums`) when they are this log's and a window
+    is a whole number of their blocks (the default windows at 125 x 2^k Hz), else summed here."""
+    if sums is not None and sums.log is log and L % sums.block == 0:
+        k = L // sums.block
+        return np.einsum("cwk->cw", sums.sums[:, :m * k].reshape(6, m, k)).T
+    return np.hstack([_window_sums(log.gyro, L, m), _window_sums(log.accel, L, m)])
+
+
 def _level(th, tests, m):
     """The multiplier of a robust 1-sigma at which ``tests`` two-sided Gaussian tests have a
     false-alarm probability of ``th.false_alarm`` together (Bonferroni), widened by three
     standard errors of a 1-sigma from the median absolute deviation of ``m`` values (relative
-    standard error 1.166 / sqrt(m)): e.g. 6.3 for 8 x 1200 tests (a 10-minute log's windows,
-    six channels and two norms), 7.9 for 8 x 40 (20 s); 5.9 for a 10-minute log's 1200 rate
+    standard error 1.166 / sqrt(m)): e.g. 6.3 for 8 x 1171 tests (a 10-minute log's windows,
+    six channels and two norms), 8.0 for 8 x 39 (20 s); 5.9 for a 10-minute log's 1171 rate
     windows."""
     z = -NormalDist().inv_cdf(th.false_alarm / (2.0 * tests))
     return z * (1.0 + 3.0 * 1.166 / math.sqrt(max(m, 1)))
@@ -547,12 +558,12 @@ def _fit(A, Y, keep):
     return np.linalg.solve(Ak.T @ Ak, Ak.T @ Y[keep])
 
 
-def _check_channels(t, enc, gyro, accel, turn, L, m, th, findings, resolution=0.0):
-    """Check 3; returns (gyro, accel, enc), repaired copies where a spike rule applied.
-    ``resolution``: the encoder's count, rad, when known (0: as seen in the data)."""
+def _check_channels(t, enc, gyro, accel, turn, L, m, th, findings, X, resolution=0.0):
+    """Check 3 on the window sums ``X`` (m, 6); returns (gyro, accel, enc), repaired copies
+    where a spike rule applied. ``resolution``: the encoder's count, rad, when known (0: as
+    seen in the data)."""
     if m < 8:
         return gyro, accel, enc
-    X = np.hstack([_window_sums(gyro, L, m), _window_sums(accel, L, m)])      # (m, 6)
     total = float(turn.sum())
     beta = X[:, :3].sum(axis=0) / total
     # the norms first: the gyros' turn against the encoder's, the specific force; no fit to
@@ -575,7 +586,7 @@ def _check_channels(t, enc, gyro, accel, turn, L, m, th, findings, resolution=0.
                                 "base; a channel clipped or stuck throughout, or a wrong pulse weight)"))
         return gyro, accel, enc
     norms = np.column_stack([ratio / scale, force / f_med])
-    q = np.concatenate([_quantum(gyro[1:]), _quantum(accel[1:])])            # (6,) one pulse
+    q = _quantum(np.concatenate([gyro[1:1 + _QUANTUM_SAMPLES], accel[1:1 + _QUANTUM_SAMPLES]], axis=1))   # one pulse
     size = np.array([float(_median(np.abs(turn))) * scale, f_med])
     # the encoder's count (the smallest change of its steps) quantizes each window's turn, which
     # the gyros' ratio and residuals (less beta_j x turn) carry: bounded like their own pulses
@@ -828,7 +839,7 @@ def _check_temperature(t, temp, L, m, th, findings):
 
 
 # -- the whole assessment ------------------------------------------------------------------------
-def assess(log, *, thresholds=None, temperature=None, encoder_counts_per_rev=None):
+def assess(log, *, thresholds=None, temperature=None, encoder_counts_per_rev=None, sums=None):
     """Check a raw log and repair what a documented rule allows (module docstring).
 
     Parameters
@@ -843,6 +854,11 @@ def assess(log, *, thresholds=None, temperature=None, encoder_counts_per_rev=Non
         ``encoder.counts_per_rev``); the log's metadata ``encoder_counts_per_rev`` serves when
         this is None, and the two differing refuses the log. Its count, ``2 pi / counts``, is
         the encoder's quantum in checks 1 and 3 (module docstring, *Encoder resolution*).
+    sums : hse_opt.align.noise.BlockSums, optional
+        The log's block sums for the Allan analysis (:func:`hse_opt.align.noise.block_sums`),
+        taken once for both: check 3's window sums come from them when they are this log's and
+        a window is a whole number of their blocks (8 at the default 500 Hz), else from the
+        samples.
 
     Returns
     -------
@@ -865,7 +881,9 @@ def assess(log, *, thresholds=None, temperature=None, encoder_counts_per_rev=Non
     if m >= 2 and not any(f.action == "refused" and f.check == "encoder" for f in findings):
         turn = _check_rate(t, enc2, L, m, th, findings)
         if not any(f.check == "rate" for f in findings):
-            gyro, accel, enc2 = _check_channels(t, enc2, gyro, accel, turn, L, m, th, findings, resolution)
+            gyro, accel, enc2 = _check_channels(t, enc2, gyro, accel, turn, L, m, th, findings,
+                                                _channel_sums(log, L, m, sums) if m >= 8 else None,
+                                                resolution)
             if not any(f.action == "refused" for f in findings):
                 gyro = _check_gyro_steps(t, enc2, gyro, th, findings, resolution)
     if temperature is not None:
