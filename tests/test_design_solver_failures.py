@@ -71,6 +71,13 @@ def test_the_trials_design_is_the_inputs_fault_and_a_failed_refinement_keeps_the
                          "-o", str(tmp_path / "A.csv")])
     assert code == 2 and "internal error" not in err and "allowed:" in err and err.count("\n") == 1, err
     assert not (tmp_path / "A.csv").exists()
+    # the same at 10 deg/s with no warm-up: the conic solvers and the even design end uncertified
+    # (0.34); the candidates' even information names the combination they barely see (exit 2)
+    code, _, err = _cli(["design", "--budget-h", "1.4", "--warmup-s", "0", "--rates", "10:10", "--n-rates", "1",
+                         "--durations-s", "120", "--azimuth-step-deg", "90", "--effects", "axis_bias",
+                         "-o", str(tmp_path / "A.csv")])
+    assert code == 2 and err.count("\n") == 1, err
+    assert "parameters offset, lambda2, bias_z cannot be told apart" in err and "even with every candidate run" in err
     code, out, err = _cli(["design", "--budget-h", "1.4", "--warmup-s", "600", "--rates", "20:60", "--n-rates", "3",
                            "--durations-s", "300", "--azimuth-step-deg", "90", "--effects", "encoder_harmonic",
                            "--reverse", "-o", str(tmp_path / "B.csv")])

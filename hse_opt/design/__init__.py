@@ -20,7 +20,9 @@ the information matrix into a loss; :func:`design` minimises it within a test-ti
    ``problem.status`` is checked: a failure raises :class:`DesignError` (a
    :class:`~hse_opt.fit.SolverError`) with it; an ``optimal_inaccurate`` end is judged by the
    certificate (kept at >= 0.99, and said in the result's notes below 0.999), and below that
-   the even design and IPOPT from it are tried before the error.
+   the even design and IPOPT from it are tried before the error (``IllConditioned``, also an
+   :class:`~hse_opt.information.UnidentifiableError`, when even every candidate together barely
+   separates some parameters).
 3. **Exact design** -- the approximate design's support is first reduced (the same
    information matrices on few stand positions, then Caratheodory: on fewer candidates),
    then rounded efficiently (Pukelsheim & Rieder 1992, :func:`apportion`) to ``n`` whole

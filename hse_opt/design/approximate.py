@@ -149,8 +149,10 @@ def solve_approximate(prob, batch=128, polish=True, target=1 - 1e-7, enough=ENOU
         if fallback is not None and fallback[2] > cert:
             w, mus, cert, loss, used = fallback[0], fallback[1], fallback[2], fallback[3], f"{used}, then {fallback[4]}"
     if status != cp.OPTIMAL and not cert >= 0.99:
-        raise DesignError(f"the approximate design's convex program ended {status} ({used}) with a "
-                          f"certified efficiency of only {cert:.4g}; {CHANGE}", status)
+        what = (f"the approximate design's convex program ended {status} ({used}) with a certified efficiency "
+                f"of only {cert:.4g}")
+        _raise_if_ill_conditioned(prob, what)
+        raise DesignError(f"{what}; {CHANGE}", status)
     return ApproximateDesign(prob.candidates, w, loss, status, used, cert, time.perf_counter() - t0, it,
                              int(active.size))
 
@@ -236,6 +238,36 @@ def polish_weights(prob, w, loss0):
     out[sup] = np.clip(np.array(sol["x"]).ravel()[:m], 0.0, None)
     lam = np.array(sol["lam_g"]).ravel()[n_lin:n_lin + n_g]
     return out, [max(0.0, -float(v) * scale) for v in lam]
+
+
+class IllConditioned(DesignError, UnidentifiableError):
+    """A convex program that failed on candidates that barely separate some parameters: a
+    :class:`DesignError` to the design's own fallbacks (a power floor dropped, a candidate set
+    passed over), the design space's fault (:class:`~hse_opt.information.UnidentifiableError`,
+    exit 2) to the command line."""
+
+    def __init__(self, message, names, direction=None, condition=np.inf):
+        DesignError.__init__(self, message, "ill-conditioned")
+        self.names, self.direction, self.condition = tuple(names), direction, condition
+
+
+#: the candidates' information (all of them, evenly) worse conditioned than this (in the
+#: parameters' own scales) is the design space's fault when the convex program fails: some
+#: combination of the parameters is determined 10^4 times worse than another by any plan
+ILL_CONDITION = 1e4
+
+
+def _raise_if_ill_conditioned(prob, what):
+    """UnidentifiableError naming the parameters the candidate runs barely separate (the even
+    design over every candidate, condition number above :data:`ILL_CONDITION`), with ``what``
+    the solver said; nothing when they are well separated (the solver's own failure)."""
+    from ..information import check_identifiable
+    F = np.mean(prob.spec.information(prob.rows, prob.budget / prob.cost / prob.n), axis=0)
+    try:
+        check_identifiable(F, prob.spec.names, max_condition=ILL_CONDITION)
+    except UnidentifiableError as err:
+        raise IllConditioned(f"{str(err).rstrip('.')}, even with every candidate run: {what}", err.names,
+                             err.direction, err.condition) from None
 
 
 def _fallback(prob, active, loss0):

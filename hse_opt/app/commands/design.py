@@ -29,7 +29,8 @@ a plan that cannot identify the model stops (exit 2) naming the parameters. A co
 ends inaccurate is backed by the even design and IPOPT from it (kept when the equivalence
 theorem certifies it); a refinement IPOPT cannot finish keeps the grid plan (said in the
 output); a convex program that still fails stops with one line naming the solver's status and
-what to change (exit 1)."""
+what to change: exit 2 when even every candidate run together barely separates some
+parameters (named, condition number above 1e4), else exit 1."""
 INPUTS = ("evaluate", "prior", "runs")
 OUTPUTS = {"output": FILE, "report": REPORT}
 EXAMPLE = """\
