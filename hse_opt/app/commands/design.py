@@ -341,16 +341,26 @@ def run(args):
         raise UnidentifiableError(f"{err}; allowed: candidate runs that identify every parameter (--rates, "
                                   "--reverse, --azimuth-step-deg, --max-tilt-arcsec, --budget-h) or fewer effects",
                                   err.names, err.direction, err.condition) from None
+    from ...validation.expected import describe_expected, expected_budget
+    try:    # what its campaign could not rule out (None: the whole-run plan identifies too little)
+        expected = expected_budget(result.plan, model, stand=stand, tilt_known=tilt_known,
+                                   values=_nominal(args.nominal))
+    except UnidentifiableError:
+        expected = None
     save_plan(result.plan, args.tx.path("output"))
     message(f"hse-opt design: wrote {args.output} ({result.n_runs} runs)")
     report("design_section", f"hse-opt design {args.output}", result=result)
     given_up = sacrificed(result.evaluation, *_references(args, model, result, kw))
     if args.json:
         print_json({**result.to_dict(), "output": args.output,
-                    "sacrificed": {n: {"std": s, "reference_std": r, "unit": u} for n, s, r, u in given_up}})
+                    "sacrificed": {n: {"std": s, "reference_std": r, "unit": u} for n, s, r, u in given_up},
+                    "expected_alias_budget": None if expected is None else {**expected.to_dict(), "systematic": dict(
+                        zip(expected.names, expected.systematic.tolist()))}})
     else:
         print(f"hse-opt design: {'+'.join(model.effect_names)}, budget {args.budget_h:g} h")
         print("\n".join(result.summary()))
+        if expected is not None:
+            print("\n".join(describe_expected(expected)))
         if given_up:  # part of what the plan is, said before it: the trade the criterion made
             print(f"trade-off: criterion {result.criterion} buys its goal with "
                   + ", ".join(f"{n} (sigma {s:.3g} {u}, {s / r:.1f}x the {r:.3g} of the paper's plan or a "
