@@ -155,12 +155,12 @@ from hse_opt.align.rotations import EARTH_RATE
 from hse_opt.align.noise import _block_sums
 from hse_opt.align.metadata import encoder_counts, metadata_problems
 from hse_opt.align.steps import check_steps
+from hse_opt.align._stats import MAD as _MAD, median as _median
 
 __all__ = ["Thresholds", "Finding", "Quality", "LogRefused", "assess", "check_metadata"]
 
 #: channel names in RawLog column order (gyro x, y, z then accelerometer x, y, z)
 CHANNELS = ("gyro_x", "gyro_y", "gyro_z", "accel_x", "accel_y", "accel_z")
-_MAD = 1.4826          # robust 1-sigma of a Gaussian from its median absolute deviation
 _QUANTUM_SAMPLES = 4000
 _QUANTUM_CHANGES = 20
 #: the encoder step threshold is at least this many quanta of the steps (:func:`_quantum`)
@@ -169,21 +169,6 @@ _QUANTA = 3.0
 #: many quanta (the sum of a counter that carries its remainder is off by less than one, the
 #: median by less than one more): added to the Gaussian part's bound (:func:`_robust_flags`)
 _QUANT_BOUND = 2.0
-
-
-def _median(x):
-    """``np.median`` of a 1-D array, or of each column of a 2-D one (the same values: the middle
-    order statistic, or the mean of the two middle ones, from a partition of contiguous rows;
-    without ``np.median``'s generic path, which costs a 10-minute log's assessment a fifth of
-    its time). Finite values (the loader refuses others)."""
-    x = np.array(np.asarray(x, dtype=float).T, order="C")     # a copy: columns as rows
-    n = x.shape[-1]
-    h = n // 2
-    if n % 2:
-        x.partition(h, axis=-1)
-        return x[..., h]
-    x.partition((h - 1, h), axis=-1)
-    return (x[..., h - 1] + x[..., h]) / 2.0
 
 
 @dataclass(frozen=True)
