@@ -69,7 +69,9 @@ rows share which constant. What this data can estimate:
   by 3e-7 rad, a relative 3e-4 of C23 and ~0.01 arcsec of heading error at 40 deg/s.
 
 ``PLAN.csv`` (:class:`Plan`): ``run, rate_dps, azimuth_deg, t_start_s, duration_s`` and
-optionally ``tilt_x_arcsec`` with ``tilt_y_arcsec``, and ``position`` (a text label).
+optionally ``tilt_x_arcsec`` with ``tilt_y_arcsec``, and ``position`` (a text label); at an
+unsurveyed position of a field plan ``azimuth_deg`` is empty and ``heading_deg`` is the heading
+to set the system to (:attr:`Plan.surveyed`).
 
 Checks
 ------

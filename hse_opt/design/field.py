@@ -38,7 +38,8 @@ def field_plan(patterns_dps, repeats, headings, costs, duration=600.0, tilts=Non
     ``patterns_dps[k]`` repeated ``repeats[k]`` times; start times from ``costs`` (the first
     run after ``costs.warmup``, a move between positions costs ``costs.azimuth_change``, a
     rate or sense change ``costs.rate_change``). ``tilts``: each placement's deliberate tilt
-    (x, y), rad (default none)."""
+    (x, y), rad (default none). No position has a heading reference: ``azimuth`` holds the
+    heading to set the system to (written as ``heading_deg``, ``azimuth_deg`` empty)."""
     rate, az, lab, tx, ty = [], [], [], [], []
     for k, (pattern, rep) in enumerate(zip(patterns_dps, repeats)):
         for r in tuple(pattern) * int(rep):
@@ -52,7 +53,7 @@ def field_plan(patterns_dps, repeats, headings, costs, duration=600.0, tilts=Non
     dur = np.full(rate.size, float(duration))
     return Plan(run=np.arange(1, rate.size + 1), rate=rate, azimuth=np.mod(az, 2 * np.pi),
                 t_start=costs.schedule(rate, az, tx, ty, dur), duration=dur, tilt_x=tx, tilt_y=ty,
-                position=np.array(lab))
+                position=np.array(lab), surveyed=np.zeros(rate.size, bool))
 
 
 @dataclass(frozen=True, eq=False)
@@ -327,7 +328,8 @@ def continue_campaign(runs_so_far, model="hse", time_left=None, *, criterion="pr
                     k = [int(p[1:]) - 1 for p in new.position]
                     return new.replace(run=first_id + np.arange(len(new)), position=np.array(labels)[k],
                                        tilt_x=np.array([tilts[i][0] for i in k]),
-                                       tilt_y=np.array([tilts[i][1] for i in k]))
+                                       tilt_y=np.array([tilts[i][1] for i in k]),
+                                       surveyed=np.array(labels)[k] == SURVEYED)
 
                 for rep, new, ev, end in _most_repeats(
                         make, t_end + time_left + 1e-6,

@@ -259,8 +259,11 @@ def next_runs(runs, model, time_left, *, values=None, tilt_known=None, target="l
                            float(after[k])))
         seen.add(label)
     field = bool(np.any(before.position != SURVEYED) or np.any(new.position != SURVEYED))
+    # an unsurveyed position has no azimuth: its rows carry the heading to set (heading_deg)
     plan = Plan.from_columns({
-        "run": new.run, "rate_dps": [r.rate_dps for r in out], "azimuth_deg": [r.azimuth_deg for r in out],
+        "run": new.run, "rate_dps": [r.rate_dps for r in out],
+        "azimuth_deg": [r.azimuth_deg if r.surveyed else None for r in out],
+        **({"heading_deg": [None if r.surveyed else r.azimuth_deg for r in out]} if field else {}),
         "t_start_s": [round(r.t_start_s, 3) for r in out], "duration_s": [r.duration_s for r in out],
         **({"position": [r.position or "stand" for r in out]} if field else {})},
         source="<sequential plan>", min_rate_dps=0.0, allow_small_azimuths=True)
