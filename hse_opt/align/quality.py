@@ -118,14 +118,14 @@ Checks, rules and thresholds (:class:`Thresholds`; the reasons are physical)
    probability on a clean log is below 1e-4 by construction; the 10-sigma floor keeps the margin for the
    residual's non-Gaussian part (drifts the quadratic does not follow). Measured on clean
    simulated logs (``studies/quality_false_alarms.py --full``: six systems, 20 s, 2 and
-   10 minutes, 10-60 deg/s both senses, 3,600 logs): 2 with a finding (14 before the bounds
-   above, all of the 20-arcsec jitter-free encoder: 2-3 % of its logs; ``--seeds 100``, 20
+   10 minutes, 10-60 deg/s both senses, 3,600 logs, the checks given each encoder's
+   resolution and check 3b on): 0 with a finding. Without the resolution 2 (both check 1
+   on a 20-arcsec encoder without jitter whose step is a whole number of counts in the
+   first 4,000 samples: the steps' quantum is not seen there, and a later one-count step is
+   taken for a jump); 14 before the bounds above, all of that encoder (``--seeds 100``, 20
    and 60 s: 1 of 1,200, 6 before; ``tests/test_align_quality.py``: 0 of 400 short logs of
-   ten systems). The ones left are check 1 (per sample, not a window test) on a 20-arcsec
-   encoder without jitter whose step is a whole number of counts in the first
-   4,000 samples: the steps' quantum is not seen there, and a later one-count step is taken
-   for a jump. The checks' first version refused 1 in 20 default 20-s logs (a window at the
-   quantization's edge, then called saturation).
+   ten systems). The checks' first version refused 1 in 20 default 20-s logs (a window at
+   the quantization's edge, then called saturation).
 3b. **Gyro steps** (below the window test; :mod:`hse_opt.align.steps`: statistic, threshold,
    rules, figures): a sample's error of 0.2 arcsec that stays in one gyro's angle (half a
    sigma of a 10-minute heading) is found at its sample and taken off.
