@@ -213,4 +213,8 @@ def test_python_dash_m_demo_exits_130_under_sigint_at_about_one_second(tmp_path)
         time.sleep(delay)
         p.send_signal(signal.SIGINT)
         _, err = p.communicate(timeout=180)
-        assert _check("demo", p.returncode, err, signal.SIGINT, out) == "stopped", (delay, p.returncode, err)
+        # (on a loaded machine the signal may land before the command is named: 'hse-opt: interrupted')
+        assert p.returncode == 130, (delay, p.returncode, err)
+        assert err.strip("\n").split("\n")[-1] in ("hse-opt demo: interrupted; no output was written",
+                                                   "hse-opt demo: interrupted", "hse-opt: interrupted"), err
+        assert "Traceback" not in err and list(out.rglob("*")) == [], (err, list(out.rglob("*")))
