@@ -646,3 +646,22 @@ def test_four_gyro_steps_in_one_channel_refuse_the_log(clean):
             g[60_000 * (i + 1), 0] -= 0.2 * units.ARCSEC
     q = assess(_faulty(log, gyro=lost))
     assert q.refused and "gyro_x: more than 3 steps in its angle" in q.summary()
+
+
+def test_an_encoder_jump_the_window_test_sees_in_one_gyro_is_not_repaired_into_the_gyros():
+    """The coarse encoder's 20-s log (its counts known) with a 3-count jump (60 arcsec) that
+    check 1 lets pass (its threshold is 3 counts) and the window test sees in one gyro only:
+    that gyro's samples show no spike where its share of the encoder's step does, so the jump
+    is the encoder's and the log is refused - the gyros were 'repaired' into following it
+    (and check 3b then moved the other two along), which turned a 33-arcsec heading error into
+    209 (the processor on the jumped and the repaired logs)."""
+    spec, seed = ALARMS[0]
+    log = generate(COARSE, spec, np.random.default_rng(seed))
+    k = len(log) // 2
+
+    def jump(e):
+        e[k:] += 3 * 20.0 * units.ARCSEC
+    q = assess(_faulty(log, encoder=jump), encoder_counts_per_rev=COARSE_COUNTS)
+    first = [f for f in q.findings if f.action == "refused"]
+    assert q.refused and not q.repaired, q.summary()
+    assert first[0].check == "encoder" and first[0].sample == k and "+60 arcsec" in first[0].detail, q.summary()

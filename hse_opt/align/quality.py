@@ -84,7 +84,8 @@ Checks, rules and thresholds (:class:`Thresholds`; the reasons are physical)
    * one sample of one channel that alone explains its window's residual (a spike: the
      sample's deviation from its neighbours' mean, for a gyro less its share of the
      table's step deviation, matches the residual within the threshold): replaced by the
-     neighbours' mean (plus, for a gyro, that share) (*repaired*);
+     neighbours' mean (plus, for a gyro, that share) (*repaired*); unless the gyro's own
+     sample shows no spike where the encoder's step stands out of the window: a jump (refused);
    * otherwise refused: *saturated* (the bad windows hold the channel's extreme value of
      the log ``saturated_samples`` (3) or more samples in a row, and that value lies beyond
      what a static base gives the channel: a gyro sample beyond the table's largest step
@@ -683,16 +684,25 @@ def _channel_fault(t, enc, x, j, beta, ws, dev, thr, L, th, findings, fitted, bo
     stretches = _clusters(ws, 1)
     for w1, w2 in stretches:
         s0, s1 = 1 + w1 * L, min(n - 1, (w2 + 1) * L)
+        encoder_step = None
         if w1 == w2:        # one window: a spike if one sample's deviation explains the residual
             seg = x[s0 - 1:s1 + 2]
             spike = seg[1:-1] - 0.5 * (seg[:-2] + seg[2:])
+            own, dd = spike.copy(), None
             if j < 3:       # a gyro follows the table's steps (its jitter): their part is no spike
                 de = np.diff(enc[s0 - 2:s1 + 2]) if s0 >= 2 else None
                 if de is not None and de.size == seg.size:
+                    dd = np.abs(de[1:-1] - 0.5 * (de[:-2] + de[2:]))
                     spike -= beta[j] * (de[1:-1] - 0.5 * (de[:-2] + de[2:]))
             i = int(np.argmax(np.abs(spike)))
             k = s0 + i
-            if 0 < k < n - 1 and abs(spike[i] - dev[w1]) <= thr:
+            # the gyro's own sample shows no spike where its share of the encoder's step does, and
+            # that step stands out of the window's (twice any other but its neighbours'): the
+            # encoder stepped (a jump), which repairing the gyro would copy into its angle
+            if dd is not None and abs(own[i]) < 0.5 * abs(spike[i]) and \
+                    dd[i] >= 2.0 * np.delete(dd, range(max(0, i - 1), i + 2)).max(initial=0.0):
+                encoder_step = (k, (own[i] - spike[i]) / beta[j])
+            elif 0 < k < n - 1 and abs(spike[i] - dev[w1]) <= thr:
                 findings.append(Finding("channel", k, float(t[k]), "repaired",
                                         f"{name} spike of {_value(spike[i], unit)} against its neighbours: "
                                         "replaced by their mean" + (" and its share of the table's step" if j < 3
@@ -701,8 +711,12 @@ def _channel_fault(t, enc, x, j, beta, ws, dev, thr, L, th, findings, fitted, bo
                 continue
         seg = x[s0:s1 + 1]
         k, what = s0, None
+        if encoder_step is not None:
+            k, step = encoder_step
+            what = (f"the encoder steps by {_arcsec(step)} at sample {k} and does not come back while {name} does "
+                    "not (a jump: lost counts or a slipped zero)")
         hi, lo = float(x.max()), float(x.min())
-        for ext in (hi, lo):
+        for ext in ((hi, lo) if what is None else ()):
             if abs(ext) <= bound:
                 continue
             at, length = _runs(seg == ext)
@@ -744,7 +758,7 @@ def _channel_fault(t, enc, x, j, beta, ws, dev, thr, L, th, findings, fitted, bo
             else:
                 what = f"{name} does not follow the table's turn"
         more = len(stretches) - 1
-        findings.append(Finding("channel", k, float(t[k]), "refused",
+        findings.append(Finding("channel" if encoder_step is None else "encoder", k, float(t[k]), "refused",
                                 f"{what}: windows of samples {s0}-{s1} off the fit by up to "
                                 f"{_value(np.abs(dev[w1:w2 + 1]).max(), unit)}"
                                 + (f" (and {more} more bad stretch{'es' if more > 1 else ''})" if more else "")
