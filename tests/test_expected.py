@@ -57,3 +57,25 @@ def test_design_prints_and_writes_the_expected_budget(tmp_path, capsys):
         assert "could still not rule out" in text and all(f"  {n} (+- " in text for n in at_risk)
     else:
         assert "could rule out every assessed effect" in text
+
+
+def test_a_field_plans_expected_budget_is_what_diagnose_reports_on_its_campaign():
+    """The default 3-h field plan: positions whose headings the fit does not know."""
+    from hse_opt.design.field import design_field
+    from hse_opt.validation.expected import _as_field
+    fd = design_field(3 * units.HOUR)
+    plan = fd.plan
+    assert plan.surveyed is not None and not plan.surveyed.any()
+    stand = Stand()
+    runs = model_runs(plan, {"lambda2": 4.2}, np.random.default_rng(9), latitude=stand.latitude,
+                      base_tilt=(stand.tilt[1], stand.tilt[0]), sigma=stand.sigma(plan.duration))
+    d = diagnose(_as_field(runs, plan))
+    expected = expected_budget(plan, tests=d.n_tests)
+    assert expected.std[expected.names.index("lambda2")] == pytest.approx(fd.evaluation.std_of("lambda2"), rel=1e-4)
+    np.testing.assert_allclose(expected.std, d.fit.std, rtol=1e-4)
+    np.testing.assert_allclose(expected.systematic, d.fit.systematic, rtol=1e-3)
+    # (an effect with no signature beyond the model: power 0 in the protection, the test's level here)
+    for p in fd.protection:
+        if p.power is not None:
+            assert expected_budget(plan).effect(p.effect).power == pytest.approx(p.power, abs=0.003)
+    assert any(p.power is not None and p.power > 0.8 for p in fd.protection)

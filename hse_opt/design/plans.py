@@ -23,7 +23,10 @@ def paper_plan(azimuth0=0.0, costs=None, azimuths_deg=(0.0, 91.8795, 181.2953, 2
 def plan_lines(plan):
     """Runs grouped by setting, in order: ``runs 1-5  -60 deg/s  az 294.62 deg ...``."""
     cols = plan.to_columns()
-    keys = [cols["rate_dps"], cols["azimuth_deg"], cols["duration_s"]]
+    # at an unsurveyed position (a field plan) the azimuth holds the heading to set: said so
+    field = np.zeros(len(plan), bool) if plan.surveyed is None else ~np.asarray(plan.surveyed, bool)
+    keys = [cols["rate_dps"], np.mod(np.degrees(np.asarray(plan.azimuth, float)), 360.0), cols["duration_s"],
+            field.astype(float)]
     if "tilt_x_arcsec" in cols:
         keys += [cols["tilt_x_arcsec"], cols["tilt_y_arcsec"]]
     key = np.round(np.column_stack(keys), 6)
@@ -33,10 +36,12 @@ def plan_lines(plan):
         while j + 1 < n and np.array_equal(key[j + 1], key[i]):
             j += 1
         ids = f"{plan.run[i]}" if i == j else f"{plan.run[i]}-{plan.run[j]}"
-        text = (f"  runs {ids:<8} {key[i, 0]:+8.3f} deg/s  azimuth {key[i, 1]:8.3f} deg  {key[i, 2]:g} s"
+        where = (f"heading ~{key[i, 1]:.0f} deg" + (f" ({plan.position[i]})" if plan.position is not None else "")
+                 if key[i, 3] else f"azimuth {key[i, 1]:8.3f} deg")
+        text = (f"  runs {ids:<8} {key[i, 0]:+8.3f} deg/s  {where}  {key[i, 2]:g} s"
                 f"  from {plan.t_start[i] / units.HOUR:6.3f} h")
-        if key.shape[1] > 3:
-            text += f"  tilt ({key[i, 3]:+.0f}, {key[i, 4]:+.0f}) arcsec"
+        if key.shape[1] > 4:
+            text += f"  tilt ({key[i, 4]:+.0f}, {key[i, 5]:+.0f}) arcsec"
         lines.append(text)
         i = j + 1
     return lines

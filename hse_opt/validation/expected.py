@@ -26,7 +26,8 @@ def expected_budget(plan, model=None, *, stand=None, tilt_known=True, values=Non
     Parameters
     ----------
     plan : hse_opt.data.Plan
-        A surveyed-stand plan.
+        A stand plan, or a field plan (rows at unsurveyed positions: their headings unknown
+        to the fit, as in the campaign's RUNS.csv).
     model : Model, str or sequence of str, optional
         The model the campaign will be fitted with (default ``hse``).
     stand : hse_opt.design.Stand, optional
@@ -49,6 +50,8 @@ def expected_budget(plan, model=None, *, stand=None, tilt_known=True, values=Non
     sigma = stand.sigma(plan.duration)
     runs = model_runs(plan, dict(values or {}), np.random.default_rng(0), model=model, latitude=stand.latitude,
                       base_tilt=(stand.tilt[1], stand.tilt[0]), sigma=sigma)
+    if plan.surveyed is not None and not np.all(plan.surveyed):
+        runs = _as_field(runs, plan)
     f = fit(runs, model, tilt_known=tilt_known)
     return alias_budget(f, runs, tests=tests)
 
@@ -62,3 +65,19 @@ def describe_expected(budget):
     return (["what a campaign of this plan could still not rule out, if the model is right (hse-opt diagnose "
              "would call it inconclusive; the shift an effect below the test's reach could cause):"]
             + [f"  {ln}" for ln in lines])
+
+
+def _as_field(runs, plan):
+    """The runs as the campaign's RUNS.csv will have them: at an unsurveyed position no stand
+    azimuth, the alignment's own heading, and the position label."""
+    from .. import units
+    from ..data import Runs
+
+    heading = np.mod(runs.azimuth + runs.heading_err, 2 * np.pi)
+    azimuth = np.where(plan.surveyed, np.degrees(runs.azimuth), np.nan)
+    cols = {"run": runs.run, "rate_dps": runs.rate / units.DEG_PER_S, "azimuth_deg": azimuth,
+            "heading_deg": np.degrees(heading), "latitude_deg": np.degrees(runs.latitude),
+            "duration_s": runs.duration, "t_start_s": runs.t_start, "pitch_arcsec": runs.pitch / units.ARCSEC,
+            "roll_arcsec": runs.roll / units.ARCSEC, "heading_std_arcsec": runs.heading_std / units.ARCSEC,
+            "position": np.asarray(plan.position)}
+    return Runs.from_columns(cols, source=f"{plan.source}, as measured")

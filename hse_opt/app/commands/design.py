@@ -196,12 +196,30 @@ def _nominal(items):
     return out
 
 
+def _expected(plan, model, stand, tilt_known, args):
+    """What a campaign of ``plan`` could not rule out if the model is right (its alias budget);
+    None when the plan's whole runs do not identify the model."""
+    from ...information import UnidentifiableError
+    from ...validation.expected import expected_budget
+    try:
+        return expected_budget(plan, model, stand=stand, tilt_known=tilt_known, values=_nominal(args.nominal))
+    except UnidentifiableError:
+        return None
+
+
+def _expected_json(expected):
+    if expected is None:
+        return None
+    return {**expected.to_dict(), "systematic": dict(zip(expected.names, expected.systematic.tolist()))}
+
+
 def run(args):
     from ... import units
     from ...data import load_plan, save_plan
     from ...design import Costs, DesignSpace, Resolution, design, evaluate, plan_lines
     from ...design.evaluation import sacrificed
     from ...design.space import SAMPLE_PERIOD
+    from ...validation.expected import describe_expected
     from ...fit.file import load_fit
     from ...information import UnidentifiableError
 
@@ -277,6 +295,7 @@ def run(args):
         else:
             fd = design_field(args.budget_h * units.HOUR, model, criterion=args.criterion, costs=costs, stand=stand,
                               duration=duration, prior=prior)
+        expected = _expected(fd.plan, model, stand, tilt_known, args)
         save_plan(fd.plan, args.tx.path("output"))
         message(f"hse-opt design: wrote {args.output} ({fd.plan.run.size} runs)")
         if args.report:
@@ -292,7 +311,8 @@ def run(args):
         summary = {**fd.to_dict(), "field": True, "n_runs": int(fd.plan.run.size),
                    **{k: v for k, v in fd.evaluation.to_dict().items() if k in ("total_time_h", "predicted_std")},
                    "runs_so_far": 0 if fd.before is None else int(fd.before.run.size),
-                   "stay_at_last_position": bool(fd.stay), "prior": args.prior, "output": args.output}
+                   "stay_at_last_position": bool(fd.stay), "prior": args.prior, "output": args.output,
+                   "expected_alias_budget": _expected_json(expected)}
         if args.json:
             print_json(summary)
         else:
@@ -303,6 +323,8 @@ def run(args):
                   f"{fd.repeats}{so_far}, sigma(lambda2) {fd.evaluation.std_of('lambda2'):.4g} arcsec, "
                   f"{summary['total_time_h']:.3f} h from power-on")
             print("\n".join(fd.summary()))
+            if expected is not None:
+                print("\n".join(describe_expected(expected)))
             print("\n".join(plan_lines(fd.plan)))
         return 0
     lo, hi = _pair(args.rates, "--rates", sep=":")
@@ -341,12 +363,7 @@ def run(args):
         raise UnidentifiableError(f"{err}; allowed: candidate runs that identify every parameter (--rates, "
                                   "--reverse, --azimuth-step-deg, --max-tilt-arcsec, --budget-h) or fewer effects",
                                   err.names, err.direction, err.condition) from None
-    from ...validation.expected import describe_expected, expected_budget
-    try:    # what its campaign could not rule out (None: the whole-run plan identifies too little)
-        expected = expected_budget(result.plan, model, stand=stand, tilt_known=tilt_known,
-                                   values=_nominal(args.nominal))
-    except UnidentifiableError:
-        expected = None
+    expected = _expected(result.plan, model, stand, tilt_known, args)
     save_plan(result.plan, args.tx.path("output"))
     message(f"hse-opt design: wrote {args.output} ({result.n_runs} runs)")
     report("design_section", f"hse-opt design {args.output}", result=result)
@@ -354,8 +371,7 @@ def run(args):
     if args.json:
         print_json({**result.to_dict(), "output": args.output,
                     "sacrificed": {n: {"std": s, "reference_std": r, "unit": u} for n, s, r, u in given_up},
-                    "expected_alias_budget": None if expected is None else {**expected.to_dict(), "systematic": dict(
-                        zip(expected.names, expected.systematic.tolist()))}})
+                    "expected_alias_budget": _expected_json(expected)})
     else:
         print(f"hse-opt design: {'+'.join(model.effect_names)}, budget {args.budget_h:g} h")
         print("\n".join(result.summary()))
