@@ -149,10 +149,12 @@ def _main(argv):
     command, tx = "hse-opt", None
     try:
         with handling_signals():
-            parser = build_parser()
+            # the command named from the line before the parser is built (its imports take a
+            # while): an interrupt then still says which command it stopped
             given = sys.argv[1:] if argv is None else list(argv)
-            named = next((a for a in given if a in parser.commands), None)
+            named = next((a for a in given if a in COMMANDS), None)
             command = "hse-opt" if named is None else f"hse-opt {named}"
+            parser = build_parser()
             try:
                 argv = _with_project(parser, given)
             except ValueError as err:
