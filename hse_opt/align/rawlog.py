@@ -332,8 +332,8 @@ def _read_npz(path):
     """The arrays of a ``.npz`` file, name -> array.
 
     Stored (uncompressed) members, as :func:`save_rawlog` writes them, are read in one pass
-    and viewed in place, without the per-member copies and CRC checks of :func:`numpy.load`
-    (a truncated file still fails: the zip directory sits at its end); compressed members go
+    and viewed in place (copied once where a member's data is not aligned for its type),
+    without the CRC checks of :func:`numpy.load` (a truncated file still fails: the zip directory sits at its end); compressed members go
     through :func:`numpy.load`.
     """
     import io
@@ -363,7 +363,10 @@ def _read_npz(path):
         if start + member.tell() + count * dtype.itemsize > len(buf) or dtype.hasobject:
             raise ValueError(f"array {info.filename} is truncated; allowed: a whole .npz raw log")
         arr = np.frombuffer(buf, dtype=dtype, count=count, offset=start + member.tell())
-        out[info.filename.removesuffix(".npy")] = arr.reshape(shape, order="F" if fortran else "C")
+        # a member's data sits at any byte of the file: every later operation on an unaligned
+        # view goes through numpy's buffered copies, so it is copied once, in its own order
+        out[info.filename.removesuffix(".npy")] = np.require(arr.reshape(shape, order="F" if fortran else "C"),
+                                                             requirements="A")
     return out
 
 
