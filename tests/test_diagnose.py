@@ -354,3 +354,32 @@ def test_cli_report_seam(tmp_path, capsys):
     else:
         assert status == 1 and "not available" in capsys.readouterr().err
         assert not (tmp_path / "rep").exists()
+
+
+def test_cli_says_the_run_order_p_values_are_adjusted(tmp_path, capsys):
+    """diagnose printed 'p = 1' next to F = 2.757 for the level-shift test without saying the p is
+    Bonferroni-adjusted over the positions in run order. The text, --json (p_adjustment) and the
+    report now say so; the adjusted p equals min(1, m * raw p) with the raw p from scipy's F here,
+    m the positions counted by hand (64 runs: 64 single runs, steps from run 3 to run 62)."""
+    path = tmp_path / "RUNS.csv"
+    save_runs(campaign({}, seed=10), path)
+    assert main(["diagnose", str(path), "--json"]) == 0
+    obj = json.loads(capsys.readouterr().out)
+    tests = {t["name"]: t for t in obj["factors"]}
+    for name, m in (("single run", 64), ("level shift", 64 - 3)):
+        t = tests[name]
+        raw = stats.f.sf(t["statistic"], *t["dof"])
+        assert t["p_adjustment"] == {"method": "bonferroni", "tests": m, "over": "positions in run order",
+                                     "raw_p_value": pytest.approx(raw, rel=1e-9)}
+        assert t["p_value"] == pytest.approx(min(1.0, m * raw), rel=1e-9)
+    assert tests["level shift"]["p_value"] == 1.0 and tests["single run"]["p_value"] < 1.0
+    assert all("p_adjustment" not in t for n, t in tests.items() if n not in ("single run", "level shift"))
+    assert main(["diagnose", str(path), "--report", str(tmp_path / "report")]) == 0
+    text = capsys.readouterr().out
+    for name, m in (("single run", 64), ("level shift", 61)):
+        line = next(ln for ln in text.splitlines() if ln.strip().startswith(name))
+        assert f"F({tests[name]['dof'][0]}, {tests[name]['dof'][1]}) = {tests[name]['statistic']:.4g}," in line
+        shown = min(1.0, m * stats.f.sf(tests[name]["statistic"], *tests[name]["dof"]))
+        assert f"p = {shown:.3g} (adjusted for {m} positions in run order)" in line, line
+    page = "".join(p.read_text() for p in (tmp_path / "report").rglob("*.html"))
+    assert "(adjusted for 61 positions in run order)" in page and "(adjusted for 64 positions" in page

@@ -190,3 +190,43 @@ def test_compensate_names_what_its_numbers_are_on_a_field_campaign(tmp_path, cap
         assert got["surveyed"]["before"]["rms_arcsec"] == pytest.approx(np.sqrt(np.mean(err_as ** 2)), rel=1e-9)
         comp = np.asarray(back.covariates["heading_err_comp_arcsec"], float)[b]
         assert got["surveyed"]["after"]["rms_arcsec"] == pytest.approx(np.sqrt(np.mean(comp ** 2)), rel=1e-9)
+
+
+def test_compensate_says_what_heading_err_comp_is_at_an_unsurveyed_row(tmp_path, capsys):
+    """At a field position without azimuth_deg, heading_err_comp_arcsec was called the
+    'compensated heading error'; it is the compensated heading less the position's stand-in
+    reference (the mean of its uncompensated headings). Checked from the written file by hand:
+    each position's circular mean of heading_deg, and the scatter the summary prints, from
+    heading_comp_deg about each position's own mean; the text and --json say what the column is."""
+    import csv
+    import json
+
+    from hse_opt.cli import main
+    from hse_opt.data import save_runs
+    save_runs(_campaign(np.random.default_rng(5), surveyed_b=True), tmp_path / "RUNS.csv")
+    assert main(["fit", str(tmp_path / "RUNS.csv"), "-o", str(tmp_path / "FIT.json")]) == 0
+    capsys.readouterr()
+    argv = ["compensate", str(tmp_path / "RUNS.csv"), "--fit", str(tmp_path / "FIT.json"), "-o"]
+    assert main([*argv, str(tmp_path / "C.csv")]) == 0
+    text = capsys.readouterr().out
+    with open(tmp_path / "C.csv", newline="") as fh:
+        rows = [r for r in csv.DictReader(fh) if r["azimuth_deg"] == ""]
+    pos = np.array([r["position"] for r in rows])
+    h, hc, col = (np.array([float(r[c]) for r in rows]) for c in ("heading_deg", "heading_comp_deg",
+                                                                   "heading_err_comp_arcsec"))
+    ref = {p: np.degrees(np.angle(np.mean(np.exp(1j * np.radians(h[pos == p]))))) for p in set(pos)}
+    stand_in = np.array([ref[p] for p in pos])
+    assert set(pos) == {"A", "C"}
+    np.testing.assert_allclose(col, ((hc - stand_in + 180.0) % 360.0 - 180.0) * 3600.0, atol=1e-6)
+    for p in ("A", "C"):  # its position mean: minus the mean correction, not an error
+        assert np.mean(col[pos == p]) == pytest.approx(np.mean(hc[pos == p] - h[pos == p]) * 3600.0, abs=1e-6)
+    assert "heading_err_comp_arcsec at their rows: the compensated heading (heading_comp_deg) less the " \
+           "position's stand-in reference, the mean of its uncompensated headings (heading_deg)" in text
+    assert "not an error against any reference" in text
+    after = np.concatenate([(hc[pos == p] - np.mean(hc[pos == p])) * 3600.0 for p in ("A", "C")])
+    line = next(ln for ln in text.splitlines() if "scatter about each position's mean" in ln)
+    assert f"-> {np.sqrt(np.mean(after ** 2)):.4g} arcsec" in line, line
+    assert main([*argv, str(tmp_path / "C2.csv"), "--json"]) == 0
+    got = json.loads(capsys.readouterr().out)
+    assert got["unsurveyed"]["column"].startswith("heading_err_comp_arcsec: the compensated heading")
+    assert got["unsurveyed"]["after"]["rms_arcsec"] == pytest.approx(np.sqrt(np.mean(after ** 2)), rel=1e-6)

@@ -291,7 +291,10 @@ def _design(model, kw, notes, label):
     refinement failure falls back to the rounded design, any other failure returns None; both
     are noted."""
     from ..design import DesignError, design
-    failures = (DesignError, np.linalg.LinAlgError)   # the latter: a solver's factorisation
+    from ..information import UnidentifiableError
+    # LinAlgError: a solver's factorisation; UnidentifiableError: the candidates see a parameter
+    # of the calibrated model nowhere (the encoder's 2nd harmonic)
+    failures = (DesignError, UnidentifiableError, np.linalg.LinAlgError)
     try:
         return design(model, **kw)
     except failures as err:

@@ -9,7 +9,7 @@ import numpy as np
 from .. import units
 from ..data import Plan
 from ..model.composition import as_model
-from ..information import analyse, separation_advice, weighted_jacobian
+from ..information import analyse, blind_out, invisible, separation_advice, weighted_jacobian
 from .criteria import as_criterion
 from .problem import criterion_rows, mean_loss, own, prior_information
 from .space import Stand
@@ -161,7 +161,14 @@ def evaluate(plan, model=None, *, stand=None, tilt_known=True, criterion=None, n
         names, units_, Aw = tuple(np.array(names)[keep]), list(np.array(units_)[keep]), Aw[:, keep]
         F0 = None if F0 is None else F0[np.ix_(keep, keep)]
 
-    info = analyse(Aw.T @ Aw + (0 if F0 is None else F0), names, units_,
+    # a parameter that moves no run's heading by the fit's floor across its whole range has no
+    # information (what it leaves is rounding, which analyse's column scaling would blow up into
+    # a sigma of 1e13 arcsec): named as the fit names it, unless a prior informs it
+    ranges = np.array([q.upper - q.lower for q in mm.params])[keep]
+    blind = invisible(Aw * np.broadcast_to(sigma, plan.duration.shape)[:, None], ranges)
+    if F0 is not None:
+        blind &= np.diag(F0) == 0
+    info = analyse(blind_out(Aw.T @ Aw, blind) + (0 if F0 is None else F0), names, units_,
                    advice=lambda d: separation_advice(mm, p, X, keep, d))
     mid = plan.t_start + plan.duration / 2
     bias = info.covariance @ (Aw.T @ (drift if field else (mid - mid.mean()) * DRIFT_UNIT / sigma))

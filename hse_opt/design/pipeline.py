@@ -8,7 +8,7 @@ import numpy as np
 
 from .. import units
 from ..data import Plan
-from ..information import UnidentifiableError, check_identifiable
+from ..information import SENSITIVITY_FLOOR, UnidentifiableError, blind_out, check_identifiable, invisible
 from ..model.composition import Model, as_model
 from .approximate import ApproximateDesign, DesignError, solve_approximate
 from .criteria import C, D, NotSmooth, as_criterion, unit_vector
@@ -248,7 +248,7 @@ def design(model=None, criterion="protect:lambda2", *, budget, space=None, stand
     if isinstance(crit, C):
         unit_vector(spec.names, crit.name)
     rows = spec.numeric(X, sigma)
-    _check_candidates(rows, spec, space, model)
+    _check_candidates(rows, spec, space, model, X, sigma, mm)
     base = dict(cost=cost, budget=B, max_runs=max_runs, slot=cand.slot, n_slots=int(space.time_slots),
                 candidates=cand, costs=costs, solver=solver)
 
@@ -257,7 +257,7 @@ def design(model=None, criterion="protect:lambda2", *, budget, space=None, stand
         gmm = gm.measurement(tilt_known)
         gspec = model_rows(gmm, samples, prior_information(prior, gmm.names))
         grows = gspec.numeric(X, sigma)
-        _check_candidates(grows, gspec, space, gm)
+        _check_candidates(grows, gspec, space, gm, X, sigma, gmm)
         dopt = solve_approximate(Problem(D(), gspec, grows, **base))
         guards.append(Guard(gm, gspec, grows, -dopt.loss + gspec.k * np.log(identify_efficiency), dopt.loss))
 
@@ -396,12 +396,24 @@ def _solve_and_round(prob, prune):
     return prob, approx, reduced, exact, notes
 
 
-def _check_candidates(rows, spec, space, model):
+def _check_candidates(rows, spec, space, model, X, sigma, mm):
     """Raise :class:`~hse_opt.information.UnidentifiableError` when even every candidate run
-    together cannot identify the model: then no plan from this design space can."""
+    together cannot identify the model: then no plan from this design space can.
+
+    A parameter whose heading signature stays below the fit's floor
+    (:func:`~hse_opt.information.invisible`: 1e-6 arcsec across its whole declared range) in
+    every candidate run at every parameter sample has no information, however the column
+    normalisation of :func:`~hse_opt.information.check_identifiable` would scale it up; it is
+    named, as the fit names it. ``rows`` (S, n, k): the weighted rows of ``spec``; ``X``, ``sigma``
+    (n,): the candidates' inputs and heading sigmas (rad); ``mm``: the model's measurement model."""
+    bounds = {q.name: (q.lower, q.upper) for q in mm.params}
+    ranges = np.array([np.subtract(*bounds[n][::-1]) if n in bounds else np.inf for n in spec.names])
+    sigma = np.asarray(sigma, dtype=float)
+    blind = np.logical_and.reduce([invisible(r * sigma[:, None], ranges) for r in rows])
     for r in rows:
         try:
-            check_identifiable(spec.prior + np.einsum("ni,nj->ij", r, r) / r.shape[0], spec.names)
+            check_identifiable(blind_out(spec.prior + np.einsum("ni,nj->ij", r, r) / r.shape[0],
+                                         blind & (np.diag(spec.prior) == 0)), spec.names)
         except UnidentifiableError as err:
             timed = [e.name for e in model.effects if e.level == "thermal"]
             hint = (f" Time since power-on is not a factor of this design space (time_slots=1), and "
@@ -414,8 +426,38 @@ def _check_candidates(rows, spec, space, model):
                          f"and the design linearises at the nominal values, where the heading may not depend on "
                          f"{'it' if len(curved) == 1 else 'them'}: give values where it does "
                          f"(nominal={{...}}; hse-opt design --nominal NAME=VALUE, e.g. a warm-up amplitude).")
+            hint += _blind_hint([n for n, b in zip(spec.names, blind) if b and n in err.names and n not in curved],
+                                spec, X, sigma, mm, ranges)
             raise UnidentifiableError(f"no plan from these candidate runs can identify the model: "
                                       f"{str(err).rstrip('.')}.{hint}", err.names) from None
+
+
+def _blind_hint(names, spec, X, sigma, mm, ranges):
+    """What would help the parameters ``names`` that no candidate run sees at the nominal
+    values: those another parameter's value gives a signature (a product, e.g. the encoder's
+    1st harmonic with lambda2 or mount_xi; probed with every parameter at 5 % of its range off
+    the middle) need nominal values; the others are out of these runs' reach."""
+    if not names:
+        return ""
+    from .problem import Rows
+    probe = np.array([(q.lower + q.upper) / 2 + 0.05 * (q.upper - q.lower) for q in mm.params]) * mm.scale
+    seen = ~invisible(Rows(spec.names, spec.fn, [probe]).numeric(X, sigma)[0] * np.asarray(sigma)[:, None], ranges)
+    acts = [n for n in names if seen[spec.names.index(n)]]
+    never = [n for n in names if n not in acts]
+    floor = f"{SENSITIVITY_FLOOR / units.ARCSEC:g} arcsec"
+    out = ""
+    if acts:
+        out += (f" {', '.join(acts)} move{'s' if len(acts) == 1 else ''} no candidate run's heading by {floor} "
+                f"across {'its' if len(acts) == 1 else 'their'} whole range at the nominal values, but "
+                f"{'does' if len(acts) == 1 else 'do'} with other parameters away from them (a product, as the "
+                "encoder's 1st harmonic with lambda2 or mount_xi): give nominal values where the heading depends "
+                "on them (nominal={...}; hse-opt design --nominal NAME=VALUE, e.g. lambda2=4).")
+    if never:
+        out += (f" {', '.join(never)} move{'s' if len(never) == 1 else ''} no candidate run's heading by {floor} "
+                f"across {'its' if len(never) == 1 else 'their'} whole range, at the nominal values or away from "
+                "them: use a model without "
+                f"{'it' if len(never) == 1 else 'them'} (fewer effects, --effects).")
+    return out
 
 
 def _guard_models(identify, model, crit):

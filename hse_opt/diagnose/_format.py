@@ -34,8 +34,8 @@ def test_text(t):
     if not t.tested:
         return f"not computable ({t.note})"
     if len(t.dof) == 1:
-        return f"chi2({t.dof[0]}) = {t.statistic:.4g}, p = {t.p_value:.3g}"
-    return f"F({t.dof[0]}, {t.dof[1]}) = {t.statistic:.4g}, p = {t.p_value:.3g}"
+        return f"chi2({t.dof[0]}) = {t.statistic:.4g}, p = {t.p_value:.3g}{t.adjustment}"
+    return f"F({t.dof[0]}, {t.dof[1]}) = {t.statistic:.4g}, p = {t.p_value:.3g}{t.adjustment}"
 
 
 def run_text(r):

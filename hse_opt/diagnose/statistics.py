@@ -55,6 +55,13 @@ class Test:
     best : str
         For a factor, the single function of it that explains most of the residual.
     note : str
+    adjusted_over : int
+        0 when ``p_value`` is the statistic's own p-value; else the number ``m`` of tests it is
+        Bonferroni-adjusted over (a max-type test: ``p_value = min(1, m * raw p)``).
+    adjusted_what : str
+        What those ``m`` tests are (``positions in run order``).
+    raw_p : float or None
+        The best column's own p-value before the adjustment (None when not adjusted).
     """
 
     name: str
@@ -65,15 +72,27 @@ class Test:
     log_p: float | None = None
     best: str = ""
     note: str = ""
+    adjusted_over: int = 0
+    adjusted_what: str = ""
+    raw_p: float | None = None
 
     @property
     def tested(self):
         return self.p_value is not None
 
+    @property
+    def adjustment(self):
+        """`` (adjusted for 21 positions in run order)`` when ``p_value`` is adjusted, else ""."""
+        return f" (adjusted for {self.adjusted_over} {self.adjusted_what})" if self.adjusted_over else ""
+
     def to_dict(self):
-        return {"name": self.name, "description": self.description,
-                "statistic": num(self.statistic), "dof": list(self.dof),
-                "p_value": num(self.p_value), "best": self.best, "note": self.note}
+        out = {"name": self.name, "description": self.description,
+               "statistic": num(self.statistic), "dof": list(self.dof),
+               "p_value": num(self.p_value), "best": self.best, "note": self.note}
+        if self.adjusted_over:
+            out["p_adjustment"] = {"method": "bonferroni", "tests": int(self.adjusted_over),
+                                   "over": self.adjusted_what, "raw_p_value": num(self.raw_p)}
+        return out
 
 
 

@@ -214,8 +214,10 @@ def run_order_tests(null, run):
         s_k = min(float(sc[k]), null.rss)
         F = s_k / ((null.rss - s_k) / dof) if null.rss > s_k else np.inf
         m = int(np.sum(sc > 0))
-        p = min(1.0, m * float(stats.f.sf(F, 1, dof)))
+        raw = float(stats.f.sf(F, 1, dof))
+        p = min(1.0, m * raw)
         logp = min(0.0, math.log(m) + f_logsf(F, 1, dof))
         out.append(Test(name, f"{what}: the best of {m} positions in run order", F, (1, dof), p, logp,
-                        fam.term(k)[1]))
+                        fam.term(k)[1], adjusted_over=m, adjusted_what="positions in run order",
+                        raw_p=raw))
     return out

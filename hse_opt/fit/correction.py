@@ -156,7 +156,10 @@ def compensate(runs, fit_result, parameters=None):
     ``comp_status``, the run's :func:`domain_status` (nonzero: the calibration never saw such
     a run, its correction is the model's extrapolation). At an unsurveyed
     position ``heading_err`` is relative to the position's mean heading (:mod:`hse_opt.data`),
-    and so is its compensated value. The other columns are unchanged. Raises ``ValueError``
+    and so is its compensated value: there ``heading_err_comp_arcsec`` is no heading error but
+    the compensated heading less the position's stand-in reference (the mean of its
+    uncompensated headings), whose position mean is minus the position's mean correction
+    (:data:`hse_opt.app.commands.compensate.UNSURVEYED_COMPENSATED`). The other columns are unchanged. Raises ``ValueError``
     when ``runs`` already has them.
     """
     for col in (COMPENSATED_COLUMN, COMPENSATION_STD_COLUMN, COMPENSATION_SYS_COLUMN, COMPENSATED_HEADING_COLUMN,

@@ -119,7 +119,7 @@ def diagnosis_section(diagnosis, title=None, residuals=True, derived=()):
         else:
             cand_rows.append([f"<code>{html.escape(c.effect)}</code>", html.escape(c.description),
                               f'<span class="notes">not testable: {html.escape(c.reason)}</span>', "", "", ""])
-    factor_rows = [[html.escape(t.name), html.escape(t.description), _p_text(t.p_value),
+    factor_rows = [[html.escape(t.name), html.escape(t.description), _p_text(t.p_value) + html.escape(t.adjustment),
                     html.escape(t.best or t.note)] for t in d.factors]
     words = [t.text for t in d.structure]
     if d.ambiguous:

@@ -1,22 +1,33 @@
 """``hse-opt compensate``: remove the calibrated error from alignment results."""
+import textwrap
+
 import numpy as np
 
 from . import add_input_checks, input_checks, message, print_json
 from .outputs import FILE
 
+#: what ``heading_err_comp_arcsec`` is at a row without ``azimuth_deg`` (an unsurveyed field
+#: position): not a heading error, as no reference exists (the help, the summary and --json say it)
+UNSURVEYED_COMPENSATED = ("the compensated heading (heading_comp_deg) less the position's stand-in "
+                          "reference, the mean of its uncompensated headings (heading_deg), in arcsec: not an "
+                          "error against any reference (the position has none); only its differences within a "
+                          "position mean anything (its position mean is minus the position's mean correction)")
+
 NAME = "compensate"
 HELP = "compensate alignments with a calibration (FIT.json from hse-opt fit -o)"
-DESCRIPTION = """\
-Subtract the heading error the calibration predicts for each run (every system effect: the
-stand's own errors - the offset of its zero mark and its reading errors - are left alone) and
-write RUNS.csv with more columns: heading_err_comp_arcsec, the compensated heading error,
-heading_comp_std_arcsec, the compensation's 1-sigma from the calibration's covariance,
-heading_comp_sys_arcsec, its systematic bound (the largest shift one effect the calibration
-campaign could not rule out would cause: FIT.json's systematic_by through the correction), and
-comp_status, 0 for a run inside the calibration's validity domain, else the exported C's
-status bitmask (|rate| or sense, C23 = -roll cos(heading) + pitch sin(heading), time or
-covariates outside what the calibration runs covered; hse_opt/fit/domain.py): such rows are
-also named on stderr.
+DESCRIPTION = textwrap.fill(
+    "Subtract the heading error the calibration predicts for each run (every system effect: the "
+    "stand's own errors - the offset of its zero mark and its reading errors - are left alone) and "
+    "write RUNS.csv with more columns: heading_err_comp_arcsec, the compensated heading error at a "
+    "row with azimuth_deg; at a row without it (an unsurveyed field position) "
+    f"{UNSURVEYED_COMPENSATED}; heading_comp_deg (rows with heading_deg), the compensated heading; "
+    "heading_comp_std_arcsec, the compensation's 1-sigma from the calibration's covariance; "
+    "heading_comp_sys_arcsec, its systematic bound (the largest shift one effect the calibration "
+    "campaign could not rule out would cause: FIT.json's systematic_by through the correction); and "
+    "comp_status, 0 for a run inside the calibration's validity domain, else the exported C's status "
+    "bitmask (|rate| or sense, C23 = -roll cos(heading) + pitch sin(heading), time or covariates "
+    "outside what the calibration runs covered; hse_opt/fit/domain.py): such rows are also named on "
+    "stderr.", 95) + """
 A calibration fitted with known tilt uses each run's pitch/roll (the paper's Eq. 14); one
 fitted without tilt holds for the stand it was fitted on."""
 INPUTS = ("runs", "fit")
@@ -86,7 +97,9 @@ def run(args):
     if not surveyed.all():
         parts["unsurveyed"] = {"n_runs": int((~surveyed).sum()), "positions": list(positions),
                                "measure": "heading scatter about each position's mean heading (no reference: "
-                                          "each position's own heading error is unknown)",
+                                          "each position's own heading error is unknown): before, heading_deg "
+                                          "about the position's mean; after, heading_comp_deg about its mean",
+                               "column": f"{COMPENSATED_COLUMN}: {UNSURVEYED_COMPENSATED}",
                                "before": _stats(before[~surveyed]), "after": _stats(after[~surveyed])}
     summary = {"n_runs": len(runs), "fit": args.fit, "output": args.output,
                "parameters": list(compensated_parameters(calibration)),
@@ -111,4 +124,5 @@ def run(args):
         if positions:
             print(f"  positions without a heading reference ({', '.join(positions)}): their true heading "
                   "errors are unknown; the scatter shows how consistent each position's headings became")
+            print(f"  {COMPENSATED_COLUMN} at their rows: {UNSURVEYED_COMPENSATED}")
     return 0
