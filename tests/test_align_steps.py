@@ -66,3 +66,13 @@ def test_loaded_arrays_are_aligned_and_equal(log, tmp_path):
         a, b = getattr(back, name), getattr(log, name)
         assert a.flags.aligned and (a.flags.c_contiguous or a.flags.f_contiguous)
         assert np.array_equal(a, b)
+
+
+@pytest.mark.parametrize("n", [100, 2900, 2901, 2902, 30001, 30030])
+def test_jitter_from_every_29th_step_as_from_all_steps(n):
+    from hse_opt.align import quality
+    enc = np.cumsum(np.random.default_rng(n).standard_normal(n))
+    sub = quality._every_29th_step(enc)
+    d = np.diff(enc)
+    assert np.array_equal(sub, d[::29] if d.size >= 2900 else d)
+    assert quality._step_stats(sub, True) == quality._step_stats(d)

@@ -348,12 +348,18 @@ def _quantum(x, axis=0):
     return np.where(changed.sum(axis=axis) > _QUANTUM_CHANGES, dd.min(axis=axis), 0.0)
 
 
-def _step_stats(d):
+def _step_stats(d, taken=False):
     """(centre, robust 1-sigma) of the encoder steps ``d`` from every 29th step (the table's
-    step and its jitter; a handful of glitches does not move a median)."""
-    sub = d[::29] if d.size >= 2900 else d
+    step and its jitter; a handful of glitches does not move a median); ``taken``: ``d`` is
+    already that selection (:func:`_every_29th_step`)."""
+    sub = d if taken else d[::29] if d.size >= 2900 else d
     c = float(_median(sub))
     return c, _MAD * float(_median(np.abs(sub - c)))
+
+
+def _every_29th_step(enc):
+    """The steps of the encoder ``enc`` (n,) that :func:`_step_stats` takes, without the others."""
+    return enc[1::29] - enc[:-1:29] if enc.size > 2900 else np.diff(enc)
 
 
 def _check_encoder(t, enc, gyro, th, findings, resolution=0.0):
@@ -814,7 +820,8 @@ def _check_gyro_steps(t, enc, gyro, th, findings, resolution):
     returns the gyros (a repaired copy, or ``gyro`` itself)."""
     spikes = {(f.sample, CHANNELS.index(f.detail.split(" ")[0])) for f in findings
               if f.check == "channel" and f.action == "repaired" and " spike of " in f.detail}
-    gyro, found = check_steps(t, enc, gyro, span=th.step_span_s, jitter=_step_stats(np.diff(enc))[1] / math.sqrt(2.0),
+    jitter = _step_stats(_every_29th_step(enc), True)[1] / math.sqrt(2.0)     # (check 1's steps only)
+    gyro, found = check_steps(t, enc, gyro, span=th.step_span_s, jitter=jitter,
                               q=_quantum(gyro[1:]), level=lambda m: _level(th, 6.0 * m, m), floor=th.gyro_floor,
                               qe=max(float(_quantum(np.diff(enc[:_QUANTUM_SAMPLES + 2])[1:])), resolution),
                               bound=_QUANT_BOUND, most=th.repair_samples, spikes=spikes)
