@@ -35,7 +35,7 @@ without the systematic term). Target: confidently wrong in <= 5 % of campaigns a
 Run: python studies/robustness.py [--campaigns N] [--seed S]
 CI size (tests/test_robustness_study.py): 4 campaigns per effect and kind.
 
-Measured (2026-11-26, ``--campaigns 25``, 350 campaigns, 29 s CPU):
+Measured (2026-11-26, ``--campaigns 25``, 350 campaigns, 20 s CPU):
 
     confidently wrong before 53 (15.1 %), after 2 (0.6 %); target <= 5 % after
     scale_nonlinearity: 36 of 50 confidently wrong before (a rate x |rate| term that the
@@ -48,12 +48,12 @@ Measured (2026-11-26, ``--campaigns 25``, 350 campaigns, 29 s CPU):
         arcsec against lambda2 = 4.2) covers the truth in 50 of 50
 
     how each systematic risk would end (the diagnosis's resolving plan per effect,
-    hse_opt.diagnose.resolving_plan): 811 risks over the 350 campaigns; 410 end with runs
-    added at the azimuths or positions so far (median 3 runs), 359 only by fitting the
+    hse_opt.diagnose.resolving_plan): 811 risks over the 350 campaigns; 409 end with runs
+    added at the azimuths or positions so far (median 3 runs), 360 only by fitting the
     effect on these runs (each parameter at risk then known better than its statistical +
     systematic now), 42 neither (26 on stands, 16 in the field, where new positions are the
     way out). On a field campaign added runs at the positions so far end 91 of 318 risks, on
-    a stand 319 of 493.
+    a stand 318 of 493.
 
 What the data say: on campaigns an operator would run without a design, the tool now
 refuses to call the calibration adequate nearly always, and says why (the effects it cannot
