@@ -71,6 +71,8 @@ class ResolvingPlan:
         The worst undetectable shift in sigmas before and after.
     hours : float
         The alignments' time (``n_runs`` runs of the campaign's median duration), h.
+    stalled : bool
+        The search stopped because the last runs barely lowered the ratio.
     fitted : tuple of (name, unit, sigma now, sigma fitted, systematic now)
         The other way to end the risks, without runs: fit the effects with the model on these
         runs. Per parameter at risk, its statistical sigma now and with the effects fitted
@@ -87,6 +89,7 @@ class ResolvingPlan:
     ratio_after: float
     hours: float
     fitted: tuple = ()
+    stalled: bool = False
 
     def text(self, field=False):
         """One sentence: how many runs, which, how long; or why none would do (``field``: a
@@ -96,7 +99,7 @@ class ResolvingPlan:
         if self.resolved:
             return f"{self.n_runs} runs would resolve {it} (about {self.hours:.2g} h of alignments): {what}"
         left = (f"{self.n_runs} more would leave it at {self.ratio_after:.2g} sigma, from {self.ratio_before:.2g}"
-                + (", and further runs barely lower it" if self.n_runs < MAX_RUNS else "")
+                + (", and further runs barely lower it" if self.stalled else "")
                 if self.n_runs else f"no run lowers its {self.ratio_before:.2g} sigma")
         if field:
             text = (f"runs at the positions so far cannot resolve {it} ({left}); positions at other headings may: "
@@ -112,11 +115,6 @@ class ResolvingPlan:
             return text
         return (f"{text}; fit {it} with the model on a campaign designed for both (hse-opt design --effects "
                 f"{','.join(self.effects)})")
-
-    def to_dict(self):
-        return {"effects": list(self.effects), "runs": [dict(r) for r in self.runs], "n_runs": self.n_runs,
-                "resolved": self.resolved, "ratio_before": self.ratio_before, "ratio_after": self.ratio_after,
-                "hours": self.hours}
 
 
 class _Normal:
@@ -183,16 +181,17 @@ def resolving_plan(fit_result, runs, effects, *, level, max_runs=MAX_RUNS, start
             p[mm.parameter_index(n)] = v
     free = np.asarray(f.free, bool)
     cols = [mm.parameter_index(n) for n in np.array(f.names)[free]]
+    group, positions = runs.reference_groups()
+    k, n_pos = len(cols), len(positions)
+    # columns: the free parameters, the positions' constants, each effect's block
     blocks, vertices, ecols = [], [], []
     for eff in effs:
         params = [q for q in eff.params if q.name not in eff.nonlinear]
         idx = [mm.parameter_index(q.name) for q in params]
-        first = len(cols) + len(ecols)
+        first = k + n_pos + len(ecols)
         blocks.append(slice(first, first + len(idx)))
         vertices.append(_vertices([max(abs(RANGES[q.name][0]), abs(RANGES[q.name][1])) for q in params]))
         ecols += idx
-    group, positions = runs.reference_groups()
-    n_pos = len(positions)
     sigma = np.asarray(f.sigma, float)
     sig_new = float(np.median(sigma))
 
@@ -202,9 +201,6 @@ def resolving_plan(fit_result, runs, effects, *, level, max_runs=MAX_RUNS, start
         return np.column_stack([A[:, cols], G, A[:, ecols]])
 
     A0 = rows(mm.inputs_from_runs(runs), sigma, group)
-    # columns: free parameters, positions, effects; reorder blocks after the positions
-    k = len(cols)
-    blocks = [slice(b.start + n_pos, b.stop + n_pos) for b in blocks]
     cand, cand_group, info = _candidates(runs, group, positions)
     Ac = rows(mm.inputs_from_runs(cand), sig_new, cand_group)
     # a factor nothing depends on is left out: candidates with the same columns are one
@@ -215,7 +211,7 @@ def resolving_plan(fit_result, runs, effects, *, level, max_runs=MAX_RUNS, start
     info = [dict(info[i], text=info[i]["text"] if vary_t else info[i]["text"].split(",")[0]) for i in keep]
     dof0 = int(f.dof)
     N = A0.T @ A0
-    fitted = _fitted(f, N, k, n_pos, blocks, np.array(f.names)[free], [e.name for e in effs])
+    fitted = _fitted(f, N, k, np.array(f.names)[free], [e.name for e in effs])
     outer = Ac[:, :, None] * Ac[:, None, :]
     normal = _Normal(k, n_pos, blocks, vertices, level)
     before = float(normal.at_dof(dof0).ratios(N[None])[0])
@@ -228,9 +224,10 @@ def resolving_plan(fit_result, runs, effects, *, level, max_runs=MAX_RUNS, start
                 counts[i] += d["count"]
     N = N + np.einsum("c,cij->ij", counts, outer)
     ratio = float(normal.at_dof(dof0 + int(counts.sum())).ratios(N[None])[0])
-    trail = [ratio]
+    trail, stalled = [ratio], False
     while ratio > 1.0 and counts.sum() < max_runs:
-        if len(trail) > STALL_RUNS and trail[-1] > (1.0 - STALL) * trail[-1 - STALL_RUNS]:
+        stalled = len(trail) > STALL_RUNS and trail[-1] > (1.0 - STALL) * trail[-1 - STALL_RUNS]
+        if stalled:
             break           # more of the same runs shrink the shift and the sigma alike
         # the test's denominator dof grows by one with each run
         r = normal.at_dof(dof0 + int(counts.sum()) + 1).ratios(N[None] + outer)
@@ -244,19 +241,18 @@ def resolving_plan(fit_result, runs, effects, *, level, max_runs=MAX_RUNS, start
     n = int(counts.sum())
     picked = tuple(dict(info[i], count=int(counts[i])) for i in np.flatnonzero(counts))
     picked = tuple(sorted(picked, key=lambda r: -r["count"]))
-    hours = n * float(np.median(runs.duration)) / 3600.0
-    return ResolvingPlan(tuple(e.name for e in effs), picked, n, ratio <= 1.0, before, ratio, hours, fitted)
+    hours = n * float(np.median(runs.duration)) / units.HOUR
+    return ResolvingPlan(tuple(e.name for e in effs), picked, n, ratio <= 1.0, before, ratio, hours, fitted, stalled)
 
 
-def _fitted(f, N, k, n_pos, blocks, names, effects):
-    """Per parameter at risk: (name, unit, sigma now, sigma with the effects fitted, systematic), from the
-    normal matrix of these runs; ``inf`` when the extended model is singular here."""
+def _fitted(f, N, k, names, effects):
+    """Per parameter at risk: (name, unit, sigma now, sigma with the effects fitted, systematic),
+    from the normal matrix ``N`` of these runs (the model's ``k`` free parameters first, every
+    effect's columns in it); ``inf`` when the extended model is singular here."""
     at_risk = [n for n, by in zip(f.names, f.systematic_by or ()) if set(by) & set(effects)]
-    cols = np.r_[np.arange(k + n_pos), np.concatenate([np.arange(b.start, b.stop) for b in blocks])]
-    M = N[np.ix_(cols, cols)]
-    d = np.sqrt(np.clip(np.diag(M), 1e-300, None))
-    s = np.linalg.svd(M / np.outer(d, d), compute_uv=False)
-    with_std = (np.sqrt(np.clip(np.diag(np.linalg.inv(M))[:k], 0.0, None)) if s[-1] > 1e-12 * s[0]
+    d = np.sqrt(np.clip(np.diag(N), 1e-300, None))
+    s = np.linalg.svd(N / np.outer(d, d), compute_uv=False)
+    with_std = (np.sqrt(np.clip(np.diag(np.linalg.inv(N))[:k], 0.0, None)) if s[-1] > 1e-12 * s[0]
                 else np.full(k, np.inf))
     out = []
     for j, name in enumerate(names):
