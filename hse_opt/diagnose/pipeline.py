@@ -15,8 +15,8 @@ from ..model import as_model
 from .candidates import (AMBIGUOUS_DELTA_BIC, ambiguity, candidate_names, covariate_columns, rank,
                          test_candidates)
 from .discrimination import discriminating_runs
-from .resolution import resolving_plan
 from .factors import factor_tests
+from .resolution import resolving_plan
 from .result import Diagnosis
 from .statistics import ALPHA, Null, Test, flag_runs, lack_of_fit
 from .structure import run_order_tests, sparse_structure
