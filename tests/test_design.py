@@ -745,3 +745,19 @@ def test_a_spread_optimum_is_reduced_to_few_stand_positions_with_the_same_inform
     azimuths = lambda v: np.unique(np.round(np.degrees(cand.azimuth[v > 0]), 6)).size  # noqa: E731
     assert np.sum(w > 1e-4 * w.max()) > 100 and azimuths(w) > 10 >= 3 >= azimuths(x)
     assert r.rounding_efficiency >= 0.99 and r.n_runs == 22
+
+
+def test_evaluate_says_a_c_criterions_value_is_the_variance(tmp_path, capsys):
+    """The criterion's loss (its own computation) against the printed sigma (the covariance's)."""
+    import re
+    from hse_opt.cli import main
+    from hse_opt.data import save_plan
+    from hse_opt.design.field import design_field
+    plan = tmp_path / "PLAN.csv"
+    save_plan(design_field(3 * units.HOUR).plan, plan)
+    assert main(["design", "--evaluate", str(plan), "--field"]) == 0
+    line = capsys.readouterr().out.splitlines()[0]
+    m = re.search(r"criterion protect:lambda2 = ([0-9.e+-]+) \(the variance of lambda2, arcsec\^2: sigma ([0-9.]+)\)",
+                  line)
+    assert m, line
+    assert float(m.group(1)) == pytest.approx(float(m.group(2)) ** 2, rel=1e-3)

@@ -258,8 +258,14 @@ def run(args):
         if args.json:
             print_json({**ev.to_dict(), "source": args.evaluate})
         else:
+            meaning = ""
+            kind, _, name = ev.criterion.partition(":")
+            if kind in ("c", "protect") and name in ev.names:
+                # the loss of c:NAME and protect:NAME is the parameter's variance: said, with its sigma
+                meaning = (f" (the variance of {name}, {ev.units[ev.names.index(name)]}^2: sigma "
+                           f"{ev.std_of(name):.4g})")
             print(f"hse-opt design --evaluate {args.evaluate}: criterion {ev.criterion} = "
-                  f"{ev.criterion_value:.6g}")
+                  f"{ev.criterion_value:.6g}{meaning}")
             print("\n".join(ev.summary()))
             print("\n".join(plan_lines(plan)))
         return 0
