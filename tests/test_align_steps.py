@@ -70,9 +70,9 @@ def test_loaded_arrays_are_aligned_and_equal(log, tmp_path):
 
 @pytest.mark.parametrize("n", [100, 2900, 2901, 2902, 30001, 30030])
 def test_jitter_from_every_29th_step_as_from_all_steps(n):
-    from hse_opt.align import quality
+    from hse_opt.align import _stats
     enc = np.cumsum(np.random.default_rng(n).standard_normal(n))
-    sub = quality._every_29th_step(enc)
+    sub = _stats.every_29th_step(enc)
     d = np.diff(enc)
     assert np.array_equal(sub, d[::29] if d.size >= 2900 else d)
-    assert quality._step_stats(sub, True) == quality._step_stats(d)
+    assert _stats.step_stats(sub, True) == _stats.step_stats(d)

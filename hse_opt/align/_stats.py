@@ -1,5 +1,5 @@
-"""Robust statistics of the raw-log checks (private): the exact median by partition and the
-Gaussian 1-sigma of a median absolute deviation; shared by :mod:`hse_opt.align.quality` and
+"""Robust statistics of the raw-log checks (private): the exact median by partition, the
+Gaussian 1-sigma of a median absolute deviation and the encoder steps' centre and spread; shared by :mod:`hse_opt.align.quality` and
 its step check (:mod:`hse_opt.align.steps`)."""
 from __future__ import annotations
 
@@ -32,3 +32,17 @@ def median(x):
         return x[..., h]
     x.partition((h - 1, h), axis=-1)
     return (x[..., h - 1] + x[..., h]) / 2.0
+
+
+def step_stats(d, taken=False):
+    """(centre, robust 1-sigma) of the encoder steps ``d`` from every 29th step (the table's
+    step and its jitter; a handful of glitches does not move a median); ``taken``: ``d`` is
+    already that selection (:func:`every_29th_step`)."""
+    sub = d if taken else d[::29] if d.size >= 2900 else d
+    c = float(median(sub))
+    return c, MAD * float(median(np.abs(sub - c)))
+
+
+def every_29th_step(enc):
+    """The steps of the encoder ``enc`` (n,) that :func:`step_stats` takes, without the others."""
+    return enc[1::29] - enc[:-1:29] if enc.size > 2900 else np.diff(enc)

@@ -161,7 +161,7 @@ from hse_opt.align.rotations import EARTH_RATE
 from hse_opt.align.noise import _block_sums
 from hse_opt.align.metadata import encoder_counts, metadata_problems
 from hse_opt.align.steps import check_steps
-from hse_opt.align._stats import MAD as _MAD, median as _median
+from hse_opt.align._stats import MAD as _MAD, every_29th_step, median as _median, step_stats
 
 __all__ = ["Thresholds", "Finding", "Quality", "LogRefused", "assess", "check_metadata"]
 
@@ -350,18 +350,10 @@ def _quantum(x, axis=0):
     return np.where(changed.sum(axis=axis) > _QUANTUM_CHANGES, dd.min(axis=axis), 0.0)
 
 
-def _step_stats(d, taken=False):
-    """(centre, robust 1-sigma) of the encoder steps ``d`` from every 29th step (the table's
-    step and its jitter; a handful of glitches does not move a median); ``taken``: ``d`` is
-    already that selection (:func:`_every_29th_step`)."""
-    sub = d if taken else d[::29] if d.size >= 2900 else d
-    c = float(_median(sub))
-    return c, _MAD * float(_median(np.abs(sub - c)))
-
-
-def _every_29th_step(enc):
-    """The steps of the encoder ``enc`` (n,) that :func:`_step_stats` takes, without the others."""
-    return enc[1::29] - enc[:-1:29] if enc.size > 2900 else np.diff(enc)
+def _encoder_quantum(enc, resolution):
+    """One encoder count, rad: the smallest change of its first steps, or the resolution given
+    (counts per revolution), whichever is larger."""
+    return max(float(_quantum(np.diff(enc[:_QUANTUM_SAMPLES + 2])[1:])), resolution)
 
 
 def _check_encoder(t, enc, gyro, th, findings, resolution=0.0):
@@ -369,7 +361,7 @@ def _check_encoder(t, enc, gyro, th, findings, resolution=0.0):
     encoder's count, rad, when known (0: the steps' quantum as seen in the data)."""
     n = enc.size
     d = np.diff(enc)
-    c, s = _step_stats(d)
+    c, s = step_stats(d)
     if c == 0.0:            # one reading held over half the log or more: frozen, if the table turned
         frozen = _frozen_encoder(t, enc, gyro, d)
         if frozen is not None:
@@ -587,7 +579,7 @@ def _check_channels(t, enc, gyro, accel, turn, L, m, th, findings, X, resolution
     size = np.array([float(_median(np.abs(turn))) * scale, f_med])
     # the encoder's count (the smallest change of its steps) quantizes each window's turn, which
     # the gyros' ratio and residuals (less beta_j x turn) carry: bounded like their own pulses
-    qe = max(float(_quantum(np.diff(enc[:_QUANTUM_SAMPLES + 2])[1:])), resolution)
+    qe = _encoder_quantum(enc, resolution)
     level = _level(th, 8 * m, m)
     sigmas = max(th.channel_sigmas, level)
     nquant = _QUANT_BOUND * np.array([np.sqrt(3.0) * q[:3].max() + qe * scale, np.sqrt(3.0) * q[3:].max()]) / size
@@ -822,10 +814,10 @@ def _check_gyro_steps(t, enc, gyro, th, findings, resolution):
     returns the gyros (a repaired copy, or ``gyro`` itself)."""
     spikes = {(f.sample, CHANNELS.index(f.detail.split(" ")[0])) for f in findings
               if f.check == "channel" and f.action == "repaired" and " spike of " in f.detail}
-    jitter = _step_stats(_every_29th_step(enc), True)[1] / math.sqrt(2.0)     # (check 1's steps only)
+    jitter = step_stats(every_29th_step(enc), True)[1] / math.sqrt(2.0)     # (check 1's steps only)
     gyro, found = check_steps(t, enc, gyro, span=th.step_span_s, jitter=jitter,
                               q=_quantum(gyro[1:]), level=lambda m: _level(th, 6.0 * m, m), floor=th.gyro_floor,
-                              qe=max(float(_quantum(np.diff(enc[:_QUANTUM_SAMPLES + 2])[1:])), resolution),
+                              qe=_encoder_quantum(enc, resolution),
                               bound=_QUANT_BOUND, most=th.repair_samples, spikes=spikes)
     findings += [Finding(*f) for f in found]
     return gyro
