@@ -1,4 +1,4 @@
-"""Check 3b's block sums and statistic (hse_opt.align.steps) against per-sample references
+"""Check 3b's weighted sums and statistic (hse_opt.align.steps) against per-sample references
 computed here from their definitions, and the loader's arrays being aligned."""
 import math
 
@@ -16,46 +16,81 @@ def log():
                     np.random.default_rng(3))
 
 
-def test_block_sums_match_per_sample_sums(log):
-    enc, gyro, h = log.encoder, log.gyro, 16
-    R, E, total = steps.block_sums(enc, gyro, h)
+def test_weighted_sums_match_per_sample_sums(log):
+    enc, gyro, h = log.encoder, log.gyro, 32
     nb = (enc.size - 1) // h
+    W, E = steps.weighted_sums(enc, gyro, h, nb)
     w = np.arange(h, 0, -1, dtype=float)
     d = np.diff(enc)[:nb * h].reshape(nb, h)                  # the encoder's steps, block by block
     x = gyro[1:nb * h + 1].reshape(nb, h, 3)
-    scale = np.abs(gyro).max() * h
-    assert np.abs(R[:, :, 0] - x.sum(axis=1).T).max() < 1e-14 * scale
-    assert np.abs(R[:, :, 1] - np.einsum("bic,i->cb", x, w)).max() < 1e-14 * scale * h
-    assert np.abs(E[0] - d.sum(axis=1)).max() < 1e-14 * np.abs(d).max() * h
-    assert np.abs(E[1] - d @ w).max() < 1e-14 * np.abs(d).max() * h * h
-    exact = np.array([math.fsum(gyro[1:, j]) for j in range(3)])
-    assert np.abs(total - exact).max() <= 1e-15 * np.abs(gyro).sum()
+    assert np.abs(W - np.einsum("bic,i->cb", x, w)).max() < 1e-14 * np.abs(gyro).max() * h * h
+    # by parts from the angles: the rounding of h angles of up to |enc| (1e-10 arcsec here)
+    assert np.abs(E - d @ w).max() < 1e-14 * np.abs(enc).max() * h
+
+
+def _per_sample_statistic(log, residual, beta):
+    """D from its definition, sample by sample: each increment less the fitted deterministic part
+    (the residual's coefficients, ``beta`` for the encoder's steps beyond the mean rate), ``e``
+    its cumulative sum, D(p) the mean of ``e`` over the K increments after p less that over the K
+    before, a constant, a sinusoid of the table angle and a quadratic in time fitted out by least
+    squares."""
+    t, enc, gyro = log.t, log.encoder, log.gyro
+    h, nb = residual.block, residual.blocks.shape[1]
+    K, M = steps.GRID * h, nb * h
+    coef = residual.coefficients[:, :3]
+    dt, da = np.diff(t)[:M], np.diff(enc)[:M]
+    mid = enc[:M] + 0.5 * da
+    sinc = np.sinc(da / (2 * np.pi))
+    det = (np.outer(dt, coef[0]) + np.outer(np.cos(mid) * sinc * dt, coef[1])
+           + np.outer(np.sin(mid) * sinc * dt, coef[2]) + np.outer(da - residual.rate * dt, beta))
+    x = gyro[1:M + 1] - det
+    e = np.vstack([np.zeros(3), np.cumsum(x, axis=0)])        # e at increments 0 .. M
+    p = h * np.arange(steps.GRID, nb + 1 - steps.GRID)
+    ref = np.array([[e[q + 1:q + K + 1, j].mean() - e[q - K + 1:q + 1, j].mean() for q in p] for j in range(3)])
+    u = np.linspace(-1.0, 1.0, p.size)
+    A = np.stack([np.ones(p.size), np.cos(enc[p]), np.sin(enc[p]), u, u * u], axis=1)
+    return ref - (A @ np.linalg.lstsq(A, ref.T, rcond=None)[0]).T, p
 
 
 def test_statistic_matches_its_per_sample_definition(log):
-    """D(p): the mean of the cumulative residual e over the K increments after p less that over
-    the K before, with check 3's slow model fitted out by least squares; a 0.2-arcsec step in
-    gyro_y shows as d (1 - |p - p0| / K) at its peak."""
-    t, enc, gyro = log.t, log.encoder, log.gyro.copy()
+    """D(p) from the Allan analysis' block sums and fit and one pass of weighted sums equals its
+    definition computed sample by sample (the fitted part's per-sample terms, the encoder's
+    steps in the ratio beta) within 0.2 % of its robust 1-sigma; a 0.2-arcsec step in gyro_y
+    shows as d (1 - |p - p0| / K) at its peak."""
+    from hse_opt.align.noise import deterministic_residual
     k0 = 20011
-    gyro[k0, 1] += 0.2 * ARCSEC
-    K = 128
-    beta = np.array([math.fsum(gyro[1:, j]) for j in range(3)]) / float(enc[-1] - enc[0])
-    D, p, _ = steps.step_statistic(t, enc, gyro, K, beta)
-    M = ((enc.size - 1) // (K // steps.GRID)) * (K // steps.GRID)
-    x = gyro[1:M + 1] - beta * np.diff(enc[:M + 1])[:, None]
-    x = x - x.mean(axis=0)
-    e = np.vstack([np.zeros(3), np.cumsum(x, axis=0)])        # e at increments 0 .. M
-    ref = np.array([[e[q + 1:q + K + 1, j].mean() - e[q - K + 1:q + 1, j].mean() for q in p] for j in range(3)])
-    c, s = np.cos(enc[p]), np.sin(enc[p])
-    u = np.linspace(-1.0, 1.0, p.size)
-    A = np.stack([np.ones(p.size), c, s, u, u * u], axis=1)
-    ref -= (A @ np.linalg.lstsq(A, ref.T, rcond=None)[0]).T
+    bad = log.gyro.copy()
+    bad[k0, 1] += 0.2 * ARCSEC
+    log2 = type(log)._trusted(log.t, bad, log.accel, log.encoder, log.meta)
+    residual = deterministic_residual(log2, block_period=steps.block_period(0.25))
+    assert residual.block == 32
+    beta = steps.shares(residual)
+    # the fitted constant rate over the encoder's against the increments' sum over its turn (they
+    # differ by the Earth's rate over the log's fraction of a revolution: a few 1e-6)
+    total = np.array([math.fsum(bad[1:, j]) for j in range(3)]) / float(log.encoder[-1] - log.encoder[0])
+    assert np.allclose(beta, total, rtol=1e-5, atol=0.0)
+    D, p, _ = steps.step_statistic(log.t, log.encoder, bad, residual, beta)
+    ref, p_ref = _per_sample_statistic(log2, residual, beta)
+    assert np.array_equal(p, p_ref)
     sigma = 1.4826 * np.median(np.abs(ref - np.median(ref, axis=1)[:, None]), axis=1)
-    assert np.abs(D - ref).max(axis=1).max() < 1e-6 * sigma.min()
+    assert np.abs(D - ref).max() < 2e-3 * sigma.min()
     g0 = int(np.argmax(np.abs(D[1])))
-    assert abs(int(p[g0]) - (k0 - 1)) <= K // steps.GRID
-    assert abs(D[1, g0]) > 15 / 16 * 0.2 * ARCSEC - 6 * sigma[1]
+    K = steps.GRID * residual.block
+    assert abs(int(p[g0]) - (k0 - 1)) <= residual.block // 2
+    assert abs(D[1, g0]) > 7 / 8 * 0.2 * ARCSEC - 6 * sigma[1]
+
+
+def test_one_blas_thread_gives_the_bytes_of_two():
+    """The record's block sums on one BLAS thread (hse_opt.align._blas) are the bytes numpy's
+    matrix product gives on two: each output is one dot product in the kernel's order."""
+    from threadpoolctl import threadpool_limits
+    from hse_opt.align._blas import block_dot
+    x = np.random.default_rng(5).standard_normal((3, 20000, 32))
+    w = np.arange(32, 0, -1, dtype=float)
+    with threadpool_limits(limits=2, user_api="blas"):
+        two = x @ w
+    assert np.array_equal(block_dot(x, w), two)
+    assert np.abs(two - np.einsum("cbi,i->cb", x, w)).max() < 1e-13 * np.abs(x).max() * 32 * 32
 
 
 def test_loaded_arrays_are_aligned_and_equal(log, tmp_path):

@@ -88,6 +88,7 @@ Units: SI inside (rad, rad/s, m/s, m/s^2, s); the RUNS.csv columns
 """
 from __future__ import annotations
 
+import functools
 import itertools
 import math
 from dataclasses import dataclass
@@ -96,6 +97,7 @@ import numpy as np
 
 from hse_opt import units
 from hse_opt.align._angles import rotate
+from hse_opt.align._blas import block_dot, one_thread
 from hse_opt.align.processor import _vecdot
 
 __all__ = ["NoiseFigures", "noise_from_log", "combine_noise", "allan_deviation", "fit_allan",
@@ -249,11 +251,12 @@ class NoiseFigures:
 def _block_sums(x, stop, nb, block):
     """Sums of rows 1..stop-1 of ``x`` (n, 3) over blocks of ``block`` rows, shape (3, nb)
     (summed in the array's own memory order: a column-major array as a view of its columns,
-    a row-major one by ``reduceat``, 4 times faster there than a reshaped sum over the middle
+    by a matrix-vector product on one BLAS thread (:mod:`hse_opt.align._blas`), a row-major
+    one by ``reduceat``, 4 times faster there than a reshaped sum over the middle
     axis; the quality checks use it too)."""
     x = np.asarray(x)
     if x.T.flags.c_contiguous:
-        return np.einsum("cij->ci", x.T[:, 1:stop].reshape(3, nb, block))
+        return block_dot(x.T[:, 1:stop].reshape(3, nb, block), np.ones(block))
     return np.add.reduceat(x[1:stop], np.arange(0, nb * block, block), axis=0).T
 
 
@@ -302,6 +305,12 @@ class BlockSums:
     def of(self, log, block):
         """The sums when they are ``log``'s over blocks of ``block`` samples, else None."""
         return self.sums if self.log is log and self.block == block else None
+
+    @functools.cached_property
+    def residual(self):
+        """The deterministic part fitted out of these sums (:func:`deterministic_residual`),
+        fitted once for the quality checks' step test and the Allan analysis."""
+        return _fit_residual(self.log, self.block, self.sums)
 
 
 def block_sums(log, *, block_period=BLOCK_PERIOD):
@@ -397,6 +406,9 @@ class Residual:
         Omega, the encoder's mean rate, rad/s.
     edge_cos, edge_sin : numpy.ndarray, shape (nb + 1,)
         cos and sin of the encoder angle at the block edges (samples 0, B, 2B, ...).
+    regressors : numpy.ndarray, shape (4, nb)
+        The four regressors of each block (``dt`` s, the cos and sin terms s, ``d alpha -
+        Omega dt`` rad), in the order of ``coefficients``.
     """
 
     blocks: np.ndarray
@@ -406,6 +418,7 @@ class Residual:
     rate: float
     edge_cos: np.ndarray
     edge_sin: np.ndarray
+    regressors: np.ndarray
 
 
 def deterministic_residual(log, *, block_period=BLOCK_PERIOD, sums=None):
@@ -421,7 +434,8 @@ def deterministic_residual(log, *, block_period=BLOCK_PERIOD, sums=None):
         Target block length, s (rounded to whole samples).
     sums : BlockSums, optional
         The log's block sums when already taken (:func:`block_sums`; used when they are this
-        log's over these blocks).
+        log's over these blocks: their residual is fitted once, for both the quality checks'
+        step test and the Allan analysis).
 
     Returns
     -------
@@ -432,19 +446,23 @@ def deterministic_residual(log, *, block_period=BLOCK_PERIOD, sums=None):
     ValueError
         The log has fewer than :data:`MIN_BLOCKS` blocks.
     """
+    block, _ = _blocking(log, block_period)
+    if sums is None or sums.of(log, block) is None:
+        sums = block_sums(log, block_period=block_period)
+    return sums.residual
+
+
+def _fit_residual(log, block, y):
+    """:func:`deterministic_residual` of ``log``'s block sums ``y`` (6, nb) over ``block`` samples."""
     t, enc = np.asarray(log.t, dtype=float), np.asarray(log.encoder, dtype=float)
-    block, nb = _blocking(log, block_period)
+    nb = y.shape[1]
     stop = nb * block + 1
-    y = None if sums is None else sums.of(log, block)
-    if y is None:
-        y = block_sums(log, block_period=block_period).sums
     a, te = enc[:stop:block], t[:stop:block]
     rate = float((a[-1] - a[0]) / (te[-1] - te[0]))
     ce, se = _cos_sin(a)
     X = _regressors(ce[:-1], se[:-1], np.diff(a), np.diff(te), rate)        # (4, nb)
-    # numpy's own loops, not BLAS: a sum over the record in one fixed order, whatever the
-    # threads (a batch gives the same bytes in one process, in workers or on a cluster)
-    G, H = np.einsum("ik,jk->ij", X, X), np.einsum("ik,jk->ij", X, y)
+    with one_thread():       # (the same bytes whatever the threads: hse_opt.align._blas)
+        G, H = X @ X.T, X @ y.T
     norm = np.sqrt(np.diagonal(G)).copy()
     norm[norm == 0] = 1.0
     ev, V = np.linalg.eigh(G / np.outer(norm, norm))                    # scaled columns
@@ -452,7 +470,7 @@ def deterministic_residual(log, *, block_period=BLOCK_PERIOD, sums=None):
     coef = ((V[:, keep] / ev[keep]) @ (V[:, keep].T @ (H / norm[:, None]))) / norm[:, None]
     residual = y - coef.T @ X
     return Residual(blocks=residual, tau0=float((te[-1] - te[0]) / nb), block=block,
-                    coefficients=coef, rate=rate, edge_cos=ce, edge_sin=se)
+                    coefficients=coef, rate=rate, edge_cos=ce, edge_sin=se, regressors=X)
 
 
 def _short_allan(log, residual, sizes, segments=SEGMENTS, length=SEGMENT_SAMPLES):

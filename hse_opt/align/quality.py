@@ -158,9 +158,9 @@ import numpy as np
 
 from hse_opt import units
 from hse_opt.align.rotations import EARTH_RATE
-from hse_opt.align.noise import _block_sums
+from hse_opt.align.noise import _block_sums, deterministic_residual
 from hse_opt.align.metadata import encoder_counts, metadata_problems
-from hse_opt.align.steps import check_steps
+from hse_opt.align.steps import block_period, check_steps
 from hse_opt.align._stats import MAD as _MAD, every_29th_step, median as _median, step_stats
 
 __all__ = ["Thresholds", "Finding", "Quality", "LogRefused", "assess", "check_metadata"]
@@ -809,13 +809,19 @@ def _value(x, unit):
 
 
 # -- 3b. gyro steps (per sample) ---------------------------------------------------------------
-def _check_gyro_steps(t, enc, gyro, th, findings, resolution):
-    """Check 3b (:func:`hse_opt.align.steps.check_steps`, given the quanta and the jitter);
-    returns the gyros (a repaired copy, or ``gyro`` itself)."""
+def _check_gyro_steps(log, sums, enc, gyro, accel, th, findings, resolution):
+    """Check 3b (:func:`hse_opt.align.steps.check_steps`, given the quanta, the jitter and the
+    fit of the Allan analysis, refitted if a check repaired the log); returns the gyros."""
+    now = log if (gyro is log.gyro and accel is log.accel and enc is log.encoder) else \
+        type(log)._trusted(log.t, gyro, accel, enc, log.meta)
+    try:
+        residual = deterministic_residual(now, block_period=block_period(th.step_span_s), sums=sums)
+    except ValueError:                                                 # shorter than 8 spans
+        return gyro
     spikes = {(f.sample, CHANNELS.index(f.detail.split(" ")[0])) for f in findings
               if f.check == "channel" and f.action == "repaired" and " spike of " in f.detail}
     jitter = step_stats(every_29th_step(enc), True)[1] / math.sqrt(2.0)     # (check 1's steps only)
-    gyro, found = check_steps(t, enc, gyro, span=th.step_span_s, jitter=jitter,
+    gyro, found = check_steps(log.t, enc, gyro, residual, jitter=jitter,
                               q=_quantum(gyro[1:]), level=lambda m: _level(th, 6.0 * m, m), floor=th.gyro_floor,
                               qe=_encoder_quantum(enc, resolution),
                               bound=_QUANT_BOUND, most=th.repair_samples, spikes=spikes)
@@ -888,7 +894,7 @@ def assess(log, *, thresholds=None, temperature=None, encoder_counts_per_rev=Non
                                                 _channel_sums(log, L, m, sums) if m >= 8 else None,
                                                 resolution)
             if not any(f.action == "refused" for f in findings):
-                gyro = _check_gyro_steps(t, enc2, gyro, th, findings, resolution)
+                gyro = _check_gyro_steps(log, sums, enc2, gyro, accel, th, findings, resolution)
     if temperature is not None:
         _check_temperature(t, temperature, L, m, th, findings)
     findings.sort(key=lambda f: (-1 if f.sample is None else f.sample))

@@ -15,21 +15,27 @@ encoder count of quantization. But a counter carries its remainder, so its error
 
 The statistic
 -------------
-For each gyro the cumulative residual ``e``: each increment less its share ``beta_j`` of the
-encoder's step (the table's jitter, real motion, is in both and cancels) and less its mean.
-At each sample ``p``, ``D(p)`` is the mean of ``e`` over the ``K`` samples after ``p`` less
-that over the ``K`` before (``K`` samples of ``step_span_s``, 0.25 s): a step ``d`` at ``p0``
-shows as ``d (1 - |p - p0| / K)``; a constant rate shows as a constant, a linear drift as a
-line, the sinusoid of the table angle (the Earth's rate turning with the table) as that
-sinusoid times about ``K dt``: check 3's model (a constant, a sinusoid of the table angle, a
-quadratic drift) is fitted out of ``D`` by least squares. ``D`` is evaluated every
-``K / 8`` samples from two weighted sums over blocks of that length (:func:`block_sums`: a
-plain and a weighted sum of each gyro, the encoder's by parts from one pass), so a step's peak
-is seen at 15/16 of it at least; the step's exact sample comes from the per-sample statistic
-around the peak. Cost on a 10-minute 500 Hz log (instructions counted by callgrind, which load
-does not change): 26 M for the whole check, half the alignment's 48 M; the block sums 13 M (the
-weighted sum alone 6 M: numpy's loops, as a matrix product would wake BLAS threads), the rest
-of the statistic 10 M (two cumulative sums, the table angle's cos and sin, the fit).
+For each gyro the cumulative residual ``e``: each increment less the table's deterministic part,
+the Allan analysis' fit (:func:`hse_opt.align.noise.deterministic_residual`: a constant rate,
+the Earth's rate and gravity's leak turning with the table), except that the encoder's steps
+beyond the mean rate (the table's jitter, real motion that the gyros sense too) are taken off
+in the ratio ``beta_j`` of each gyro's mean rate to the encoder's (:func:`shares`), not in the
+fit's jitter coefficient, which a smooth table leaves undetermined: a step of the encoder
+alone then shows in all three gyros in that ratio. At each sample ``p``, ``D(p)`` is the mean
+of ``e`` over the ``K`` samples after ``p`` less that over the ``K`` before: a step ``d`` at
+``p0`` shows as ``d (1 - |p - p0| / K)``; a constant, a sinusoid of the table angle (what the
+encoder's once-a-turn error leaves in the ratio ``beta_j``) and a quadratic drift in time are
+fitted out of ``D`` by least squares. ``K`` is :data:`GRID` (4) blocks of the Allan
+analysis (:func:`block_period`: 4 x 64 ms = 0.256 s at 500 Hz for ``step_span_s`` = 0.25 s;
+another span gets blocks of its own), and ``D`` is evaluated at every block edge from each
+block's plain sum of the residual (the Allan analysis' own) and its weighted sum (increment
+``i`` of a block of ``h`` weighted ``h + 1 - i``: :func:`weighted_sums`, less the fitted part's,
+:func:`weighted_regressors`) through two cumulative sums, so a step's peak is seen at 7/8 of
+it at least; the step's exact sample comes from the per-sample statistic around the peak.
+What 3b adds to the Allan analysis' sums and fit on a 10-minute 500 Hz log is one pass over
+the gyros and the encoder for the weighted sums, two cumulative sums and the slow part's fit
+over 9,375 block edges (the table angle's cos and sin there are the fit's), and the robust
+1-sigma from every ``K``-th of them.
 
 Its 1-sigma ``s`` (1.4826 x the median absolute deviation) is 0.0071 arcsec on the paper-like
 10-minute log at 10 deg/s. Predicted: the white quantization of the pulses and the encoder's
@@ -59,21 +65,28 @@ from __future__ import annotations
 import numpy as np
 
 from hse_opt import units
+from hse_opt.align._blas import block_dot, one_thread
 from hse_opt.align._stats import MAD as _MAD, median as _median
-from hse_opt.align.noise import _cos_sin
+from hse_opt.align.noise import BLOCK_PERIOD
 
-__all__ = ["block_sums", "check_steps", "find_steps", "step_statistic", "GRID"]
+__all__ = ["block_period", "weighted_sums", "weighted_regressors", "shares", "check_steps", "find_steps",
+           "step_statistic", "GRID"]
 
-#: the statistic is evaluated every K / GRID samples
-GRID = 8
+#: blocks a span ``K``: the statistic is evaluated every ``K / GRID`` samples
+GRID = 4
 
 
-def block_sums(enc, gyro, h):
-    """The gyros' and the encoder's plain and weighted sums over blocks of ``h`` increments
-    (increments ``1 + b h .. (b + 1) h``; increment ``i`` of a block weighted ``h - i``), one
-    pass over the gyros for each and one over the encoder, by numpy's own loops: a matrix
-    product over the record wakes BLAS threads that spin (15 ms instead of 0.8 on a busy
-    2-core machine).
+def block_period(span):
+    """The block the statistic is evaluated on, s: the Allan analysis' (:data:`BLOCK_PERIOD`)
+    when ``GRID`` of them make the span ``span`` (s) to the nearest block, so that both share
+    one fit of the deterministic part; else ``span / GRID``."""
+    return BLOCK_PERIOD if round(span / BLOCK_PERIOD) == GRID else span / GRID
+
+
+def weighted_sums(enc, gyro, h, nb):
+    """The gyros' and the encoder's weighted sums over blocks of ``h`` increments (increments
+    ``1 + b h .. (b + 1) h``; increment ``i`` of a block weighted ``h + 1 - i``), as
+    matrix-vector products on one BLAS thread (:mod:`hse_opt.align._blas`).
 
     Parameters
     ----------
@@ -81,38 +94,54 @@ def block_sums(enc, gyro, h):
         The encoder angle, rad (unwrapped).
     gyro : numpy.ndarray, shape (n, 3)
         Gyro increments, rad.
-    h : int
-        Increments a block.
+    h, nb : int
+        Increments a block, blocks.
 
     Returns
     -------
-    R : numpy.ndarray, shape (3, nb, 2)
-        Each gyro's plain and weighted block sums, rad (``nb = (n - 1) // h``).
-    E : numpy.ndarray, shape (2, nb)
-        The encoder's, rad: the plain sum is the block's turn ``enc[end] - enc[start]`` and
-        the weighted one ``sum (enc[start + i] - enc[start])``, i = 1 .. h (summation by parts:
-        the differences of a float angle within a block are exact, so both equal the sums of
-        its steps).
-    total : numpy.ndarray, shape (3,)
-        Each gyro's sum over all increments 1 .. n - 1, rad.
+    W : numpy.ndarray, shape (3, nb)
+        Each gyro's, rad.
+    E : numpy.ndarray, shape (nb,)
+        The encoder's, rad: by parts ``sum (enc[start + i] - enc[start])``, i = 1 .. h.
     """
-    g = np.asarray(gyro).T                           # (3, n): rows (a view for a column-major log)
-    nb = (g.shape[1] - 1) // h
     M = nb * h
-    w = np.arange(h, 0, -1, dtype=float)
-    R = np.empty((3, nb, 2))
-    gb = g[:, 1:M + 1].reshape(3, nb, h)
-    np.einsum("cbi->cb", gb, out=R[:, :, 0])
-    np.einsum("cbi,i->cb", gb, w, out=R[:, :, 1])
-    rel = enc[1:M + 1].reshape(nb, h) - enc[:M:h, None]      # one pass over the encoder
-    E = np.empty((2, nb))
-    E[0] = rel[:, -1]
-    np.einsum("bi->b", rel, out=E[1])
-    total = R[:, :, 0].sum(axis=1) + g[:, M + 1:].sum(axis=1)
-    return R, E, total
+    g = np.asarray(gyro).T                           # (3, n): rows (a view for a column-major log)
+    if not g.flags.c_contiguous and g.strides[1] != g.itemsize:
+        g = np.ascontiguousarray(g)                  # (a row-major log: the blocks as contiguous rows)
+    W = block_dot(g[:, 1:M + 1].reshape(3, nb, h), np.arange(h, 0, -1, dtype=float))
+    E = block_dot(enc[1:M + 1].reshape(nb, h), np.ones(h))
+    E -= h * enc[:M:h]
+    return W, E
 
 
-def step_statistic(t, enc, gyro, K, beta, sums=None):
+def weighted_regressors(residual, E):
+    """The deterministic part's regressors (:class:`hse_opt.align.noise.Residual`) summed with
+    the weights of :func:`weighted_sums`, shape (4, nb).
+
+    Within a block of ``h`` samples the angle is taken as linear (as the regressors are): with
+    ``delta`` its turn a sample and ``u_i = i - (h + 1) / 2``, the weighted sum of the
+    per-sample cos/sin terms is the block's term times ``(h + 1) / 2 - j B / A``, ``A = sum
+    cos(u delta)``, ``B = sum u sin(u delta)``; ``B / A = cot(delta / 2) / 2 - h cot(h delta /
+    2) / 2 = delta (h^2 - 1) / 12 (1 + delta^2 (h^2 + 1) / 60)`` to ``O(delta^5 h^4)``. The
+    time's weighted sum is ``(h + 1) / 2`` times the block's (its coefficient less the jitter
+    term's share of it is the bias alone); the encoder's is ``E``, less the mean rate's."""
+    X = residual.regressors
+    h = residual.block
+    half = 0.5 * (h + 1)
+    d = (X[3] + residual.rate * X[0]) / h            # the turn a sample, each block
+    c = d * ((h * h - 1) / 12.0) * (1.0 + d * d * ((h * h + 1) / 60.0))
+    Xw = np.empty_like(X)
+    np.multiply(X[0], half, out=Xw[0])
+    np.multiply(X[1], half, out=Xw[1])
+    Xw[1] += c * X[2]
+    np.multiply(X[2], half, out=Xw[2])
+    Xw[2] -= c * X[1]
+    np.multiply(Xw[0], -residual.rate, out=Xw[3])
+    Xw[3] += E
+    return Xw
+
+
+def step_statistic(t, enc, gyro, residual, beta):
     """``D`` on its grid, the slow part fitted out (module docstring).
 
     Parameters
@@ -123,78 +152,95 @@ def step_statistic(t, enc, gyro, K, beta, sums=None):
         The encoder angle, rad (unwrapped).
     gyro : numpy.ndarray, shape (n, 3)
         Gyro increments, rad.
-    K : int
-        The span, samples (a multiple of :data:`GRID`).
+    residual : hse_opt.align.noise.Residual
+        The deterministic part fitted out of these samples' block sums (its block ``h``; the
+        span ``K = GRID h``).
     beta : numpy.ndarray, shape (3,)
-        Each gyro's share of the encoder's turn (its sum over the log's over the encoder's).
-    sums : tuple, optional
-        :func:`block_sums` of ``enc, gyro`` over blocks of ``K / GRID`` (taken here if None).
+        Each gyro's share of the encoder's turn (:func:`shares`): the encoder's steps are
+        taken off the gyros in this ratio (a step of the encoder alone then shows in all
+        three in it), not in the fit's jitter coefficients, which a smooth table leaves
+        undetermined.
 
     Returns
     -------
     D : numpy.ndarray, shape (3, g)
-        rad, at the increments ``p = K, K + h, ...`` (``h = K / GRID``).
+        rad, at the increments ``p = K, K + h, ...``.
     p : numpy.ndarray of int, shape (g,)
     local : callable
         ``local(j, a, b)``: gyro ``j``'s per-increment statistic at the splits ``a .. b - 1``
         (their exact step), the slow part's rate taken off.
     """
-    N = t.size - 1
-    h = K // GRID
-    nb = N // h
-    M = nb * h
-    g = np.asarray(gyro).T                           # (3, n): rows (a view for a column-major log)
-    R, E, _ = block_sums(enc, gyro, h) if sums is None else sums
-    P = R[:, :, 0] - beta[:, None] * E[0]            # each block's plain and weighted sums of e
-    B = R[:, :, 1] - beta[:, None] * E[1]            # (new arrays: the caller's sums stay)
-    mean = P.sum(axis=1) / M
-    P -= mean[:, None] * h
-    B -= mean[:, None] * (h * (h + 1) / 2.0)         # the weights h .. 1 summed
-    e_end = np.cumsum(P, axis=1)                     # e at each block's end
-    # block b's sum of e: h e(end of b - 1) + its own
-    B[:, 1:] += h * e_end[:, :-1]
+    h = residual.block
+    nb = residual.blocks.shape[1]
+    K = GRID * h
+    X = residual.regressors
+    coef = residual.coefficients[:, :3].copy()       # (4, 3)
+    r = residual.blocks[:3] + np.multiply.outer(coef[3] - beta, X[3])       # the jitter in the ratio beta
+    coef[3] = beta
+    W, E = weighted_sums(enc, gyro, h, nb)
+    B = W - coef.T @ weighted_regressors(residual, E)          # block sums of e, less ...
+    e_end = np.cumsum(r, axis=1)                     # e at each block's end
+    B[:, 1:] += h * e_end[:, :-1]                    # ... h e(end of the block before)
     S = np.zeros((3, nb + 1))
     np.cumsum(B, axis=1, out=S[:, 1:])
-    kb = K // h
-    D = (S[:, 2 * kb:] - 2.0 * S[:, kb:nb + 1 - kb] + S[:, :nb + 1 - 2 * kb]) / K
-    p = h * np.arange(kb, nb + 1 - kb)
-    c, s = _cos_sin(enc[p])
-    u = np.linspace(-1.0, 1.0, p.size)
-    A = np.stack([np.ones(p.size), c, s, u, u * u])          # (5, g): the regressors as rows
-    # the normal equations (columns O(1), nearly orthogonal), by numpy's loops (block_sums)
-    coef = np.linalg.solve(np.einsum("fk,gk->fg", A, A), np.einsum("fk,ck->fc", A, D))
-    model = np.einsum("fc,fk->ck", coef, A)
+    D = (S[:, 2 * GRID:] - 2.0 * S[:, GRID:nb + 1 - GRID] + S[:, :nb + 1 - 2 * GRID]) / K
+    p = h * np.arange(GRID, nb + 1 - GRID)
+    # the slow part: a constant, a sinusoid of the table angle (the encoder's own once-a-turn
+    # error, in the ratio beta) and a quadratic drift, fitted by least squares (the columns
+    # O(1), nearly orthogonal; the table angle's cos and sin are the fit's, at the block edges)
+    A = _slow_regressors(residual.edge_cos[GRID:nb + 1 - GRID], residual.edge_sin[GRID:nb + 1 - GRID])
+    with one_thread():
+        model = np.linalg.solve(A @ A.T, A @ D.T).T @ A
+    g = np.asarray(gyro).T
+    dt = residual.tau0 / h                           # the mean sample period (weighted_regressors)
 
     def local(j, a, b):
-        x = g[j, a - K + 1:b + K + 1] - beta[j] * np.diff(enc[a - K:b + K + 1]) - mean[j]
-        i = np.clip(np.searchsorted(p, np.arange(a - K, b + K)), 0, p.size - 1)
-        x = x - model[j, i] / K                      # the slow part's rate: D ~ K x rate a sample
+        lo, hi = a - K, b + K                        # increments lo + 1 .. hi
+        da = np.diff(enc[lo:hi + 1])
+        mid = enc[lo:hi] + 0.5 * da
+        det = coef[0, j] * dt + beta[j] * (da - residual.rate * dt) \
+            + (coef[1, j] * np.cos(mid) + coef[2, j] * np.sin(mid)) * dt
+        i = np.clip(np.searchsorted(p, np.arange(lo, hi)), 0, p.size - 1)
+        x = g[j, lo + 1:hi + 1] - det - model[j, i] / K      # the slow part's rate: D ~ K x rate a sample
         cs = np.concatenate(([0.0], np.cumsum(np.cumsum(x))))
         q = np.arange(K, K + b - a)
         return (cs[q + K] - 2.0 * cs[q] + cs[q - K]) / K
 
-    return D - model, p, local
+    D -= model
+    return D, p, local
 
 
-def find_steps(t, enc, gyro, K, beta, level, quant, floor, sums=None):
+def _slow_regressors(c, s):
+    """The rows (5, g) of the statistic's slow part: 1, ``cos`` and ``sin`` of the table angle,
+    ``u`` and ``u^2`` (``u`` from -1 to 1 over the grid)."""
+    A = np.empty((5, c.size))
+    A[0] = 1.0
+    A[1], A[2] = c, s
+    A[3] = np.linspace(-1.0, 1.0, c.size)
+    np.multiply(A[3], A[3], out=A[4])
+    return A
+
+
+def shares(residual):
+    """Each gyro's share of the encoder's turn, shape (3,): its mean rate over the encoder's
+    (the fit's constant-rate coefficient over ``Omega``; the sum of its increments over the
+    encoder's turn)."""
+    return residual.coefficients[0, :3] / residual.rate
+
+
+def find_steps(t, enc, gyro, residual, beta, level, quant, floor):
     """The steps of the three gyros (module docstring).
 
     Parameters
     ----------
-    t, enc, gyro : numpy.ndarray
+    t, enc, gyro, residual, beta
         As :func:`step_statistic`.
-    K : int
-        The span, samples (a multiple of :data:`GRID`).
-    beta : numpy.ndarray, shape (3,)
-        Each gyro's share of the encoder's turn.
     level : float
         The Bonferroni multiplier of the statistic's robust 1-sigma.
     quant : numpy.ndarray, shape (3,)
         Added to each gyro's threshold (0 where the quantization is dithered), rad.
     floor : float
         The smallest threshold, rad.
-    sums : tuple, optional
-        As :func:`step_statistic`.
 
     Returns
     -------
@@ -205,14 +251,15 @@ def find_steps(t, enc, gyro, K, beta, level, quant, floor, sums=None):
     thr : numpy.ndarray, shape (3,)
         Each gyro's threshold, rad.
     """
-    D, p, local = step_statistic(t, enc, gyro, K, beta, sums)
-    sub = D[:, ::4]                                  # (a quarter of the grid pins the median)
+    D, p, local = step_statistic(t, enc, gyro, residual, beta)
+    sub = D[:, ::GRID]                               # (every K: nearly independent values)
     sigma = _MAD * _median(np.abs(sub - _median(sub.T)[:, None]).T)
     thr = np.maximum(level * sigma + quant, floor)
     bad = np.abs(D) > thr[:, None]
     if not bad.any():
         return [], thr
-    h, N = K // GRID, t.size - 1
+    h, N = residual.block, t.size - 1
+    K = GRID * h
     found = []                                      # (increment, channel, d)
     for j in range(3):
         idx = np.flatnonzero(bad[j])
@@ -241,15 +288,14 @@ def find_steps(t, enc, gyro, K, beta, level, quant, floor, sums=None):
     return out, thr
 
 
-def check_steps(t, enc, gyro, *, span, jitter, q, qe, level, floor, bound, most, spikes=()):
+def check_steps(t, enc, gyro, residual, *, jitter, q, qe, level, floor, bound, most, spikes=()):
     """Check 3b of :func:`hse_opt.align.quality.assess`: find the steps, repair or refuse.
 
     Parameters
     ----------
-    t, enc, gyro : numpy.ndarray
-        As :func:`step_statistic`.
-    span : float
-        The span ``K dt``, s (``Thresholds.step_span_s``).
+    t, enc, gyro, residual
+        As :func:`step_statistic` (the residual's blocks of :func:`block_period`, at least
+        :data:`hse_opt.align.noise.MIN_BLOCKS` of them).
     jitter : float
         The table's jitter in angle, rad (1/sqrt(2) of the encoder steps' robust 1-sigma).
     q : numpy.ndarray, shape (3,)
@@ -275,16 +321,13 @@ def check_steps(t, enc, gyro, *, span, jitter, q, qe, level, floor, bound, most,
         fields).
     """
     N = t.size - 1
-    K = GRID * max(1, int(round(span * N / float(t[-1] - t[0]) / GRID)))
-    if N < 8 * K:
-        return gyro, []
-    sums = block_sums(enc, gyro, K // GRID)           # one pass each for the shares and the statistic
-    beta = sums[2] / float(enc[-1] - enc[0])
+    K = GRID * residual.block
+    beta = shares(residual)
     # the pulses and the encoder's counts are white only when the table's jitter dithers them
     # (a noise of at least one quantum: Widrow); else their bounded error is added
     dithered = (jitter >= qe) & (np.abs(beta) * jitter >= q)
     quant = np.where(dithered, 0.0, bound * (q + np.abs(beta) * qe))
-    steps, thr = find_steps(t, enc, gyro, K, beta, level(N / K), quant, floor, sums)
+    steps, thr = find_steps(t, enc, gyro, residual, beta, level(N / K), quant, floor)
     if not steps:
         return gyro, []
     gyro, out, count = gyro.copy(), [], [0, 0, 0]
