@@ -154,6 +154,28 @@ def test_the_overlapping_allan_deviation_is_allantools_oadev():
     assert np.all(np.abs(sub / adev - 1) < 4 * sigma)
 
 
+@pytest.mark.parametrize("n, max_terms", [(9374, MAX_TERMS), (9999, MAX_TERMS), (8194, MAX_TERMS), (20000, 300),
+                                           (937, MAX_TERMS), (5000, 10 ** 9)])
+def test_octave_clusters_take_the_definitions_start_points(n, max_terms):
+    """Octave cluster sizes (as the logs' analysis takes them: a 10-minute log's 9374 blocks at
+    500 Hz, 9999 at 100 Hz) against the definition written out here: the start points ``k =
+    0, s, 2s, ..`` with ``s = max(1, (n + 1 - 2m) // max_terms)``, the second differences of
+    the cumulative sum in extended precision. Strides 4, 3, 2 and 1 among the cluster times,
+    a stride that is no power of two, every start point."""
+    rng = np.random.default_rng(n)
+    x = _white_rate(rng, 3e-6, 3, n=n) + _rate_random_walk(rng, 1e-6, 3, n=n) + 1e-7   # a bias too
+    sizes = 2 ** np.arange(int(math.log2(n // 2)) + 1)
+    tau, adev, clusters = allan_deviation(x, TAU0, max_terms=max_terms, sizes=sizes)
+    theta = np.concatenate([np.zeros((3, 1)), np.cumsum(x.astype(np.longdouble), axis=1)], axis=1)
+    for i, m in enumerate(sizes.tolist()):
+        step = max(1, (n + 1 - 2 * m) // max_terms)
+        k = np.arange(0, n - 2 * m + 1, step)
+        d = theta[:, k + 2 * m] - 2 * theta[:, k + m] + theta[:, k]
+        ref = np.sqrt(np.mean(d ** 2, axis=1) / 2).astype(float) / (m * TAU0)
+        assert np.allclose(adev[:, i], ref, rtol=1e-12, atol=0), (m, step)
+        assert clusters[i] == min(n / m, k.size) and tau[i] == m * TAU0
+
+
 def test_campaign_pooling_is_the_cluster_weighted_mean_of_the_variances():
     rng = np.random.default_rng(10)
     logs = [_SyntheticLog(rng, n) for n in (40000, 40000, 60000)]

@@ -39,7 +39,10 @@ Steps
    points exist (the long cluster times, where the overlap matters), at most 2 x
    :data:`MAX_TERMS` otherwise (the short cluster times, where that many nearly independent
    clusters pin each value to 1.6 %). The number of independent clusters is taken as ``min(n
-   / m, start points)``. Clusters shorter than a block (1, 2, 4, 8, 16 samples at 500 Hz) come
+   / m, start points)``. For octave cluster sizes (those of a log) the second differences
+   come from sums over the strides and their doubling, not from a cumulative sum over the
+   record (:func:`_octave_squares`: the same start points, rounding that does not grow with
+   the record, a third of the cost). Clusters shorter than a block (1, 2, 4, 8, 16 samples at 500 Hz) come
    from the raw samples of :data:`SEGMENTS` stretches of :data:`SEGMENT_SAMPLES` samples
    spread over the log, fully overlapping within each, the fitted deterministic part taken
    off every sample.
@@ -566,9 +569,6 @@ def allan_deviation(increments, tau0, *, max_terms=MAX_TERMS, sizes=None):
     """
     x = np.atleast_2d(np.asarray(increments, dtype=float))
     c, n = x.shape
-    theta = np.empty((c, n + 1))
-    theta[:, 0] = 0.0
-    np.cumsum(x, axis=1, out=theta[:, 1:])
     ms = cluster_sizes(n) if sizes is None else np.asarray(sizes, dtype=np.int64)
     if ms.size == 0 or ms.min() < 1 or ms.max() > n // 2:
         raise ValueError(f"cluster sizes must lie in 1..{n // 2} for {n} intervals")
@@ -577,19 +577,115 @@ def allan_deviation(increments, tau0, *, max_terms=MAX_TERMS, sizes=None):
         span = n + 1 - 2 * m
         step = max(1, span // max_terms)
         plan.append((m, step, (span - 1) // step + 1))
-    ss = np.empty((ms.size, c))
-    clusters = np.empty(ms.size)
-    d = np.empty(c * max(cnt for _, _, cnt in plan))         # one small buffer for every cluster time
+    ss = _octave_squares(x, plan)
+    if ss is None:
+        ss = _squares(x, plan)
+    cnt = np.array([p[2] for p in plan], dtype=float)
+    adev = np.sqrt(ss.T / (2.0 * cnt)) / (ms * tau0)
+    return ms * tau0, adev, np.minimum(n / ms, cnt)
+
+
+def _squares(x, plan):
+    """Per ``(m, step, count)`` of ``plan``, the sum over the start points ``k = 0, step, ..``
+    (``count`` of them) of ``(theta_{k+2m} - 2 theta_{k+m} + theta_k)^2``, ``theta`` the
+    cumulative sum of ``x`` (c, n) from 0; (k, c). Any plan: ``theta`` read by strided views."""
+    c, n = x.shape
+    theta = np.empty((c, n + 1))
+    theta[:, 0] = 0.0
+    np.cumsum(x, axis=1, out=theta[:, 1:])
+    ss = np.empty((len(plan), c))
+    d = np.empty(c * max(cnt for _, _, cnt in plan))
     for i, (m, step, cnt) in enumerate(plan):
         di = d[:c * cnt].reshape(c, cnt)
         np.multiply(theta[:, m::step][:, :cnt], 2.0, out=di)
         np.subtract(theta[:, 2 * m::step][:, :cnt], di, out=di)
         di += theta[:, :(cnt - 1) * step + 1:step]
         _vecdot(di, di, out=ss[i])
-        ss[i] /= 2.0 * cnt
-        clusters[i] = min(n / m, cnt)
-    adev = np.sqrt(ss.T) / (ms * tau0)
-    return ms * tau0, adev, clusters
+    return ss
+
+
+def _octave_squares(x, plan):
+    """:func:`_squares` without a cumulative sum, for cluster sizes that are powers of two
+    when the longest stride ``s`` (the shortest cluster's) is one too and every cluster
+    shorter than ``s`` has it; else None.
+
+    The increments are summed over ``s`` by pairs (``S_1 = x``, ``S_2``, ``S_4``, ..: the
+    lattice sums ``S_s``). A cluster shorter than ``s`` is the difference of two adjacent sums
+    ``S_m``, read every ``s / m``-th. A longer one, ``q = m / s`` lattice sums, is the
+    difference of two sums ``D_q`` of ``q`` consecutive lattice sums, ``q`` apart; ``D_q`` by
+    doubling (``D_2q[j] = D_q[j] + D_q[j + q]``). Start points off the lattice (a stride
+    below ``s``) are taken by phase ``phi = k mod s``: ``D_q`` moved by ``phi`` intervals
+    (less the first ``phi`` increments of its first lattice sum, plus those of the one after
+    its last), the phase's start points every ``step / gcd(step, s)``-th. The same start
+    points as :func:`_squares`; no sum runs over the record, so no rounding grows with it.
+    The lattice arrays are rows of one width in flat buffers, added as one flat array each (a
+    sum across two rows is never read), as in :func:`_short_allan`."""
+    c, n = x.shape
+    s = max(step for _, step, _ in plan)
+    if (any(m & (m - 1) for m, _, _ in plan) or s & (s - 1)
+            or any(m < s and step != s for m, step, _ in plan)
+            or sum(s // math.gcd(step, s) for m, step, _ in plan if m >= s) > 2 * len(plan) + 8):
+        return None
+    width = n // s + 1                                  # every lattice row: this many entries
+    lattice = np.empty((3, c, width))                   # S_s then D_q (doubled in two); d
+    flat = lattice.reshape(3, -1)
+    sums = {1: x}                                       # S_w: sums over w intervals, (c, n // w)
+    w = 1
+    while w < s:
+        prev, half = sums[w], n // (2 * w)
+        out = lattice[0, :, :half] if 2 * w == s else None
+        sums[2 * w] = np.add(prev[:, 0:2 * half:2], prev[:, 1:2 * half:2], out=out)
+        w *= 2
+    if s == 1:
+        lattice[0, :, :n] = x
+    lattice[0, :, n // s:] = 0.0                        # read only by sums across rows
+    heads = {}
+
+    def head(phi):
+        """P_phi[j] = x[s j] + .. + x[s j + phi - 1] from the sums over phi's binary digits,
+        as flat rows of the lattice's width."""
+        if phi not in heads:
+            length, off, P = (n - phi) // s + 1, 0, np.empty((c, width))
+            P[:, length:] = 0.0
+            for b in (1 << k for k in range(phi.bit_length() - 1, -1, -1)):
+                if phi & b:
+                    part = sums[b][:, off // b::s // b][:, :length]
+                    if off:
+                        np.add(P[:, :length], part, out=P[:, :length])
+                    else:
+                        np.copyto(P[:, :length], part)
+                    off += b
+            heads[phi] = P.reshape(-1)
+        return heads[phi]
+
+    ss = np.empty((len(plan), c))
+    D, q, size = flat[0], 1, flat.shape[1]              # D_q: row entries 0 .. n // s - q valid
+    for i, (m, step, cnt) in enumerate(plan):
+        if m < s:
+            S, r = sums[m], s // m
+            d = np.subtract(S[:, 1::r][:, :cnt], S[:, 0::r][:, :cnt], out=lattice[2, :, :cnt])
+            _vecdot(d, d, ss[i])
+            continue
+        while q < m // s:
+            nxt = flat[q.bit_length() % 2, :size - q]
+            D = np.add(D[:size - q], D[q:size], out=nxt)
+            size, q = size - q, 2 * q
+        g = math.gcd(step, s)
+        ss[i] = 0.0
+        for phi in range(0, s, g):
+            first = next(i0 for i0 in range(s // g) if step * i0 % s == phi)
+            k = len(range(first, cnt, s // g))          # start points at this phase ...
+            j0, r = step * first // s, step // g        # ... lattice entries j0, j0 + r, ..
+            last = (c - 1) * width + j0 + (k - 1) * r + 1   # flat entries of d needed
+            Dp = D
+            if phi:                                     # D_q moved by phi intervals
+                P = head(phi)
+                Dp = D[:last + q] - P[:last + q]
+                Dp += P[q:last + 2 * q]
+            np.subtract(Dp[q:last + q], Dp[:last], out=flat[2, :last])
+            d = lattice[2, :, j0:j0 + (k - 1) * r + 1:r]
+            ss[i] += _vecdot(d, d, None)
+    return ss
 
 
 def fit_allan(tau, adev, clusters, *, iterations=3):
