@@ -1,6 +1,6 @@
 """Robust statistics of the raw-log checks (private): the exact median by partition, the
 Gaussian 1-sigma of a median absolute deviation and the encoder steps' centre and spread; shared by :mod:`hse_opt.align.quality` and
-its step check (:mod:`hse_opt.align.steps`)."""
+its step check (:mod:`hse_opt.align.steps`); the window test's flags and its slow model's fit."""
 from __future__ import annotations
 
 import numpy as np
@@ -46,3 +46,54 @@ def step_stats(d, taken=False):
 def every_29th_step(enc):
     """The steps of the encoder ``enc`` (n,) that :func:`step_stats` takes, without the others."""
     return enc[1::29] - enc[:-1:29] if enc.size > 2900 else np.diff(enc)
+
+
+def robust_flags(v, sigmas, floor, quant=0.0, level=0.0):
+    """Deviations from the median, thresholds and flags of each row of ``v``: a value is
+    flagged beyond ``max(sigmas x s, level x s + quant, floor)``, ``s`` its row's robust
+    1-sigma (``quant``: the bounded quantization part, added to the Gaussian part's bound at
+    the Bonferroni ``level``). The raw-log checks' window test (check 3 of
+    :mod:`hse_opt.align.quality`).
+
+    Parameters
+    ----------
+    v : numpy.ndarray, shape (k, m)
+        Each row a channel's values over the windows (in its unit).
+    sigmas, level : float
+    floor, quant : float or numpy.ndarray, shape (k,)
+        In each row's unit.
+
+    Returns
+    -------
+    dev : numpy.ndarray, shape (k, m)
+    thr : numpy.ndarray, shape (k,)
+    flags : numpy.ndarray of bool, shape (k, m)
+    """
+    dev = v - median(v.T)[:, None]
+    s = MAD * median(np.abs(dev).T)
+    thr = np.maximum(np.maximum(sigmas * s, level * s + quant), floor)
+    return dev, thr, np.abs(dev) > thr[:, None]
+
+
+def regressors(mid):
+    """The slow model of a static base's windows (check 3 of :mod:`hse_opt.align.quality`):
+    rows 1, cos, sin of the windows' middle table angles ``mid`` (m,), rad, then ``tau`` and
+    ``tau^2``, ``tau`` from -1 to 1 (``numpy.linspace``'s values); shape (5, m)."""
+    m = mid.shape[0]
+    A = np.empty((5, m))
+    A[0] = 1.0
+    np.cos(mid, out=A[1])
+    np.sin(mid, out=A[2])
+    np.multiply(np.arange(m), 2.0 / (m - 1), out=A[3])
+    A[3] -= 1.0
+    A[3, -1] = 1.0
+    np.multiply(A[3], A[3], out=A[4])
+    return A
+
+
+def fit(A, Y, keep=None):
+    """Least-squares coefficients, shape (5, k), of the rows of ``Y`` (k, m) on the regressors
+    ``A`` (5, m) (:func:`regressors`) over the columns ``keep`` (bool (m,); all when None). The
+    normal equations: the regressors are O(1) and nearly orthogonal, a 5x5 solve."""
+    Ak, Yk = (A, Y) if keep is None else (A[:, keep], Y[:, keep])
+    return np.linalg.solve(Ak @ Ak.T, Ak @ Yk.T)

@@ -142,7 +142,8 @@ Checks, rules and thresholds (:class:`Thresholds`; the reasons are physical)
 
 Cost: a few passes over the samples and one least-squares fit of a thousand windows; the
 window sums come from the Allan analysis' block sums when ``hse-opt align`` passes them
-(``sums``: one pass over the samples for both). On a 10-minute 500 Hz log
+(``sums``: one pass over the samples for both), and the quanta and the encoder's step
+statistics that checks 1, 3 and 3b take are worked out once (:class:`~hse_opt.align._quanta.Quanta`). On a 10-minute 500 Hz log
 (``benchmarks/align.py``, a busy 2-core machine, CPU) 1.5 ms with the block sums, a third of
 the alignment's time, and 5.5 ms with check 3b (its statistic over the samples); by
 instructions (callgrind, 2026-11-26) 39 M with check 3b against the alignment's 48 M, of which
@@ -161,19 +162,20 @@ from hse_opt.align.rotations import EARTH_RATE
 from hse_opt.align.noise import _block_sums, deterministic_residual
 from hse_opt.align.metadata import encoder_counts, metadata_problems
 from hse_opt.align.steps import block_period, check_steps
-from hse_opt.align._stats import MAD as _MAD, every_29th_step, median as _median, step_stats
+from hse_opt.align._quanta import Quanta, encoder_quantum as _encoder_quantum, quantum as _quantum
+from hse_opt.align._stats import MAD as _MAD, every_29th_step, fit as _fit, median as _median, \
+    regressors as _regressors, robust_flags as _robust_flags, step_stats
 
 __all__ = ["Thresholds", "Finding", "Quality", "LogRefused", "assess", "check_metadata"]
 
 #: channel names in RawLog column order (gyro x, y, z then accelerometer x, y, z)
 CHANNELS = ("gyro_x", "gyro_y", "gyro_z", "accel_x", "accel_y", "accel_z")
-_QUANTUM_SAMPLES = 4000
-_QUANTUM_CHANGES = 20
 #: the encoder step threshold is at least this many quanta of the steps (:func:`_quantum`)
 _QUANTA = 3.0
 #: the quantization part of a window sum's deviation from the windows' median is below this
 #: many quanta (the sum of a counter that carries its remainder is off by less than one, the
-#: median by less than one more): added to the Gaussian part's bound (:func:`_robust_flags`)
+#: median by less than one more): added to the Gaussian part's bound
+#: (:func:`~hse_opt.align._stats.robust_flags`)
 _QUANT_BOUND = 2.0
 
 
@@ -243,6 +245,10 @@ class Thresholds:
     false_alarm: float = 1e-4
     temp_drift_c: float = 1.0
     step_span_s: float = 0.25
+
+
+#: the default thresholds (immutable)
+_THRESHOLDS = Thresholds()
 
 
 @dataclass(frozen=True)
@@ -335,39 +341,19 @@ def _clusters(idx, gap):
     return [(int(idx[a]), int(idx[b])) for a, b in zip(starts, ends)]
 
 
-def _quantum(x, axis=0):
-    """The smallest nonzero change between consecutive values of ``x`` over its first
-    ``_QUANTUM_SAMPLES`` samples, per column, above 1e-9 of its values (float rounding of
-    whole multiples): one pulse (or one encoder count) of a quantized channel, ~0 for an
-    unquantized one, 0 when it changes in ``_QUANTUM_CHANGES`` samples or fewer. Window sums of counters that carry their remainders
-    are off by less than one pulse each, so a threshold of three quanta is never reached by
-    quantization alone, however its residuals bunch (a median absolute deviation can be 0)."""
-    x = x[:_QUANTUM_SAMPLES]
-    dd = np.abs(np.diff(x, axis=axis))
-    changed = dd > 1e-9 * np.abs(x).mean(axis=axis)            # not rounding of whole multiples
-    dd[~changed] = np.inf
-    # a channel that changes in only a few samples (a glitch in an exact ramp) has no quantum
-    return np.where(changed.sum(axis=axis) > _QUANTUM_CHANGES, dd.min(axis=axis), 0.0)
-
-
-def _encoder_quantum(enc, resolution):
-    """One encoder count, rad: the smallest change of its first steps, or the resolution given
-    (counts per revolution), whichever is larger."""
-    return max(float(_quantum(np.diff(enc[:_QUANTUM_SAMPLES + 2])[1:])), resolution)
-
-
-def _check_encoder(t, enc, gyro, th, findings, resolution=0.0):
-    """Check 1; returns the encoder (a repaired copy, or ``enc`` itself). ``resolution``: the
-    encoder's count, rad, when known (0: the steps' quantum as seen in the data)."""
+def _check_encoder(t, enc, gyro, th, findings, quanta):
+    """Check 1; returns the encoder (a repaired copy, or ``enc`` itself). ``quanta``: the
+    log's :class:`~hse_opt.align._quanta.Quanta` (the table's step and its 1-sigma, the
+    encoder's count)."""
     n = enc.size
-    d = np.diff(enc)
-    c, s = step_stats(d)
+    d = quanta.steps
+    c, s = quanta.step, quanta.step_sigma
     if c == 0.0:            # one reading held over half the log or more: frozen, if the table turned
         frozen = _frozen_encoder(t, enc, gyro, d)
         if frozen is not None:
             findings.append(frozen)
             return enc
-    thr = max(th.encoder_sigmas * s, th.encoder_floor, _QUANTA * max(float(_quantum(d[1:])), resolution))
+    thr = max(th.encoder_sigmas * s, th.encoder_floor, _QUANTA * quanta.count)
     if float(d.max()) - c <= thr and c - float(d.min()) <= thr:      # (two reductions, no temporaries)
         return enc
     dev = d - c
@@ -479,16 +465,16 @@ def _windows(n, dt, th):
 
 def _check_rate(t, enc, L, m, th, findings):
     """Check 2 on windows of L samples; returns the window turns (m,) for check 3."""
-    edges = enc[0:m * L + 1:L]
-    turn = np.diff(edges)
-    rate = turn / np.diff(t[0:m * L + 1:L])
+    edges, te = enc[0:m * L + 1:L], t[0:m * L + 1:L]
+    turn = edges[1:] - edges[:-1]
+    rate = turn / (te[1:] - te[:-1])
     med = float(_median(rate))
     if med == 0.0:
         return turn
     rel = rate / med - 1.0
     # the windows' own noise (the jitter at their edges: white, so it shows in the differences
     # of neighbouring windows, where a ripple over many windows does not) is allowed on top
-    noise = _MAD * float(_median(np.abs(np.diff(rel)))) / math.sqrt(2.0) if rel.size > 2 else 0.0
+    noise = _MAD * float(_median(np.abs(rel[1:] - rel[:-1]))) / math.sqrt(2.0) if rel.size > 2 else 0.0
     sigmas = max(th.rate_sigmas, _level(th, m, m))
     allowed = th.rate_ripple + sigmas * noise
     w = int(np.argmax(np.abs(rel)))
@@ -529,44 +515,28 @@ def _level(th, tests, m):
     return z * (1.0 + 3.0 * 1.166 / math.sqrt(max(m, 1)))
 
 
-def _robust_flags(v, sigmas, floor, quant=0.0, level=0.0):
-    """(deviation from the median, threshold, flags) of each column of ``v`` (m, k): a value is
-    flagged beyond ``max(sigmas x s, level x s + quant, floor)`` with ``s`` the robust 1-sigma
-    (``quant``: the bounded quantization part, added to the Gaussian part's bound at the
-    Bonferroni ``level``)."""
-    dev = v - _median(v)
-    s = _MAD * _median(np.abs(dev))
-    thr = np.maximum(np.maximum(sigmas * s, level * s + quant), floor)
-    return dev, thr, np.abs(dev) > thr
-
-
-def _fit(A, Y, keep):
-    """Least-squares coefficients of Y on A over the rows ``keep`` (normal equations: the
-    columns are O(1) and nearly orthogonal, a 5x5 solve)."""
-    Ak = A[keep]
-    return np.linalg.solve(Ak.T @ Ak, Ak.T @ Y[keep])
-
-
-def _check_channels(t, enc, gyro, accel, turn, L, m, th, findings, X, resolution=0.0):
+def _check_channels(t, enc, gyro, accel, turn, L, m, th, findings, X, quanta):
     """Check 3 on the window sums ``X`` (m, 6); returns (gyro, accel, enc), repaired copies
-    where a spike rule applied. ``resolution``: the encoder's count, rad, when known (0: as
-    seen in the data)."""
+    where a spike rule applied. ``quanta``: the log's :class:`~hse_opt.align._quanta.Quanta`
+    (the channels' pulses, the encoder's count). Each channel's window values are a row here
+    (numpy's operations along a short last axis cost more than the arithmetic)."""
     if m < 8:
         return gyro, accel, enc
     total = float(turn.sum())
     beta = X[:, :3].sum(axis=0) / total
     # the norms first: the gyros' turn against the encoder's, the specific force; no fit to
     # bend, so a fault in many windows (a clipped range) cannot hide in a fitted sinusoid
-    ratio = np.sqrt(np.einsum("ij,ij->i", X[:, :3], X[:, :3])) / np.abs(turn)
-    force = np.sqrt(np.einsum("ij,ij->i", X[:, 3:], X[:, 3:]))
-    scale = float(_median(ratio))
+    norms = np.empty((3, m))        # rows: the ratio, the force, then |turn| (for its median)
+    np.divide(np.sqrt(np.einsum("ij,ij->i", X[:, :3], X[:, :3])), np.abs(turn), out=norms[0])
+    np.sqrt(np.einsum("ij,ij->i", X[:, 3:], X[:, 3:]), out=norms[1])
+    np.abs(turn, out=norms[2])
+    scale, f_med, turn_med = _median(norms.T).tolist()
     if abs(scale - 1.0) > th.gyro_scale:
         findings.append(Finding("channel", 1, float(t[1]), "refused",
                                 f"the gyros turn {scale:.6g} times the encoder's turn (median over windows of {L} "
                                 f"samples); allowed: within 1 +- {th.gyro_scale:g} (a wrong pulse weight, a channel "
                                 "clipped or stuck throughout, or an encoder with the wrong counts per revolution)"))
         return gyro, accel, enc
-    f_med = float(_median(force))
     g = f_med / float(t[L] - t[0])
     if not th.gravity[0] <= g <= th.gravity[1]:
         findings.append(Finding("channel", 1, float(t[1]), "refused",
@@ -574,40 +544,54 @@ def _check_channels(t, enc, gyro, accel, turn, L, m, th, findings, X, resolution
                                 f"samples); allowed: {th.gravity[0]:g}-{th.gravity[1]:g} m/s^2 (gravity on a static "
                                 "base; a channel clipped or stuck throughout, or a wrong pulse weight)"))
         return gyro, accel, enc
-    norms = np.column_stack([ratio / scale, force / f_med])
-    q = _quantum(np.concatenate([gyro[1:1 + _QUANTUM_SAMPLES], accel[1:1 + _QUANTUM_SAMPLES]], axis=1))   # one pulse
-    size = np.array([float(_median(np.abs(turn))) * scale, f_med])
+    q = quanta.pulses                                                         # one pulse
     # the encoder's count (the smallest change of its steps) quantizes each window's turn, which
     # the gyros' ratio and residuals (less beta_j x turn) carry: bounded like their own pulses
-    qe = _encoder_quantum(enc, resolution)
+    qe = quanta.count
     level = _level(th, 8 * m, m)
     sigmas = max(th.channel_sigmas, level)
-    nquant = _QUANT_BOUND * np.array([np.sqrt(3.0) * q[:3].max() + qe * scale, np.sqrt(3.0) * q[3:].max()]) / size
-    _, _, nbad = _robust_flags(norms, sigmas, th.norm_floor, nquant, level)
-    nbad = nbad.any(axis=1)
-    Y = X.copy()
-    Y[:, :3] -= np.outer(turn, beta)
-    mid = enc[L // 2 + L * np.arange(m)]
-    tau = np.linspace(-1.0, 1.0, m)
-    A = np.column_stack([np.ones(m), np.cos(mid), np.sin(mid), tau, tau * tau])
-    floor = np.array([th.gyro_floor] * 3 + [th.accel_floor] * 3)
-    quant = _QUANT_BOUND * (q + np.concatenate([np.abs(beta) * qe, np.zeros(3)]))
-    keep = ~nbad
-    R = Y - A @ _fit(A, Y, keep)
-    dev, thr, bad = _robust_flags(R, sigmas, floor, quant, level)
+    # rows 0-1 the norms (relative to their medians), 2-7 the channels' residuals of the fit;
+    # the quantization bounds and floors of each row
+    V = np.empty((8, m))
+    np.divide(norms[:2], np.array([[scale], [f_med]]), out=V[:2])
+    quant = np.empty(8)
+    quant[0] = _QUANT_BOUND * (math.sqrt(3.0) * float(q[:3].max()) + qe * scale) / (turn_med * scale)
+    quant[1] = _QUANT_BOUND * (math.sqrt(3.0) * float(q[3:].max())) / f_med
+    np.multiply(np.abs(beta), qe, out=quant[2:5])
+    quant[2:5] += q[:3]
+    quant[5:] = q[3:]
+    quant[2:] *= _QUANT_BOUND
+    floor = np.array([th.norm_floor] * 2 + [th.gyro_floor] * 3 + [th.accel_floor] * 3)
+    Y = np.empty((6, m))            # the window sums less each gyro's share of the turn, rows
+    np.multiply(beta[:, None], turn, out=Y[:3])
+    np.subtract(X.T[:3], Y[:3], out=Y[:3])
+    Y[3:] = X.T[3:]
+    A = _regressors(enc[L // 2:L // 2 + L * m:L])
+    # the fit over all windows, flagged with the norms (the same values as after them when no
+    # norm is off; otherwise fitted again without those windows)
+    np.subtract(Y, _fit(A, Y).T @ A, out=V[2:])
+    dev, thr, bad = _robust_flags(V, sigmas, floor, quant, level)
+    nbad = bad[0] | bad[1]
+    dev, thr, bad = dev[2:], thr[2:], bad[2:]
+    quant, floor = quant[2:], floor[2:]
+    keep = None
+    if nbad.any():
+        keep = ~nbad
+        dev, thr, bad = _robust_flags(Y - _fit(A, Y, keep).T @ A, sigmas, floor, quant, level)
     if bad.any():               # refit without the bad windows (a fault must not bend the fit)
-        keep &= ~bad.any(axis=1)
+        keep = (~nbad if keep is None else keep) & ~bad.any(axis=0)
         if keep.sum() >= 8:
-            R = Y - A @ _fit(A, Y, keep)
-            dev, thr, bad = _robust_flags(R, sigmas, floor, quant, level)
-    # a window whose norm is off with no channel past its threshold: the worst channel
-    alone = nbad & ~bad.any(axis=1)
-    if alone.any():
-        w = np.flatnonzero(alone)
-        bad[w, np.argmax(np.abs(dev[w]) / thr, axis=1)] = True
+            dev, thr, bad = _robust_flags(Y - _fit(A, Y, keep).T @ A, sigmas, floor, quant, level)
+    if nbad.any():
+        # a window whose norm is off with no channel past its threshold: the worst channel
+        alone = nbad & ~bad.any(axis=0)
+        if alone.any():
+            w = np.flatnonzero(alone)
+            bad[np.argmax(np.abs(dev[:, w]) / thr[:, None], axis=0), w] = True
     if not bad.any():
         return gyro, accel, enc
 
+    dev, bad = dev.T, bad.T         # (m, 6): each window's channels
     gyro, accel, enc = gyro.copy(), accel.copy(), enc.copy()
     handled = np.zeros_like(bad)
     _encoder_windows(t, enc, bad, dev, thr, beta, L, handled, findings)
@@ -875,24 +859,25 @@ def assess(log, *, thresholds=None, temperature=None, encoder_counts_per_rev=Non
         ``quality.log`` is the log to align (repaired, or ``log`` itself); ``quality.refused``
         says whether to align it at all.
     """
-    th = thresholds or Thresholds()
+    th = thresholds or _THRESHOLDS
     findings = check_metadata(log.meta)
     counts, problem = encoder_counts(log.meta, encoder_counts_per_rev)
     if problem:
         findings.append(Finding("metadata", None, None, "refused", problem))
     resolution = 0.0 if counts is None else 2.0 * math.pi / counts
     t, enc = log.t, log.encoder
+    gyro, accel = log.gyro, log.accel
     n = t.size
     dt = float(t[-1] - t[0]) / (n - 1)
-    enc2 = _check_encoder(t, enc, log.gyro, th, findings, resolution)
+    quanta = Quanta.of(enc, gyro, accel, resolution)      # once for checks 1, 3 and 3b
+    enc2 = _check_encoder(t, enc, gyro, th, findings, quanta)
     L, m = _windows(n, dt, th)
-    gyro, accel = log.gyro, log.accel
     if m >= 2 and not any(f.action == "refused" and f.check == "encoder" for f in findings):
         turn = _check_rate(t, enc2, L, m, th, findings)
         if not any(f.check == "rate" for f in findings):
             gyro, accel, enc2 = _check_channels(t, enc2, gyro, accel, turn, L, m, th, findings,
                                                 _channel_sums(log, L, m, sums) if m >= 8 else None,
-                                                resolution)
+                                                Quanta.of(enc2, gyro, accel, resolution, like=quanta))
             if not any(f.action == "refused" for f in findings):
                 gyro = _check_gyro_steps(log, sums, enc2, gyro, accel, th, findings, resolution)
     if temperature is not None:
