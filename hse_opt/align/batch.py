@@ -7,12 +7,12 @@ parallel; a bad log is reported and does not stop the others.
 """
 from __future__ import annotations
 
-import contextlib
 from concurrent.futures import ProcessPoolExecutor, as_completed
 
 import numpy as np
 
 from hse_opt import units
+from hse_opt.align._blas import one_thread
 from hse_opt.align.noise import NOISE_COLUMNS, block_sums, combine_noise, noise_from_log
 from hse_opt.align.processor import align, latitude_of
 from hse_opt.align.mapping import read_mapped
@@ -40,14 +40,10 @@ NOISE_SOURCE_COLUMN = "noise_source"
 
 
 def single_blas_thread():
-    """A context limiting BLAS to one thread (threadpoolctl, if installed): the workers (of a
-    campaign or a batch of logs) are already parallel, and idle BLAS threads spinning on a
-    shared machine only steal CPU."""
-    try:
-        from threadpoolctl import threadpool_limits
-    except ImportError:  # pragma: no cover - optional
-        return contextlib.nullcontext()
-    return threadpool_limits(limits=1, user_api="blas")
+    """A context limiting BLAS to one thread (:func:`hse_opt.align._blas.one_thread`): the
+    workers (of a campaign or a batch of logs) are already parallel, and idle BLAS threads
+    spinning on a shared machine only steal CPU."""
+    return one_thread()
 
 
 def _checked_log(path, mapping=None, pulse_weights=None, counts=None):
