@@ -24,7 +24,12 @@ def median(x):
     float or numpy.ndarray, shape (k,)
         In the unit of ``x``.
     """
-    x = np.array(np.asarray(x, dtype=float).T, order="C")     # a copy: columns as rows
+    return row_median(np.array(np.asarray(x, dtype=float).T, order="C"))     # a copy: columns as rows
+
+
+def row_median(x):
+    """:func:`median` of each row of ``x``, a C-contiguous float array (n,) or (k, n) that is
+    partitioned in place (a temporary's: no copy)."""
     n = x.shape[-1]
     h = n // 2
     if n % 2:
@@ -40,7 +45,8 @@ def step_stats(d, taken=False):
     already that selection (:func:`every_29th_step`)."""
     sub = d if taken else d[::29] if d.size >= 2900 else d
     c = float(median(sub))
-    return c, MAD * float(median(np.abs(sub - c)))
+    dev = sub - c
+    return c, MAD * float(row_median(np.abs(dev, out=dev)))
 
 
 def every_29th_step(enc):
@@ -70,7 +76,7 @@ def robust_flags(v, sigmas, floor, quant=0.0, level=0.0):
     flags : numpy.ndarray of bool, shape (k, m)
     """
     dev = v - median(v.T)[:, None]
-    s = MAD * median(np.abs(dev).T)
+    s = MAD * row_median(np.abs(dev))
     thr = np.maximum(np.maximum(sigmas * s, level * s + quant), floor)
     return dev, thr, np.abs(dev) > thr[:, None]
 

@@ -15,6 +15,8 @@ __all__ = ["META_TYPES", "metadata_problems", "encoder_counts"]
 
 
 def _number(v):
+    if type(v) is float:                    # (the usual case, without the abstract class's check)
+        return math.isfinite(v)
     return isinstance(v, numbers.Real) and not isinstance(v, bool) and math.isfinite(float(v))
 
 

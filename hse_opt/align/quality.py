@@ -143,7 +143,8 @@ Checks, rules and thresholds (:class:`Thresholds`; the reasons are physical)
 Cost: a few passes over the samples and one least-squares fit of a thousand windows; the
 window sums come from the Allan analysis' block sums when ``hse-opt align`` passes them
 (``sums``: one pass over the samples for both), and the quanta and the encoder's step
-statistics that checks 1, 3 and 3b take are worked out once (:class:`~hse_opt.align._quanta.Quanta`). On a 10-minute 500 Hz log
+statistics that checks 1, 3 and 3b take are worked out once
+(:class:`~hse_opt.align._quanta.Quanta`). On a 10-minute 500 Hz log
 (``benchmarks/align.py``, a busy 2-core machine, CPU) 1.5 ms with the block sums, a third of
 the alignment's time, and 5.5 ms with check 3b (its statistic over the samples); by
 instructions (callgrind, 2026-11-26) 39 M with check 3b against the alignment's 48 M, of which
@@ -164,7 +165,7 @@ from hse_opt.align.metadata import encoder_counts, metadata_problems
 from hse_opt.align.steps import block_period, check_steps
 from hse_opt.align._quanta import Quanta, encoder_quantum as _encoder_quantum, quantum as _quantum
 from hse_opt.align._stats import MAD as _MAD, every_29th_step, fit as _fit, median as _median, \
-    regressors as _regressors, robust_flags as _robust_flags, step_stats
+    regressors as _regressors, robust_flags as _robust_flags, row_median as _row_median, step_stats
 
 __all__ = ["Thresholds", "Finding", "Quality", "LogRefused", "assess", "check_metadata"]
 
@@ -474,7 +475,7 @@ def _check_rate(t, enc, L, m, th, findings):
     rel = rate / med - 1.0
     # the windows' own noise (the jitter at their edges: white, so it shows in the differences
     # of neighbouring windows, where a ripple over many windows does not) is allowed on top
-    noise = _MAD * float(_median(np.abs(rel[1:] - rel[:-1]))) / math.sqrt(2.0) if rel.size > 2 else 0.0
+    noise = _MAD * float(_row_median(np.abs(rel[1:] - rel[:-1]))) / math.sqrt(2.0) if rel.size > 2 else 0.0
     sigmas = max(th.rate_sigmas, _level(th, m, m))
     allowed = th.rate_ripple + sigmas * noise
     w = int(np.argmax(np.abs(rel)))
