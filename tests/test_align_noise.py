@@ -135,6 +135,38 @@ def test_a_sum_of_terms_is_split_into_each():
     assert np.all(np.abs(coef[:, 1] - N ** 2) < 4 * std[:, 1])
 
 
+def test_the_fits_nonnegative_solution_is_scipys_nnls():
+    """The fit's non-negative least squares (every set of active terms; after the first pass
+    the previous pass's set where the KKT conditions hold) against scipy's active-set NNLS
+    (Lawson-Hanson) on weighted Allan-model systems whose solutions hold 0 to 3 terms at
+    zero, with a right, a wrong and no set to try first."""
+    from scipy.optimize import nnls
+    from hse_opt.align.noise import _SUBSETS, _nonnegative
+    rng = np.random.default_rng(12)
+    tau = 0.002 * 2.0 ** np.arange(18)
+    T = tau[:, None] ** np.arange(-2, 2)
+    A, b = [], []
+    for _ in range(40):
+        coef = rng.uniform(0, 1, 4) * np.array([1e-12, 1e-10, 1e-12, 1e-14]) * (rng.uniform(size=4) < 0.7)
+        avar = (T @ coef) * (1 + 0.3 * rng.standard_normal(18)) + 1e-16
+        a = T / (0.1 * np.abs(avar))[:, None]
+        a /= np.sqrt(np.sum(a ** 2, axis=0))                  # unit columns, as the fit scales them
+        A.append(a)
+        b.append(avar / (0.1 * np.abs(avar)))
+    A, b = np.array(A), np.array(b)
+    G = np.einsum("rki,rkj->rij", A, A) + 1e-13 * np.eye(4)
+    h = np.einsum("rki,rk->ri", A, b)
+    # scipy on the same objective: |A x - b|^2 + 1e-13 |x|^2
+    ref = np.array([nnls(np.vstack([a, math.sqrt(1e-13) * np.eye(4)]), np.concatenate([bb, np.zeros(4)]))[0]
+                    for a, bb in zip(A, b)])
+    assert len({tuple(r > 0) for r in ref}) >= 4                # several different active sets
+    sets = np.array([np.flatnonzero((_SUBSETS == (r > 0)).all(axis=1))[0] for r in ref])
+    for prev in (None, sets, (sets + 5) % 15):
+        best, x = _nonnegative(G, h, prev)
+        assert np.allclose(x, ref, rtol=1e-8, atol=1e-10 * np.abs(ref).max()), prev
+        assert np.array_equal(best, sets)
+
+
 def test_the_overlapping_allan_deviation_is_allantools_oadev():
     allantools = pytest.importorskip("allantools", reason="allantools is a test extra (pyproject [test])")
     rng = np.random.default_rng(9)

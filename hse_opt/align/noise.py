@@ -134,7 +134,8 @@ _SUBSETS = np.array([s for s in itertools.product((False, True), repeat=4) if an
 #: the entries of each set's normal matrix, (15, 4, 4) bool, and the identity that fills the rest
 _SUBSETS_BOTH = _SUBSETS[:, :, None] & _SUBSETS[:, None, :]
 _EYE4 = np.eye(4)
-for _a in (_SUBSETS, _SUBSETS_BOTH, _EYE4):
+_DIAG4 = np.arange(4)
+for _a in (_SUBSETS, _SUBSETS_BOTH, _EYE4, _DIAG4):
     _a.flags.writeable = False
 
 #: RUNS.csv columns written by ``hse-opt align``: name -> description (the unit in the name)
@@ -742,37 +743,72 @@ def fit_allan(tau, adev, clusters, *, iterations=3):
 def _weighted_fit(tau, avar, rel, iterations):
     """The non-negative weighted least squares of :func:`fit_allan` with relative 1-sigma
     ``rel`` (c, k) of each variance; returns ``(coef, std, chi2)``, ``chi2`` (c,) the weighted
-    residual sum of squares per degree of freedom."""
+    residual sum of squares per degree of freedom.
+
+    Each pass forms the weighted normal equations of all rows in one product (the variances
+    as a fifth column: ``[A b]' [A b]``), the columns scaled to unit norm. The non-negative
+    solution is the best feasible one of the 15 sets of active terms; after the first pass
+    the previous pass's set is tried alone and kept where it is optimal (its terms >= 0 and
+    no held term would lower the residuals: the Karush-Kuhn-Tucker conditions, met by one
+    set only, the normal matrix being positive definite), all 15 solved where it is not."""
     T = tau[:, None] ** _POWERS[None, :]                     # (k, 4)
-    mask, both, eye = _SUBSETS, _SUBSETS_BOTH, _EYE4          # (15, 4), (15, 4, 4), (4, 4)
-    rows = np.arange(avar.shape[0])
-    model = avar
+    c, k = avar.shape
+    Tb = np.empty((c, k, 5))
+    Tb[:, :, :4] = T
+    Tb[:, :, 4] = avar
+    rows = np.arange(c)
+    model, best = avar, None
     for _ in range(iterations):
-        s = np.maximum(model, 1e-300) * rel                   # (c, k) 1-sigma of each variance
-        A = T[None, :, :] / s[:, :, None]                     # (c, k, 4)
-        b = avar / s
-        scale = np.sqrt(np.einsum("ckj,ckj->cj", A, A))
+        s = np.maximum(model, 1e-300)
+        s *= rel                                              # (c, k) 1-sigma of each variance
+        Ab = Tb / s[:, :, None]
+        Gb = np.matmul(Ab.transpose(0, 2, 1), Ab)             # (c, 5, 5)
+        scale = np.sqrt(Gb[:, _DIAG4, _DIAG4])
         scale[scale == 0] = 1.0
-        A = A / scale[:, None, :]
-        G = np.einsum("ckj,ckl->cjl", A, A) + 1e-13 * eye     # (c, 4, 4)
-        h = np.einsum("ckj,ck->cj", A, b)
-        Gm = np.where(both[None], G[:, None], eye)            # (c, 15, 4, 4)
-        hm = np.where(mask[None], h[:, None], 0.0)            # (c, 15, 4)
-        x = np.linalg.solve(Gm, hm[..., None])[..., 0]
-        feasible = np.all(x >= 0.0, axis=2)
-        # the weighted residual sum of squares less b'b: -h_S' G_SS^-1 h_S at each set's solution
-        cost = np.where(feasible, -np.einsum("csj,csj->cs", x, hm), np.inf)
-        best = np.argmin(cost, axis=1)
-        none = ~np.isfinite(cost[rows, best])
-        xs = x[rows, best]
-        xs[none] = 0.0
-        coef = np.where(mask[best], xs, 0.0) / scale
+        G = Gb[:, :4, :4] / (scale[:, :, None] * scale[:, None, :]) + 1e-13 * _EYE4
+        h = Gb[:, :4, 4] / scale
+        best, x = _nonnegative(G, h, best)
+        coef = x / scale
         model = coef @ T.T
-    cov = np.linalg.inv(Gm[rows, best])
+    Gs = np.where(_SUBSETS_BOTH[best], G, _EYE4)
+    none = ~np.isfinite(x).all(axis=1)
+    cov = np.linalg.inv(Gs)
     std = np.sqrt(np.maximum(np.diagonal(cov, axis1=1, axis2=2), 0.0)) / scale
-    std = np.where(mask[best] & ~none[:, None], std, np.nan)
+    std = np.where(_SUBSETS[best] & ~none[:, None], std, np.nan)
     chi2 = np.sum(((avar - model) / (np.maximum(model, 1e-300) * rel)) ** 2, axis=1) / max(tau.size - 4, 1)
     return coef, std, chi2
+
+
+def _nonnegative(G, h, prev=None):
+    """``min x' G x - 2 h' x`` over ``x >= 0`` per row (G (c, 4, 4) positive definite, h (c,
+    4)): ``(best, x)``, ``best`` the index of the set of active terms in :data:`_SUBSETS`, x
+    zero outside it (all zero where no set is feasible: NaN input). ``prev``: each row's set
+    to try first, kept where the KKT conditions hold; the other rows try all 15."""
+    if prev is None:
+        return _best_set(G, h)
+    S = _SUBSETS[prev]
+    x = np.linalg.solve(np.where(_SUBSETS_BOTH[prev], G, _EYE4), np.where(S, h, 0.0)[..., None])[..., 0]
+    gain = h - np.matmul(G, x[..., None])[..., 0]              # what each held term would take
+    ok = np.all((x >= 0.0) & (S | (gain <= 0.0)), axis=1)
+    if not ok.all():
+        redo = ~ok
+        prev = prev.copy()
+        prev[redo], x[redo] = _best_set(G[redo], h[redo])
+    return prev, x
+
+
+def _best_set(G, h):
+    """:func:`_nonnegative` by trying every set of active terms: the best feasible one."""
+    rows = np.arange(G.shape[0])
+    Gm = np.where(_SUBSETS_BOTH[None], G[:, None], _EYE4)    # (c, 15, 4, 4)
+    hm = np.where(_SUBSETS[None], h[:, None], 0.0)           # (c, 15, 4)
+    x = np.linalg.solve(Gm, hm[..., None])[..., 0]
+    # the weighted residual sum of squares less b'b: -h_S' G_SS^-1 h_S at each set's solution
+    cost = np.where(np.all(x >= 0.0, axis=2), -_vecdot(x, hm, None), np.inf)
+    best = np.argmin(cost, axis=1)
+    xs = x[rows, best]
+    xs[~np.isfinite(cost[rows, best])] = 0.0
+    return best, xs
 
 
 def noise_from_log(log, *, block_period=BLOCK_PERIOD, max_terms=MAX_TERMS, sums=None):
