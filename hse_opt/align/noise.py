@@ -497,6 +497,21 @@ def _fit_residual(log, block, y):
                     coefficients=coef, rate=rate, edge_cos=ce, edge_sin=se, regressors=X)
 
 
+@functools.lru_cache(maxsize=32)
+def _stretches(n, block, length, count):
+    """The stretches of :func:`_short_allan` for ``n`` increments (cached per log shape):
+    ``(first, edges, blocks, starts)``, the first sample edge of each (count,), its sample
+    edges (count, length + 1), the block each of its samples starts in and that block's first
+    sample edge (count, length); int, read-only."""
+    first = np.round(np.linspace(0, (n - length) // block, count)).astype(np.int64) * block
+    edges = first[:, None] + np.arange(length + 1)
+    blocks = (first // block)[:, None] + np.arange(length) // block
+    starts = blocks * block
+    for a in (first, edges, blocks, starts):
+        a.flags.writeable = False
+    return first, edges, blocks, starts
+
+
 def _short_allan(log, residual, sizes, segments=SEGMENTS, length=SEGMENT_SAMPLES):
     """Allan deviation at clusters shorter than a block (``sizes`` in samples) from the raw
     samples of ``segments`` stretches of ``length`` samples spread evenly over the log (each
@@ -512,41 +527,47 @@ def _short_allan(log, residual, sizes, segments=SEGMENTS, length=SEGMENT_SAMPLES
     block = residual.block
     length = min(length, n)
     count = max(1, min(segments, n // length))
-    first = np.round(np.linspace(0, (n - length) // block, count)).astype(np.int64) * block
-    a, te, r = np.empty((count, length + 1)), np.empty((count, length + 1)), np.empty((6, count, length))
+    first, edges, blocks, starts = _stretches(n, block, length, count)
+    rows = 6 * count
+    work = np.empty((2, rows * length))                           # r, then sums and d in turn
+    r = work[0].reshape(6, count, length)
     gyro, accel = np.asarray(log.gyro), np.asarray(log.accel)
-    for j, s0 in enumerate(first.tolist()):                      # sample edges s0 .. s0 + length
-        a[j], te[j] = enc[s0:s0 + length + 1], t[s0:s0 + length + 1]
+    for j, s0 in enumerate(first.tolist()):                      # samples s0 + 1 .. s0 + length
         r[:3, j] = gyro[s0 + 1:s0 + 1 + length].T
         r[3:, j] = accel[s0 + 1:s0 + 1 + length].T
-    da, h = np.diff(a, axis=1), np.diff(te, axis=1)
-    # the block edge each sample starts in (a segment starts at one): its angle, cos and sin
-    # repeated over the block's samples
-    edge = (first // block)[:, None] + np.arange(-(-length // block))
-    cd, sd = _cos_sin_small(a[:, :-1] + 0.5 * da - np.repeat(enc[edge * block], block, axis=1)[:, :length])
-    ce = np.repeat(residual.edge_cos[edge], block, axis=1)[:, :length]
-    se = np.repeat(residual.edge_sin[edge], block, axis=1)[:, :length]
-    X = np.stack([h, (ce * cd - se * sd) * h, (se * cd + ce * sd) * h, da - residual.rate * h])
-    r -= np.tensordot(residual.coefficients.T, X, axes=1)
+    a, te = enc.take(edges), t.take(edges)                        # (count, length + 1)
+    X = np.empty((4, count, length))                              # the regressors per sample
+    h, da = np.subtract(te[:, 1:], te[:, :-1], out=X[0]), np.subtract(a[:, 1:], a[:, :-1], out=X[3])
+    # each sample's mid angle from the angle of the block edge it starts in: cos and sin by
+    # the angle-addition formulas from the edge's
+    mid = np.multiply(da, 0.5, out=X[1])
+    mid += a[:, :-1]
+    mid -= enc.take(starts)
+    cd, sd = _cos_sin_small(mid)
+    rotate(residual.edge_cos.take(blocks), residual.edge_sin.take(blocks), cd, sd, X[1:3],
+           work[1, :count * length].reshape(count, length))
+    X[1:3] *= h
+    da -= residual.rate * h
+    with one_thread():
+        det = np.matmul(residual.coefficients.T, X.reshape(4, -1), out=work[1].reshape(6, -1))
+    r -= det.reshape(r.shape)
     # sums of m consecutive samples by doubling (sizes are powers of two): cheaper than the
     # cumulative sum; the Allan difference is then of two adjacent sums. The 6 x count rows
-    # are doubled as one flat array in two buffers (a sum that straddles two rows is never
-    # read: each row's first length - 2m + 1 differences are)
-    rows = 6 * count
-    flat = r.reshape(-1)
-    bufs, d = np.empty((2, flat.size)), np.empty(flat.size)
+    # are doubled as one flat array (a sum that straddles two rows is never read: each row's
+    # first length - 2m + 1 differences are), the sums and the differences taking the two
+    # buffers in turn
     ss, clusters = np.empty((rows, len(sizes))), np.empty(len(sizes))
-    sums, size, width = flat, flat.size, 1
+    size, width, at = work.shape[1], 1, 0                         # the sums of width in work[at]
     for i, m in enumerate(sizes):
         while width < m:
-            nxt = bufs[width.bit_length() % 2, :size - width]
-            np.add(sums[width:], sums[:size - width], out=nxt)
-            sums, size, width = nxt, size - width, 2 * width
+            sums = work[at]
+            np.add(sums[width:size], sums[:size - width], out=work[1 - at, :size - width])
+            size, width, at = size - width, 2 * width, 1 - at
         if width != m:
             raise ValueError(f"short cluster sizes must be powers of two, got {m}")
-        np.subtract(sums[m:], sums[:size - m], out=d[:size - m])
-        valid = np.lib.stride_tricks.as_strided(d, shape=(rows, length - 2 * m + 1), strides=(length * d.itemsize,
-                                                                                              d.itemsize))
+        sums, d = work[at], work[1 - at]
+        np.subtract(sums[m:size], sums[:size - m], out=d[:size - m])
+        valid = d.reshape(rows, length)[:, :length - 2 * m + 1]
         _vecdot(valid, valid, out=ss[:, i])
         clusters[i] = count * length / m
     sizes = np.asarray(sizes)
