@@ -30,11 +30,11 @@ analysis (:func:`block_period`: 4 x 64 ms = 0.256 s at 500 Hz for ``step_span_s`
 another span gets blocks of its own), and ``D`` is evaluated at every block edge from each
 block's plain sum of the residual (the Allan analysis' own) and its weighted sum (increment
 ``i`` of a block of ``h`` weighted ``h + 1 - i``: :func:`weighted_sums`, less the fitted part's,
-:func:`weighted_regressors`) through two cumulative sums, so a step's peak is seen at 7/8 of
-it at least; the step's exact sample comes from the per-sample statistic around the peak.
+:func:`weighted_regressors`) by moving sums over ``GRID`` blocks, so a step's peak is seen at
+7/8 of it at least; the step's exact sample comes from the per-sample statistic around the peak.
 What 3b adds to the Allan analysis' sums and fit on a 10-minute 500 Hz log is one pass over
-the gyros and the encoder for the weighted sums, two cumulative sums and the slow part's fit
-over 9,375 block edges (the table angle's cos and sin there are the fit's), and the robust
+the gyros and the encoder for the weighted sums, moving sums and the slow part's fit over
+9,375 block edges (the table angle's cos and sin there are the fit's), and the robust
 1-sigma from every ``K``-th of them.
 
 Its 1-sigma ``s`` (1.4826 x the median absolute deviation) is 0.0071 arcsec on the paper-like
@@ -178,12 +178,15 @@ def step_statistic(t, enc, gyro, residual, beta):
     r = residual.blocks[:3] + np.multiply.outer(coef[3] - beta, X[3])       # the jitter in the ratio beta
     coef[3] = beta
     W, E = weighted_sums(enc, gyro, h, nb)
-    B = W - coef.T @ weighted_regressors(residual, E)          # block sums of e, less ...
-    e_end = np.cumsum(r, axis=1)                     # e at each block's end
-    B[:, 1:] += h * e_end[:, :-1]                    # ... h e(end of the block before)
-    S = np.zeros((3, nb + 1))
-    np.cumsum(B, axis=1, out=S[:, 1:])
-    D = (S[:, 2 * GRID:] - 2.0 * S[:, GRID:nb + 1 - GRID] + S[:, :nb + 1 - 2 * GRID]) / K
+    with one_thread():
+        rw = W - coef.T @ weighted_regressors(residual, E)
+    # block b's sum of e is rw_b + h e(end of block b - 1), e(end of b) = r_0 + .. + r_b; over the
+    # GRID blocks after edge b less the GRID before, the e(end) terms leave h times the sum of r
+    # over a triangle of 2 GRID - 1 blocks: moving sums only (no sum over the record to cancel)
+    D = _moving(rw, GRID)
+    D = D[:, GRID:] - D[:, :-GRID]
+    D += h * _moving(_moving(r, GRID), GRID)[:, :nb + 1 - 2 * GRID]
+    D /= K
     p = h * np.arange(GRID, nb + 1 - GRID)
     # the slow part: a constant, a sinusoid of the table angle (the encoder's own once-a-turn
     # error, in the ratio beta) and a quadratic drift, fitted by least squares (the columns
@@ -208,6 +211,16 @@ def step_statistic(t, enc, gyro, residual, beta):
 
     D -= model
     return D, p, local
+
+
+def _moving(x, k):
+    """Sums of ``k`` (a power of two) consecutive columns of ``x`` (m, n), shape (m, n - k + 1),
+    by doubling."""
+    w = 1
+    while w < k:
+        x = x[:, :-w] + x[:, w:]
+        w *= 2
+    return x
 
 
 def _slow_regressors(c, s):
