@@ -163,15 +163,15 @@ from hse_opt.align.rotations import EARTH_RATE
 from hse_opt.align.noise import _block_sums, deterministic_residual
 from hse_opt.align.metadata import encoder_counts, metadata_problems
 from hse_opt.align.steps import block_period, check_steps
-from hse_opt.align._quanta import Quanta, encoder_quantum as _encoder_quantum, quantum as _quantum
-from hse_opt.align._stats import MAD as _MAD, every_29th_step, fit as _fit, median as _median, \
-    regressors as _regressors, robust_flags as _robust_flags, row_median as _row_median, step_stats
+from hse_opt.align._quanta import Quanta
+from hse_opt.align._stats import MAD as _MAD, fit as _fit, median as _median, regressors as _regressors, \
+    robust_flags as _robust_flags, row_median as _row_median
 
 __all__ = ["Thresholds", "Finding", "Quality", "LogRefused", "assess", "check_metadata"]
 
 #: channel names in RawLog column order (gyro x, y, z then accelerometer x, y, z)
 CHANNELS = ("gyro_x", "gyro_y", "gyro_z", "accel_x", "accel_y", "accel_z")
-#: the encoder step threshold is at least this many quanta of the steps (:func:`_quantum`)
+#: the encoder step threshold is at least this many quanta of the steps (:func:`~hse_opt.align._quanta.quantum`)
 _QUANTA = 3.0
 #: the quantization part of a window sum's deviation from the windows' median is below this
 #: many quanta (the sum of a counter that carries its remainder is off by less than one, the
@@ -794,7 +794,7 @@ def _value(x, unit):
 
 
 # -- 3b. gyro steps (per sample) ---------------------------------------------------------------
-def _check_gyro_steps(log, sums, enc, gyro, accel, th, findings, resolution):
+def _check_gyro_steps(log, sums, enc, gyro, accel, th, findings, quanta):
     """Check 3b (:func:`hse_opt.align.steps.check_steps`, given the quanta, the jitter and the
     fit of the Allan analysis, refitted if a check repaired the log); returns the gyros."""
     now = log if (gyro is log.gyro and accel is log.accel and enc is log.encoder) else \
@@ -805,10 +805,8 @@ def _check_gyro_steps(log, sums, enc, gyro, accel, th, findings, resolution):
         return gyro
     spikes = {(f.sample, CHANNELS.index(f.detail.split(" ")[0])) for f in findings
               if f.check == "channel" and f.action == "repaired" and " spike of " in f.detail}
-    jitter = step_stats(every_29th_step(enc), True)[1] / math.sqrt(2.0)     # (check 1's steps only)
-    gyro, found = check_steps(log.t, enc, gyro, residual, jitter=jitter,
-                              q=_quantum(gyro[1:]), level=lambda m: _level(th, 6.0 * m, m), floor=th.gyro_floor,
-                              qe=_encoder_quantum(enc, resolution),
+    gyro, found = check_steps(log.t, enc, gyro, residual, jitter=quanta.jitter, q=quanta.pulses[:3],
+                              level=lambda m: _level(th, 6.0 * m, m), floor=th.gyro_floor, qe=quanta.count,
                               bound=_QUANT_BOUND, most=th.repair_samples, spikes=spikes)
     findings += [Finding(*f) for f in found]
     return gyro
@@ -876,11 +874,12 @@ def assess(log, *, thresholds=None, temperature=None, encoder_counts_per_rev=Non
     if m >= 2 and not any(f.action == "refused" and f.check == "encoder" for f in findings):
         turn = _check_rate(t, enc2, L, m, th, findings)
         if not any(f.check == "rate" for f in findings):
+            quanta = Quanta.of(enc2, gyro, accel, resolution, like=quanta)
             gyro, accel, enc2 = _check_channels(t, enc2, gyro, accel, turn, L, m, th, findings,
-                                                _channel_sums(log, L, m, sums) if m >= 8 else None,
-                                                Quanta.of(enc2, gyro, accel, resolution, like=quanta))
+                                                _channel_sums(log, L, m, sums) if m >= 8 else None, quanta)
             if not any(f.action == "refused" for f in findings):
-                gyro = _check_gyro_steps(log, sums, enc2, gyro, accel, th, findings, resolution)
+                gyro = _check_gyro_steps(log, sums, enc2, gyro, accel, th, findings,
+                                         Quanta.of(enc2, gyro, accel, resolution, like=quanta))
     if temperature is not None:
         _check_temperature(t, temperature, L, m, th, findings)
     findings.sort(key=lambda f: (-1 if f.sample is None else f.sample))
