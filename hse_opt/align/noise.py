@@ -532,20 +532,30 @@ def _short_allan(log, residual, sizes, segments=SEGMENTS, length=SEGMENT_SAMPLES
     work = np.empty((2, rows * length))                           # r, then sums and d in turn
     r = work[0].reshape(6, count, length)
     gyro, accel = np.asarray(log.gyro), np.asarray(log.accel)
+    X = np.empty((4, count, length))                              # the regressors per sample
+    a, te = np.empty((count, length + 1)), X[0]
     for j, s0 in enumerate(first.tolist()):                      # samples s0 + 1 .. s0 + length
         r[:3, j] = gyro[s0 + 1:s0 + 1 + length].T
         r[3:, j] = accel[s0 + 1:s0 + 1 + length].T
-    a, te = enc.take(edges), t.take(edges)                        # (count, length + 1)
-    X = np.empty((4, count, length))                              # the regressors per sample
-    h, da = np.subtract(te[:, 1:], te[:, :-1], out=X[0]), np.subtract(a[:, 1:], a[:, :-1], out=X[3])
+        a[j] = enc[s0:s0 + length + 1]
+        np.subtract(t[s0 + 1:s0 + 1 + length], t[s0:s0 + length], out=te[j])
+    h, da = X[0], np.subtract(a[:, 1:], a[:, :-1], out=X[3])
     # each sample's mid angle from the angle of the block edge it starts in: cos and sin by
-    # the angle-addition formulas from the edge's
+    # the angle-addition formulas from the edge's (taken per block where the stretch is whole
+    # blocks, per sample otherwise)
     mid = np.multiply(da, 0.5, out=X[1])
     mid += a[:, :-1]
-    mid -= enc.take(starts)
+    if length % block:
+        mid -= enc.take(starts)
+        ce, se = residual.edge_cos.take(blocks), residual.edge_sin.take(blocks)
+    else:
+        per_block = (count, length // block, block)
+        a_edge = a[:, :-1:block, None]
+        mid = mid.reshape(per_block)
+        mid -= a_edge
+        ce, se = (v.take(blocks[:, ::block])[:, :, None] for v in (residual.edge_cos, residual.edge_sin))
     cd, sd = _cos_sin_small(mid)
-    rotate(residual.edge_cos.take(blocks), residual.edge_sin.take(blocks), cd, sd, X[1:3],
-           work[1, :count * length].reshape(count, length))
+    rotate(ce, se, cd, sd, X[1:3].reshape((2,) + cd.shape), work[1, :count * length].reshape(cd.shape))
     X[1:3] *= h
     da -= residual.rate * h
     with one_thread():
