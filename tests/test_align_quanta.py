@@ -82,9 +82,9 @@ def test_quanta_of_the_same_arrays_are_worked_out_once_and_a_repaired_copys_anew
 
 
 def test_the_quanta_are_check_3bs_figures_on_a_simulated_log(monkeypatch):
-    """What check 3b computes for itself (hse_opt.align.quality._check_gyro_steps: the jitter from
-    every 29th encoder step over sqrt(2), the gyros' quantum, the encoder's count), written out
-    here from its definitions, is what the record holds for a clean simulated log."""
+    """The record holds, for a clean simulated log, the jitter (from every 29th encoder step, over
+    sqrt(2)), the gyros' quanta and the encoder's count as written out here from their
+    definitions, and check 3b (hse_opt.align.steps.check_steps) is handed those."""
     import hse_opt.align.quality as quality
     log = generate(TruthConfig.default(), RunSpec(rate=25 * DEG_PER_S, azimuth=0.3, duration=30.0, t_start=3600.0),
                    np.random.default_rng(5))
@@ -98,12 +98,26 @@ def test_the_quanta_are_check_3bs_figures_on_a_simulated_log(monkeypatch):
     q = Quanta.of(log.encoder, log.gyro, log.accel)
     sub = log.encoder[1::29] - log.encoder[:-1:29]
     jitter = 1.4826 * np.median(np.abs(sub - np.median(sub))) / math.sqrt(2.0)
-    assert seen["jitter"] == pytest.approx(jitter, rel=1e-12) and q.jitter == pytest.approx(jitter, rel=1e-12)
+    assert q.jitter == pytest.approx(jitter, rel=1e-12) and seen["jitter"] == q.jitter
     first = log.gyro[1:QUANTUM_SAMPLES + 1]
     dd = np.abs(np.diff(first, axis=0))
     ref = np.array([dd[dd[:, j] > 1e-9 * np.abs(first[:, j]).mean(), j].min() for j in range(3)])
-    assert np.allclose(seen["q"], ref, rtol=1e-12) and np.allclose(q.pulses[:3], ref, rtol=1e-12)
+    assert np.allclose(q.pulses[:3], ref, rtol=1e-12) and np.array_equal(seen["q"], q.pulses[:3])
     steps = np.diff(log.encoder[:QUANTUM_SAMPLES + 2])[1:]
     ds = np.abs(np.diff(steps))
     ref_e = ds[ds > 1e-9 * np.abs(steps).mean()].min()
-    assert seen["qe"] == pytest.approx(ref_e, rel=1e-12) and q.count == pytest.approx(ref_e, rel=1e-12)
+    assert q.count == pytest.approx(ref_e, rel=1e-12) and seen["qe"] == q.count
+
+
+def test_a_log_of_three_samples_has_no_quantum_and_is_assessed():
+    """Three samples (the least the loader takes) hold one change of each channel and none of
+    the encoder's steps: no quantum (0), the encoder's count the resolution given; the checks
+    run (they raised numpy's 'zero-size array to reduction operation' before)."""
+    from hse_opt.align import RawLog
+    t = np.arange(3) * 0.002
+    enc = np.arange(3) * 1e-3
+    gyro = np.array([[1.0, 2.0, 3.0], [1.5, 2.0, 3.0], [1.0, 2.5, 3.0]]) * 1e-4
+    accel = np.tile([0.0, 0.0, 9.8 * 0.002], (3, 1))
+    q = Quanta.of(enc, gyro, accel, resolution=COUNT)
+    assert np.array_equal(q.pulses, np.zeros(6)) and q.count == COUNT
+    assert assess(RawLog(t, gyro, accel, enc, {})).findings == ()

@@ -33,8 +33,10 @@ def _row_quanta(x):
     same = dd <= 1e-9 * (np.add.reduce(np.abs(x), axis=-1) / x.shape[-1])[:, None]
     # a channel that changes in only a few samples (a glitch in an exact ramp) has no quantum
     many = np.array([dd.shape[-1] - np.count_nonzero(row) > QUANTUM_CHANGES for row in same], dtype=bool)
+    if not dd.shape[-1]:
+        return np.zeros(x.shape[0])
     np.putmask(dd, same, np.inf)
-    return np.where(many, dd.min(axis=-1, initial=np.inf), 0.0)
+    return np.where(many, dd.min(axis=-1), 0.0)
 
 
 def quantum(x):
