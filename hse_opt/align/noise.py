@@ -135,7 +135,9 @@ _SUBSETS = np.array([s for s in itertools.product((False, True), repeat=4) if an
 _SUBSETS_BOTH = _SUBSETS[:, :, None] & _SUBSETS[:, None, :]
 _EYE4 = np.eye(4)
 _DIAG4 = np.arange(4)
-for _a in (_SUBSETS, _SUBSETS_BOTH, _EYE4, _DIAG4):
+#: the ridge added to the fit's scaled normal matrix
+_RIDGE = 1e-13 * _EYE4
+for _a in (_SUBSETS, _SUBSETS_BOTH, _EYE4, _DIAG4, _RIDGE):
     _a.flags.writeable = False
 
 #: RUNS.csv columns written by ``hse-opt align``: name -> description (the unit in the name)
@@ -787,7 +789,6 @@ def _weighted_fit(tau, avar, rel, iterations):
     Tb = np.empty((c, k, 5))
     Tb[:, :, :4] = T
     Tb[:, :, 4] = avar
-    rows = np.arange(c)
     model, best = avar, None
     for _ in range(iterations):
         s = np.maximum(model, 1e-300)
@@ -796,17 +797,18 @@ def _weighted_fit(tau, avar, rel, iterations):
         Gb = np.matmul(Ab.transpose(0, 2, 1), Ab)             # (c, 5, 5)
         scale = np.sqrt(Gb[:, _DIAG4, _DIAG4])
         scale[scale == 0] = 1.0
-        G = Gb[:, :4, :4] / (scale[:, :, None] * scale[:, None, :]) + 1e-13 * _EYE4
+        G = Gb[:, :4, :4] / (scale[:, :, None] * scale[:, None, :])
+        G += _RIDGE
         h = Gb[:, :4, 4] / scale
         best, x = _nonnegative(G, h, best)
         coef = x / scale
         model = coef @ T.T
-    Gs = np.where(_SUBSETS_BOTH[best], G, _EYE4)
-    none = ~np.isfinite(x).all(axis=1)
-    cov = np.linalg.inv(Gs)
+    cov = np.linalg.inv(np.where(_SUBSETS_BOTH[best], G, _EYE4))
     std = np.sqrt(np.maximum(np.diagonal(cov, axis1=1, axis2=2), 0.0)) / scale
-    std = np.where(_SUBSETS[best] & ~none[:, None], std, np.nan)
-    chi2 = np.sum(((avar - model) / (np.maximum(model, 1e-300) * rel)) ** 2, axis=1) / max(tau.size - 4, 1)
+    std[~(_SUBSETS[best] & np.isfinite(x).all(axis=1, keepdims=True))] = np.nan
+    w = np.maximum(model, 1e-300)
+    w *= rel
+    chi2 = _vecdot(avar - model, (avar - model) / w ** 2, None) / max(tau.size - 4, 1)
     return coef, std, chi2
 
 
@@ -819,8 +821,9 @@ def _nonnegative(G, h, prev=None):
         return _best_set(G, h)
     S = _SUBSETS[prev]
     x = np.linalg.solve(np.where(_SUBSETS_BOTH[prev], G, _EYE4), np.where(S, h, 0.0)[..., None])[..., 0]
-    gain = h - np.matmul(G, x[..., None])[..., 0]              # what each held term would take
-    ok = np.all((x >= 0.0) & (S | (gain <= 0.0)), axis=1)
+    # KKT: the active terms >= 0, no held term's gain h - G x above 0
+    kkt = np.where(S, x, np.matmul(G, x[..., None])[..., 0] - h)
+    ok = kkt.min(axis=1) >= 0.0
     if not ok.all():
         redo = ~ok
         prev = prev.copy()
@@ -830,13 +833,14 @@ def _nonnegative(G, h, prev=None):
 
 def _best_set(G, h):
     """:func:`_nonnegative` by trying every set of active terms: the best feasible one."""
-    rows = np.arange(G.shape[0])
     Gm = np.where(_SUBSETS_BOTH[None], G[:, None], _EYE4)    # (c, 15, 4, 4)
     hm = np.where(_SUBSETS[None], h[:, None], 0.0)           # (c, 15, 4)
     x = np.linalg.solve(Gm, hm[..., None])[..., 0]
     # the weighted residual sum of squares less b'b: -h_S' G_SS^-1 h_S at each set's solution
-    cost = np.where(np.all(x >= 0.0, axis=2), -_vecdot(x, hm, None), np.inf)
-    best = np.argmin(cost, axis=1)
+    cost = -_vecdot(x, hm, None)
+    cost[~(x.min(axis=2) >= 0.0)] = np.inf                  # (NaN too)
+    best = cost.argmin(axis=1)
+    rows = np.arange(G.shape[0])
     xs = x[rows, best]
     xs[~np.isfinite(cost[rows, best])] = 0.0
     return best, xs
