@@ -103,6 +103,9 @@ from hse_opt.align._angles import rotate
 from hse_opt.align._blas import block_dot, one_thread
 from hse_opt.align.processor import _vecdot
 
+#: row dot products into ``out``: numpy's gufunc where it has one (no wrapper per call)
+_rowdot = getattr(np, "vecdot", _vecdot)
+
 __all__ = ["NoiseFigures", "noise_from_log", "combine_noise", "allan_deviation", "fit_allan",
            "deterministic_residual", "Residual", "BlockSums", "block_sums", "CHANNELS", "TERMS", "NOISE_COLUMNS",
            "BLOCK_PERIOD", "MAX_TERMS", "MODEL_ERROR", "MISFIT"]
@@ -560,8 +563,9 @@ def _short_allan(log, residual, sizes, segments=SEGMENTS, length=SEGMENT_SAMPLES
     rotate(ce, se, cd, sd, X[1:3].reshape((2,) + cd.shape), work[1, :count * length].reshape(cd.shape))
     X[1:3] *= h
     da -= residual.rate * h
-    with one_thread():
-        det = np.matmul(residual.coefficients.T, X.reshape(4, -1), out=work[1].reshape(6, -1))
+    # (each entry a dot product of four: the same bytes whatever the threads, and below
+    # OpenBLAS's size for a second thread)
+    det = np.matmul(residual.coefficients.T, X.reshape(4, -1), out=work[1].reshape(6, -1))
     r -= det.reshape(r.shape)
     # sums of m consecutive samples by doubling (sizes are powers of two): cheaper than the
     # cumulative sum; the Allan difference is then of two adjacent sums. The 6 x count rows
@@ -580,7 +584,7 @@ def _short_allan(log, residual, sizes, segments=SEGMENTS, length=SEGMENT_SAMPLES
         sums, d = work[at], work[1 - at]
         np.subtract(sums[m:size], sums[:size - m], out=d[:size - m])
         valid = d.reshape(rows, length)[:, :length - 2 * m + 1]
-        _vecdot(valid, valid, out=ss[:, i])
+        _rowdot(valid, valid, out=ss[:, i])
         clusters[i] = count * length / m
     sizes = np.asarray(sizes)
     adev = np.sqrt(ss.reshape(6, count, -1).sum(axis=1) / (2.0 * count * (length - 2 * sizes + 1))) / (sizes * dt)
@@ -654,7 +658,7 @@ def _squares(x, plan):
         np.multiply(theta[:, m::step][:, :cnt], 2.0, out=di)
         np.subtract(theta[:, 2 * m::step][:, :cnt], di, out=di)
         di += theta[:, :(cnt - 1) * step + 1:step]
-        _vecdot(di, di, out=ss[i])
+        _rowdot(di, di, out=ss[i])
     return ss
 
 
@@ -676,9 +680,12 @@ def _octave_squares(x, plan):
     sum across two rows is never read), as in :func:`_short_allan`."""
     c, n = x.shape
     s = max(step for _, step, _ in plan)
-    if (any(m & (m - 1) for m, _, _ in plan) or s & (s - 1)
-            or any(m < s and step != s for m, step, _ in plan)
-            or sum(s // math.gcd(step, s) for m, step, _ in plan if m >= s) > 2 * len(plan) + 8):
+    phases = 0
+    for m, step, _ in plan:
+        if m & (m - 1) or (m < s and step != s):
+            return None
+        phases += s // math.gcd(step, s) if m >= s else 0
+    if s & (s - 1) or phases > 2 * len(plan) + 8:
         return None
     width = n // s + 1                                  # every lattice row: this many entries
     lattice = np.empty((3, c, width))                   # S_s then D_q (doubled in two); d
@@ -718,7 +725,7 @@ def _octave_squares(x, plan):
         if m < s:
             S, r = sums[m], s // m
             d = np.subtract(S[:, 1::r][:, :cnt], S[:, 0::r][:, :cnt], out=lattice[2, :, :cnt])
-            _vecdot(d, d, ss[i])
+            _rowdot(d, d, ss[i])
             continue
         while q < m // s:
             nxt = flat[q.bit_length() % 2, :size - q]
@@ -726,8 +733,9 @@ def _octave_squares(x, plan):
             size, q = size - q, 2 * q
         g = math.gcd(step, s)
         ss[i] = 0.0
+        firsts = {step * i0 % s: i0 for i0 in range(s // g)}
         for phi in range(0, s, g):
-            first = next(i0 for i0 in range(s // g) if step * i0 % s == phi)
+            first = firsts[phi]
             k = len(range(first, cnt, s // g))          # start points at this phase ...
             j0, r = step * first // s, step // g        # ... lattice entries j0, j0 + r, ..
             last = (c - 1) * width + j0 + (k - 1) * r + 1   # flat entries of d needed
@@ -738,7 +746,7 @@ def _octave_squares(x, plan):
                 Dp += P[q:last + 2 * q]
             np.subtract(Dp[q:last + q], Dp[:last], out=flat[2, :last])
             d = lattice[2, :, j0:j0 + (k - 1) * r + 1:r]
-            ss[i] += _vecdot(d, d, None)
+            ss[i] += _rowdot(d, d, None)
     return ss
 
 
@@ -808,7 +816,7 @@ def _weighted_fit(tau, avar, rel, iterations):
     std[~(_SUBSETS[best] & np.isfinite(x).all(axis=1, keepdims=True))] = np.nan
     w = np.maximum(model, 1e-300)
     w *= rel
-    chi2 = _vecdot(avar - model, (avar - model) / w ** 2, None) / max(tau.size - 4, 1)
+    chi2 = _rowdot(avar - model, (avar - model) / w ** 2, None) / max(tau.size - 4, 1)
     return coef, std, chi2
 
 
@@ -837,7 +845,7 @@ def _best_set(G, h):
     hm = np.where(_SUBSETS[None], h[:, None], 0.0)           # (c, 15, 4)
     x = np.linalg.solve(Gm, hm[..., None])[..., 0]
     # the weighted residual sum of squares less b'b: -h_S' G_SS^-1 h_S at each set's solution
-    cost = -_vecdot(x, hm, None)
+    cost = -_rowdot(x, hm, None)
     cost[~(x.min(axis=2) >= 0.0)] = np.inf                  # (NaN too)
     best = cost.argmin(axis=1)
     rows = np.arange(G.shape[0])
