@@ -144,11 +144,12 @@ Cost: a few passes over the samples and one least-squares fit of a thousand wind
 window sums come from the Allan analysis' block sums when ``hse-opt align`` passes them
 (``sums``: one pass over the samples for both), and the quanta and the encoder's step
 statistics that checks 1, 3 and 3b take are worked out once
-(:class:`~hse_opt.align._quanta.Quanta`). On a 10-minute 500 Hz log
-(``benchmarks/align.py``, a busy 2-core machine, CPU) 1.5 ms with the block sums, a third of
-the alignment's time, and 5.5 ms with check 3b (its statistic over the samples); by
-instructions (callgrind, 2026-11-26) 39 M with check 3b against the alignment's 48 M, of which
-check 3b 26 M (:mod:`hse_opt.align.steps`).
+(:class:`~hse_opt.align._quanta.Quanta`). Checks 1-5 without 3b on a 10-minute 500 Hz log
+(``benchmarks/align.py``'s, 2026-11-26): 5.2 M instructions (callgrind, one BLAS thread; were
+7.3 M) against the alignment's 47 M; CPU on one core of the busy 2-core machine (load 3-4)
+0.36 ms when repeated (were 0.56) and 0.7-0.8 ms after the alignment as ``hse-opt align`` runs
+them, its caches cold (were 0.9-1.0); the floor is the per-sample encoder check (the steps,
+their extremes and every 29th's median: 0.15-0.18 ms of it). Check 3b: :mod:`hse_opt.align.steps`.
 """
 from __future__ import annotations
 
