@@ -664,12 +664,12 @@ def _squares(x, plan):
 
 def _octave_squares(x, plan):
     """:func:`_squares` without a cumulative sum, for cluster sizes that are powers of two
-    when the longest stride ``s`` (the shortest cluster's) is one too and every cluster
-    shorter than ``s`` has it; else None.
+    (a log's) where every cluster shorter than the lattice ``s`` (the largest power of two
+    up to the longest stride, the shortest cluster's) has a stride it divides; else None.
 
     The increments are summed over ``s`` by pairs (``S_1 = x``, ``S_2``, ``S_4``, ..: the
     lattice sums ``S_s``). A cluster shorter than ``s`` is the difference of two adjacent sums
-    ``S_m``, read every ``s / m``-th. A longer one, ``q = m / s`` lattice sums, is the
+    ``S_m``, read every ``step / m``-th. A longer one, ``q = m / s`` lattice sums, is the
     difference of two sums ``D_q`` of ``q`` consecutive lattice sums, ``q`` apart; ``D_q`` by
     doubling (``D_2q[j] = D_q[j] + D_q[j + q]``). Start points off the lattice (a stride
     below ``s``) are taken by phase ``phi = k mod s``: ``D_q`` moved by ``phi`` intervals
@@ -679,13 +679,13 @@ def _octave_squares(x, plan):
     The lattice arrays are rows of one width in flat buffers, added as one flat array each (a
     sum across two rows is never read), as in :func:`_short_allan`."""
     c, n = x.shape
-    s = max(step for _, step, _ in plan)
+    s = 1 << (max(step for _, step, _ in plan).bit_length() - 1)
     phases = 0
     for m, step, _ in plan:
-        if m & (m - 1) or (m < s and step != s):
+        if m & (m - 1) or (m < s and step % m):
             return None
         phases += s // math.gcd(step, s) if m >= s else 0
-    if s & (s - 1) or phases > 2 * len(plan) + 8:
+    if phases > len(plan) + 8:                          # (more phases: slower than theta)
         return None
     width = n // s + 1                                  # every lattice row: this many entries
     lattice = np.empty((3, c, width))                   # S_s then D_q (doubled in two); d
@@ -723,7 +723,7 @@ def _octave_squares(x, plan):
     D, q, size = flat[0], 1, flat.shape[1]              # D_q: row entries 0 .. n // s - q valid
     for i, (m, step, cnt) in enumerate(plan):
         if m < s:
-            S, r = sums[m], s // m
+            S, r = sums[m], step // m
             d = np.subtract(S[:, 1::r][:, :cnt], S[:, 0::r][:, :cnt], out=lattice[2, :, :cnt])
             _rowdot(d, d, ss[i])
             continue
