@@ -141,7 +141,7 @@ def test_the_fits_nonnegative_solution_is_scipys_nnls():
     (Lawson-Hanson) on weighted Allan-model systems whose solutions hold 0 to 3 terms at
     zero, with a right, a wrong and no set to try first."""
     from scipy.optimize import nnls
-    from hse_opt.align.noise import _SUBSETS, _nonnegative
+    from hse_opt.align.allan_fit import _SUBSETS, _nonnegative
     rng = np.random.default_rng(12)
     tau = 0.002 * 2.0 ** np.arange(18)
     T = tau[:, None] ** np.arange(-2, 2)

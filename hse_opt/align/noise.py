@@ -92,7 +92,6 @@ Units: SI inside (rad, rad/s, m/s, m/s^2, s); the RUNS.csv columns
 from __future__ import annotations
 
 import functools
-import itertools
 import math
 from dataclasses import dataclass
 
@@ -101,10 +100,8 @@ import numpy as np
 from hse_opt import units
 from hse_opt.align._angles import rotate
 from hse_opt.align._blas import block_dot, one_thread
+from hse_opt.align.allan_fit import MISFIT, MODEL_ERROR, _POWERS, fit_allan
 from hse_opt.align.processor import _vecdot
-
-#: row dot products into ``out``: numpy's gufunc where it has one (no wrapper per call)
-_rowdot = getattr(np, "vecdot", _vecdot)
 
 __all__ = ["NoiseFigures", "noise_from_log", "combine_noise", "allan_deviation", "fit_allan",
            "deterministic_residual", "Residual", "BlockSums", "block_sums", "CHANNELS", "TERMS", "NOISE_COLUMNS",
@@ -118,30 +115,13 @@ TERMS = ("quantization", "random_walk", "bias_instability", "rate_random_walk")
 BLOCK_PERIOD = 0.064
 #: at most about this many (at most twice) start points per cluster time
 MAX_TERMS = 2048
-#: relative 1-sigma of the four-term model itself, added in quadrature to each Allan
-#: variance's own in the fit's weights (module docstring, step 4)
-MODEL_ERROR = 0.1
-#: a fit whose weighted residuals exceed this many times their degrees of freedom is refitted
-#: with :data:`MODEL_ERROR` in its weights
-MISFIT = 10.0
 #: clusters shorter than a block come from this many stretches of the raw samples ...
 SEGMENTS = 8
 #: ... of this many samples each (2 s at 500 Hz; 8192 samples, 3 % of a 10-minute log)
 SEGMENT_SAMPLES = 1024
 #: fewest blocks a log must have (a curve of at least 10 cluster times)
 MIN_BLOCKS = 32
-_POWERS = np.arange(-2, 2)
 _FLICKER = 2.0 * math.log(2.0) / math.pi
-#: every non-empty set of active terms, (15, 4) bool
-_SUBSETS = np.array([s for s in itertools.product((False, True), repeat=4) if any(s)])
-#: the entries of each set's normal matrix, (15, 4, 4) bool, and the identity that fills the rest
-_SUBSETS_BOTH = _SUBSETS[:, :, None] & _SUBSETS[:, None, :]
-_EYE4 = np.eye(4)
-_DIAG4 = np.arange(4)
-#: the ridge added to the fit's scaled normal matrix
-_RIDGE = 1e-13 * _EYE4
-for _a in (_SUBSETS, _SUBSETS_BOTH, _EYE4, _DIAG4, _RIDGE):
-    _a.flags.writeable = False
 
 #: RUNS.csv columns written by ``hse-opt align``: name -> description (the unit in the name)
 NOISE_COLUMNS = {
@@ -584,7 +564,7 @@ def _short_allan(log, residual, sizes, segments=SEGMENTS, length=SEGMENT_SAMPLES
         sums, d = work[at], work[1 - at]
         np.subtract(sums[m:size], sums[:size - m], out=d[:size - m])
         valid = d.reshape(rows, length)[:, :length - 2 * m + 1]
-        _rowdot(valid, valid, out=ss[:, i])
+        _vecdot(valid, valid, out=ss[:, i])
         clusters[i] = count * length / m
     sizes = np.asarray(sizes)
     adev = np.sqrt(ss.reshape(6, count, -1).sum(axis=1) / (2.0 * count * (length - 2 * sizes + 1))) / (sizes * dt)
@@ -658,7 +638,7 @@ def _squares(x, plan):
         np.multiply(theta[:, m::step][:, :cnt], 2.0, out=di)
         np.subtract(theta[:, 2 * m::step][:, :cnt], di, out=di)
         di += theta[:, :(cnt - 1) * step + 1:step]
-        _rowdot(di, di, out=ss[i])
+        _vecdot(di, di, out=ss[i])
     return ss
 
 
@@ -725,7 +705,7 @@ def _octave_squares(x, plan):
         if m < s:
             S, r = sums[m], step // m
             d = np.subtract(S[:, 1::r][:, :cnt], S[:, 0::r][:, :cnt], out=lattice[2, :, :cnt])
-            _rowdot(d, d, ss[i])
+            _vecdot(d, d, ss[i])
             continue
         while q < m // s:
             nxt = flat[q.bit_length() % 2, :size - q]
@@ -746,112 +726,8 @@ def _octave_squares(x, plan):
                 Dp += P[q:last + 2 * q]
             np.subtract(Dp[q:last + q], Dp[:last], out=flat[2, :last])
             d = lattice[2, :, j0:j0 + (k - 1) * r + 1:r]
-            ss[i] += _rowdot(d, d, None)
+            ss[i] += _vecdot(d, d, None)
     return ss
-
-
-def fit_allan(tau, adev, clusters, *, iterations=3):
-    """The IEEE 952 Annex C fit (module docstring, step 4).
-
-    Parameters
-    ----------
-    tau : array_like, shape (k,)
-        s.
-    adev : array_like, shape (c, k)
-        Allan deviation per channel.
-    clusters : array_like, shape (k,)
-        Independent clusters behind each point.
-
-    Returns
-    -------
-    coefficients, coefficients_std : numpy.ndarray, shape (c, 4)
-        ``A_k``, k = -2..1, >= 0, and their 1-sigma (NaN where held at zero).
-    """
-    tau = np.asarray(tau, dtype=float)
-    avar = np.atleast_2d(np.asarray(adev, dtype=float)) ** 2
-    c = avar.shape[0]
-    rel = np.sqrt(2.0 / np.maximum(np.asarray(clusters, dtype=float) - 1.0, 1.0))
-    # the fit and its refit with the model's own error (taken where the fit misses its points
-    # by far more than their scatter) in one batched pass: rows c.. are the refit's
-    rels = np.empty((2, c, tau.size))
-    rels[0] = rel
-    rels[1] = np.sqrt(rel ** 2 + MODEL_ERROR ** 2)
-    coef, std, chi2 = _weighted_fit(tau, np.concatenate([avar, avar]), rels.reshape(2 * c, -1), iterations)
-    pick = np.where(chi2[:c] > MISFIT, np.arange(c, 2 * c), np.arange(c))
-    return coef[pick], std[pick]
-
-
-def _weighted_fit(tau, avar, rel, iterations):
-    """The non-negative weighted least squares of :func:`fit_allan` with relative 1-sigma
-    ``rel`` (c, k) of each variance; returns ``(coef, std, chi2)``, ``chi2`` (c,) the weighted
-    residual sum of squares per degree of freedom.
-
-    Each pass forms the weighted normal equations of all rows in one product (the variances
-    as a fifth column: ``[A b]' [A b]``), the columns scaled to unit norm. The non-negative
-    solution is the best feasible one of the 15 sets of active terms; after the first pass
-    the previous pass's set is tried alone and kept where it is optimal (its terms >= 0 and
-    no held term would lower the residuals: the Karush-Kuhn-Tucker conditions, met by one
-    set only, the normal matrix being positive definite), all 15 solved where it is not."""
-    T = tau[:, None] ** _POWERS[None, :]                     # (k, 4)
-    c, k = avar.shape
-    Tb = np.empty((c, k, 5))
-    Tb[:, :, :4] = T
-    Tb[:, :, 4] = avar
-    model, best = avar, None
-    for _ in range(iterations):
-        s = np.maximum(model, 1e-300)
-        s *= rel                                              # (c, k) 1-sigma of each variance
-        Ab = Tb / s[:, :, None]
-        Gb = np.matmul(Ab.transpose(0, 2, 1), Ab)             # (c, 5, 5)
-        scale = np.sqrt(Gb[:, _DIAG4, _DIAG4])
-        scale[scale == 0] = 1.0
-        G = Gb[:, :4, :4] / (scale[:, :, None] * scale[:, None, :])
-        G += _RIDGE
-        h = Gb[:, :4, 4] / scale
-        best, x = _nonnegative(G, h, best)
-        coef = x / scale
-        model = coef @ T.T
-    cov = np.linalg.inv(np.where(_SUBSETS_BOTH[best], G, _EYE4))
-    std = np.sqrt(np.maximum(np.diagonal(cov, axis1=1, axis2=2), 0.0)) / scale
-    std[~(_SUBSETS[best] & np.isfinite(x).all(axis=1, keepdims=True))] = np.nan
-    w = np.maximum(model, 1e-300)
-    w *= rel
-    chi2 = _rowdot(avar - model, (avar - model) / w ** 2, None) / max(tau.size - 4, 1)
-    return coef, std, chi2
-
-
-def _nonnegative(G, h, prev=None):
-    """``min x' G x - 2 h' x`` over ``x >= 0`` per row (G (c, 4, 4) positive definite, h (c,
-    4)): ``(best, x)``, ``best`` the index of the set of active terms in :data:`_SUBSETS`, x
-    zero outside it (all zero where no set is feasible: NaN input). ``prev``: each row's set
-    to try first, kept where the KKT conditions hold; the other rows try all 15."""
-    if prev is None:
-        return _best_set(G, h)
-    S = _SUBSETS[prev]
-    x = np.linalg.solve(np.where(_SUBSETS_BOTH[prev], G, _EYE4), np.where(S, h, 0.0)[..., None])[..., 0]
-    # KKT: the active terms >= 0, no held term's gain h - G x above 0
-    kkt = np.where(S, x, np.matmul(G, x[..., None])[..., 0] - h)
-    ok = kkt.min(axis=1) >= 0.0
-    if not ok.all():
-        redo = ~ok
-        prev = prev.copy()
-        prev[redo], x[redo] = _best_set(G[redo], h[redo])
-    return prev, x
-
-
-def _best_set(G, h):
-    """:func:`_nonnegative` by trying every set of active terms: the best feasible one."""
-    Gm = np.where(_SUBSETS_BOTH[None], G[:, None], _EYE4)    # (c, 15, 4, 4)
-    hm = np.where(_SUBSETS[None], h[:, None], 0.0)           # (c, 15, 4)
-    x = np.linalg.solve(Gm, hm[..., None])[..., 0]
-    # the weighted residual sum of squares less b'b: -h_S' G_SS^-1 h_S at each set's solution
-    cost = -_rowdot(x, hm, None)
-    cost[~(x.min(axis=2) >= 0.0)] = np.inf                  # (NaN too)
-    best = cost.argmin(axis=1)
-    rows = np.arange(G.shape[0])
-    xs = x[rows, best]
-    xs[~np.isfinite(cost[rows, best])] = 0.0
-    return best, xs
 
 
 def noise_from_log(log, *, block_period=BLOCK_PERIOD, max_terms=MAX_TERMS, sums=None):

@@ -392,11 +392,15 @@ def _channels(log):
     return [(g, 0), (a, 3)]
 
 
-def _vecdot(a, b, out):
-    """``sum(a * b, axis=-1)`` with broadcasting into ``out`` (numpy >= 2 has it as a gufunc)."""
-    if hasattr(np, "vecdot"):
-        return np.vecdot(a, b, out=out)
+def _einsum_vecdot(a, b, out):
+    """``sum(a * b, axis=-1)`` with broadcasting into ``out``, for numpy < 2."""
     return np.einsum("...i,...i->...", a, b, out=out)
+
+
+#: ``_vecdot(a, b, out)``: ``sum(a * b, axis=-1)`` with broadcasting into ``out`` (None: a new
+#: array); numpy >= 2's gufunc itself where it has one (no wrapper per call: the Allan analysis
+#: calls it some 30 times a log)
+_vecdot = getattr(np, "vecdot", _einsum_vecdot)
 
 
 def _coarse(dth, dv, rot, T):
