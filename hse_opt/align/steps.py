@@ -37,8 +37,8 @@ the gyros and the encoder for the weighted sums, moving sums and the slow part's
 9,375 block edges (the table angle's cos and sin there are the fit's), and the robust
 1-sigma from every ``K``-th of them.
 
-Its 1-sigma ``s`` (1.4826 x the median absolute deviation) is 0.0071 arcsec on the paper-like
-10-minute log at 10 deg/s. Predicted: the white quantization of the pulses and the encoder's
+Its 1-sigma ``s`` (1.4826 x the median of ``|D|``, which its fit centres on 0) is 0.0071 arcsec
+on the paper-like 10-minute log at 10 deg/s. Predicted: the white quantization of the pulses and the encoder's
 share, ``sqrt(q^2 + (beta qe)^2) / sqrt(12)`` = 0.042 arcsec a sample, and the angle random
 walk N = 0.012 deg/h/sqrt(Hz) give ``var = 2 sigma_w^2 dt / tau + 2 N^2 tau / 3``, least at
 ``tau`` = 0.27 s: 0.0072 arcsec. The threshold is ``max(z s + quant, floor)``: ``z`` the
@@ -191,9 +191,11 @@ def step_statistic(t, enc, gyro, residual, beta):
     # the slow part: a constant, a sinusoid of the table angle (the encoder's own once-a-turn
     # error, in the ratio beta) and a quadratic drift, fitted by least squares (the columns
     # O(1), nearly orthogonal; the table angle's cos and sin are the fit's, at the block edges)
+    # (fitted on every GRID-th edge, a K apart: D's values closer than that are nearly the same)
     A = _slow_regressors(residual.edge_cos[GRID:nb + 1 - GRID], residual.edge_sin[GRID:nb + 1 - GRID])
+    As = A[:, ::GRID]
     with one_thread():
-        model = np.linalg.solve(A @ A.T, A @ D.T).T @ A
+        model = np.linalg.solve(As @ As.T, As @ D[:, ::GRID].T).T @ A
     g = np.asarray(gyro).T
     dt = residual.tau0 / h                           # the mean sample period (weighted_regressors)
 
@@ -265,8 +267,9 @@ def find_steps(t, enc, gyro, residual, beta, level, quant, floor):
         Each gyro's threshold, rad.
     """
     D, p, local = step_statistic(t, enc, gyro, residual, beta)
-    sub = D[:, ::GRID]                               # (every K: nearly independent values)
-    sigma = _MAD * _median(np.abs(sub - _median(sub.T)[:, None]).T)
+    # the robust 1-sigma: 1.4826 x the median of |D| (its fit holds a constant: D is centred on
+    # 0), at every K (values a K apart are nearly independent)
+    sigma = _MAD * _median(np.abs(D[:, ::GRID]).T)
     thr = np.maximum(level * sigma + quant, floor)
     bad = np.abs(D) > thr[:, None]
     if not bad.any():
