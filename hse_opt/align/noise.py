@@ -75,8 +75,11 @@ Steps
    alike, and with both free the fit splits the long cluster times between them at random; a
    drift (the warm-up transient, temperature) therefore reads as rate random walk.
 
-   The non-negative least squares is solved exactly by trying every set of active terms
-   (15 small systems per channel, one batched solve) and keeping the best feasible one.
+   The non-negative least squares is solved exactly (:mod:`hse_opt.align.allan_fit`): the
+   best feasible one of every set of active terms (15 small systems per channel, one batched
+   solve); from the second pass each channel first tries its previous set, kept where the
+   Karush-Kuhn-Tucker conditions hold (the same solution: the normal matrix is positive
+   definite).
 5. A campaign (:func:`combine_noise`): the Allan variances of its logs at equal cluster
    times pooled with their independent clusters as weights, then fitted as one curve.
 
