@@ -620,6 +620,24 @@ def test_a_gyro_error_that_moves_the_heading_by_half_a_sigma_is_found_and_repair
     assert tested >= 3
 
 
+@pytest.mark.parametrize("offset", [0, 12, 24])
+def test_a_gyro_error_just_above_the_threshold_is_found_wherever_it_falls_in_a_block(clean, offset):
+    """0.06 arcsec on one gyro sample, under a third of the error that moves the heading by half
+    its sigma and a third above the statistic's threshold (about 0.044 arcsec), which the block
+    grid sees at 7/8 at least: found in each gyro and taken off, its sample placed within half a
+    block (the per-sample statistic of so small a step is flat over a few samples). (0.05 arcsec
+    is found at 5 of these 9 places, before check 3b ran on the Allan analysis' blocks too.)"""
+    log, _ = clean
+    k = K + offset
+    for j in range(3):
+        def err(g):
+            g[k, j] += 0.06 * units.ARCSEC
+        f = _only(assess(_faulty(log, gyro=err)), "repaired")
+        assert f.check == "channel" and f.detail.startswith(f"gyro_{'xyz'[j]} angle"), f.text()
+        assert abs(f.sample - k) <= 16, f.text()
+        assert float(f.detail.split("steps by ")[1].split(" arcsec")[0]) == pytest.approx(0.06, abs=0.03)
+
+
 def test_a_small_encoder_jump_is_noted_and_the_gyros_left_alone(clean):
     """An encoder jump of 1 arcsec that stays (below check 1's 2-arcsec floor and the window
     test) steps all three gyros' residuals in the ratio of their shares of the turn: noted as
