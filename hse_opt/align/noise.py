@@ -18,7 +18,9 @@ Steps
    linear within the block: Earth rate, horizontal gravity, their leak through any
    misalignment) and ``d alpha - Omega dt`` (the encoder's turn beyond the mean rate: the
    table's jitter and rate ripple, which the gyros sense as real motion). No calibration and
-   no attitude are needed: each coefficient is what the channel shows.
+   no attitude are needed: each coefficient is what the channel shows. The fit is made once
+   per log (:attr:`BlockSums.residual`): the quality checks' gyro step test
+   (:mod:`hse_opt.align.steps`) works on the same residual.
 
    What remains and is analysed: the sensors' own noise (white rate or specific-force noise,
    pulse quantization, flicker, random walk, drift) *plus* the encoder's own angle noise
