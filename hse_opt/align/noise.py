@@ -477,12 +477,12 @@ def _fit_residual(log, block, y):
     X = _regressors(ce[:-1], se[:-1], np.diff(a), np.diff(te), rate)        # (4, nb)
     with one_thread():       # (the same bytes whatever the threads: hse_opt.align._blas)
         G, H = X @ X.T, X @ y.T
-    norm = np.sqrt(np.diagonal(G)).copy()
-    norm[norm == 0] = 1.0
-    ev, V = np.linalg.eigh(G / np.outer(norm, norm))                    # scaled columns
-    keep = ev > 1e-12 * ev[-1]
-    coef = ((V[:, keep] / ev[keep]) @ (V[:, keep].T @ (H / norm[:, None]))) / norm[:, None]
-    residual = y - coef.T @ X
+        norm = np.sqrt(np.diagonal(G)).copy()
+        norm[norm == 0] = 1.0
+        ev, V = np.linalg.eigh(G / np.outer(norm, norm))                # scaled columns
+        keep = ev > 1e-12 * ev[-1]
+        coef = ((V[:, keep] / ev[keep]) @ (V[:, keep].T @ (H / norm[:, None]))) / norm[:, None]
+        residual = y - coef.T @ X
     return Residual(blocks=residual, tau0=float((te[-1] - te[0]) / nb), block=block,
                     coefficients=coef, rate=rate, edge_cos=ce, edge_sin=se, regressors=X)
 

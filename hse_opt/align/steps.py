@@ -107,7 +107,7 @@ def weighted_sums(enc, gyro, h, nb):
     """
     M = nb * h
     g = np.asarray(gyro).T                           # (3, n): rows (a view for a column-major log)
-    if not g.flags.c_contiguous and g.strides[1] != g.itemsize:
+    if g.strides[1] != g.itemsize:
         g = np.ascontiguousarray(g)                  # (a row-major log: the blocks as contiguous rows)
     W = block_dot(g[:, 1:M + 1].reshape(3, nb, h), np.arange(h, 0, -1, dtype=float))
     E = block_dot(enc[1:M + 1].reshape(nb, h), np.ones(h))
