@@ -292,6 +292,33 @@ def test_a_noise_free_simulated_log_leaves_nothing():
 
 
 
+@pytest.mark.parametrize("top, bound", [(1e-3, 5e-14), (0.03, 2e-12), (0.2, 3e-9), (1.5, 1e-15)])
+def test_small_angles_cos_sin_and_sinc_by_series_within_their_stated_errors(top, bound):
+    """noise._cos_sin_small's series (and numpy's above _SERIES_MAX) against numpy's cos, sin
+    and sinc, within the errors its docstring states for the largest angle ``top`` (the sinc's:
+    the sine's over ``top``)."""
+    from hse_opt.align.noise import _cos_sin_small
+    d = np.linspace(-top, top, 2001)
+    c, s, sinc = _cos_sin_small(d, sinc=True)
+    assert np.abs(c - np.cos(d)).max() < bound and np.abs(s - np.sin(d)).max() < bound
+    assert np.abs(sinc - np.sinc(d / math.pi)).max() < bound / top and sinc[1000] == 1.0
+    c2, s2 = _cos_sin_small(d)
+    assert np.array_equal(c2, c) and np.abs(s2 - s).max() <= 1e-16 * top
+
+
+def test_cos_sin_of_a_nearly_linear_angle_is_numpys():
+    """noise._cos_sin (short phase tables, the deviation by series) against numpy's on a turning
+    table's edge angles with jitter, and on a stall (numpy's own route)."""
+    from hse_opt.align.noise import _cos_sin
+    rng = np.random.default_rng(3)
+    a = 0.7 + 0.02 * np.arange(9376) + 1e-4 * rng.standard_normal(9376)
+    c, s = _cos_sin(a)
+    assert np.abs(c - np.cos(a)).max() < 1e-12 and np.abs(s - np.sin(a)).max() < 1e-12
+    a[4000:] = a[4000]                                  # a stall: far from a steady turn
+    c, s = _cos_sin(a)
+    assert np.array_equal(c, np.cos(a)) and np.array_equal(s, np.sin(a))
+
+
 def test_the_block_sums_are_the_rows_summed_and_serve_their_own_log_only():
     """The block sums hse-opt align takes once for the quality checks and the Allan analysis
     (block_sums): each block's rows summed (by numpy's reduceat, here), 32 samples (64 ms) at

@@ -94,6 +94,23 @@ def test_one_blas_thread_gives_the_bytes_of_two():
     assert np.abs(two - np.einsum("cbi,i->cb", x, w)).max() < 1e-13 * np.abs(x).max() * 32 * 32
 
 
+def test_one_thread_limits_blas_only_where_it_has_more_and_restores_it():
+    """hse_opt.align._blas.one_thread: BLAS on one thread inside whatever it had, its count
+    back after (read by threadpoolctl's own report, not by the context's)."""
+    from threadpoolctl import threadpool_info, threadpool_limits
+    from hse_opt.align._blas import one_thread
+
+    def counts():
+        return [i["num_threads"] for i in threadpool_info() if i["user_api"] == "blas"]
+
+    for limit in (2, 1):
+        with threadpool_limits(limits=limit, user_api="blas"):
+            before = counts()
+            with one_thread():
+                assert counts() == [1] * len(before)
+            assert counts() == before
+
+
 def test_loaded_arrays_are_aligned_and_equal(log, tmp_path):
     path = tmp_path / "log.npz"
     save_rawlog(log, path)

@@ -337,14 +337,17 @@ _SERIES_MAX = 0.2
 _TABLE = 64
 
 
-def _cos_sin_small(d, top=None):
+def _cos_sin_small(d, top=None, sinc=False):
     """``(cos d, sin d)`` by their series when every ``|d| <= _SERIES_MAX``, else numpy's: to
     ``d^2`` and ``d^3`` when ``top``, the largest ``|d|`` (taken here if None), is at most 1e-3
     (errors below 5e-14: the encoder's deviation from a steady turn), to ``d^4`` and ``d^5`` up to
-    0.03 (below 2e-12: half a block's turn), else to ``d^6`` and ``d^5`` (below 3e-9)."""
+    0.03 (below 2e-12: half a block's turn), else to ``d^6`` and ``d^5`` (below 3e-9).
+    ``sinc``: also ``sin(d) / d`` (1 at 0), the sine's series before its factor ``d`` (its error
+    the sine's over ``top``)."""
     top = float(np.abs(d).max(initial=0.0)) if top is None else top
     if not top <= _SERIES_MAX:      # (False for NaN too)
-        return np.cos(d), np.sin(d)
+        c, s = np.cos(d), np.sin(d)
+        return (c, s, np.divide(s, d, out=np.ones_like(d), where=d != 0.0)) if sinc else (c, s)
     q = d * d
     if top <= 1e-3:
         c = q * -0.5
@@ -357,9 +360,13 @@ def _cos_sin_small(d, top=None):
         s -= 1.0 / 6.0
         s *= q
     else:
-        return 1.0 - q * (0.5 - q * (1.0 / 24.0 - q / 720.0)), d * (1.0 - q * (1.0 / 6.0 - q / 120.0))
+        c = 1.0 - q * (0.5 - q * (1.0 / 24.0 - q / 720.0))
+        s = 1.0 - q * (1.0 / 6.0 - q / 120.0)
+        return (c, s * d, s) if sinc else (c, s * d)
     c += 1.0
     s += 1.0
+    if sinc:
+        return c, s * d, s
     s *= d
     return c, s
 
@@ -391,9 +398,9 @@ def _regressors(ce, se, da, dt, rate):
     times ``sinc(da / 2) dt``."""
     X = np.empty((4,) + da.shape)
     h = 0.5 * da
-    ch, sh = _cos_sin_small(h)
+    ch, sh, w = _cos_sin_small(h, sinc=True)
     rotate(ce, se, ch, sh, X[1:3], X[3])
-    w = dt * np.divide(sh, h, out=np.ones_like(h), where=h != 0.0)
+    w *= dt
     X[1:3] *= w
     X[0] = dt
     np.multiply(dt, -rate, out=X[3])
