@@ -63,6 +63,8 @@ of six systems, 20 s to 10 minutes (``--full``), and 0 in 240 at its CI size.
 """
 from __future__ import annotations
 
+import functools
+
 import numpy as np
 
 from hse_opt import units
@@ -183,10 +185,13 @@ def step_statistic(t, enc, gyro, residual, beta):
         rw = W - coef.T @ weighted_regressors(residual, E)
     # block b's sum of e is rw_b + h e(end of block b - 1), e(end of b) = r_0 + .. + r_b; over the
     # GRID blocks after edge b less the GRID before, the e(end) terms leave h times the sum of r
-    # over a triangle of 2 GRID - 1 blocks: moving sums only (no sum over the record to cancel)
-    D = _moving(rw, GRID)
-    D = D[:, GRID:] - D[:, :-GRID]
-    D += h * _moving(_moving(r, GRID), GRID)[:, :nb + 1 - 2 * GRID]
+    # over a triangle of 2 GRID - 1 blocks: one moving sum over GRID blocks of rw's change over
+    # GRID blocks plus h times r's moving sum (no sum over the record to cancel)
+    y = _moving(r, GRID)[:, :nb - GRID]
+    y *= h
+    y += rw[:, GRID:]
+    y -= rw[:, :-GRID]
+    D = _moving(y, GRID)
     D /= K
     p = h * np.arange(GRID, nb + 1 - GRID)
     # the slow part: a constant, a sinusoid of the table angle (the encoder's own once-a-turn
@@ -194,9 +199,12 @@ def step_statistic(t, enc, gyro, residual, beta):
     # O(1), nearly orthogonal; the table angle's cos and sin are the fit's, at the block edges)
     # (fitted on every GRID-th edge, a K apart: D's values closer than that are nearly the same)
     A = _slow_regressors(residual.edge_cos[GRID:nb + 1 - GRID], residual.edge_sin[GRID:nb + 1 - GRID])
-    As = A[:, ::GRID]
+    M = np.empty((8, -(-A.shape[1] // GRID)))            # the fit's edges: its regressors and D
+    M[:5] = A[:, ::GRID]
+    M[5:] = D[:, ::GRID]
     with one_thread():
-        model = np.linalg.solve(As @ As.T, As @ D[:, ::GRID].T).T @ A
+        P = M @ M[:5].T                                  # (8, 5): the normal matrix and right sides
+        model = np.linalg.solve(P[:5], P[5:].T).T @ A
     g = np.asarray(gyro).T
     dt = residual.tau0 / h                           # the mean sample period (weighted_regressors)
 
@@ -232,9 +240,19 @@ def _slow_regressors(c, s):
     A = np.empty((5, c.size))
     A[0] = 1.0
     A[1], A[2] = c, s
-    A[3] = np.linspace(-1.0, 1.0, c.size)
-    np.multiply(A[3], A[3], out=A[4])
+    A[3:] = _drift(c.size)
     return A
+
+
+@functools.lru_cache(maxsize=8)
+def _drift(g):
+    """The rows ``u`` (``numpy.linspace(-1, 1, g)``) and ``u^2`` of :func:`_slow_regressors`,
+    (2, g), read-only (one per log length)."""
+    U = np.empty((2, g))
+    U[0] = np.linspace(-1.0, 1.0, g)
+    np.multiply(U[0], U[0], out=U[1])
+    U.flags.writeable = False
+    return U
 
 
 def shares(residual):
