@@ -176,12 +176,20 @@ def test_the_overlapping_allan_deviation_is_allantools_oadev():
     for c in range(2):
         t_ref, a_ref, _, _ = allantools.oadev(x[c] / TAU0, rate=1 / TAU0, data_type="freq", taus=tau)
         assert np.allclose(t_ref, tau) and np.allclose(adev[c], a_ref, rtol=1e-9, atol=0)
-    # the default's subsampled start points: the same where fewer than MAX_TERMS exist, within
-    # the estimator's own scatter elsewhere
+    # the default's subsampled start points: a cluster of at least the lattice s (the largest
+    # power of two up to the shortest cluster's stride, here 19999 // MAX_TERMS = 9: s = 8)
+    # takes every s-th, i.e. allantools' fully overlapping estimator on the record summed over
+    # s where the cluster is whole sums; every one within the estimator's own scatter of all
+    # start points
     tau, sub, clusters = allan_deviation(x, TAU0)
-    full = (20000 + 1 - 2 * np.round(tau / TAU0)) < 2 * MAX_TERMS
-    assert np.allclose(sub[:, full & (20001 - 2 * np.round(tau / TAU0) <= MAX_TERMS)],
-                       adev[:, full & (20001 - 2 * np.round(tau / TAU0) <= MAX_TERMS)], rtol=1e-12)
+    s = 2 ** int(math.log2((20000 - 1) // MAX_TERMS))
+    on = np.round(tau / TAU0) % s == 0
+    assert s == 8 and on.sum() >= 10
+    xs = x[:, :20000 // s * s].reshape(2, -1, s).sum(axis=2)
+    for c in range(2):
+        t_ref, a_ref, _, _ = allantools.oadev(xs[c] / (s * TAU0), rate=1 / (s * TAU0), data_type="freq",
+                                              taus=tau[on])
+        assert np.allclose(t_ref, tau[on]) and np.allclose(sub[c, on], a_ref, rtol=1e-9, atol=0)
     sigma = 1 / np.sqrt(2 * (clusters - 1))
     assert np.all(np.abs(sub / adev - 1) < 4 * sigma)
 
@@ -191,17 +199,19 @@ def test_the_overlapping_allan_deviation_is_allantools_oadev():
 def test_octave_clusters_take_the_definitions_start_points(n, max_terms):
     """Octave cluster sizes (as the logs' analysis takes them: a 10-minute log's 9374 blocks at
     500 Hz, 9999 at 100 Hz) against the definition written out here: the start points ``k =
-    0, s, 2s, ..`` with ``s = max(1, (n + 1 - 2m) // max_terms)``, the second differences of
-    the cumulative sum in extended precision. Strides 4, 3, 2 and 1 among the cluster times,
-    strides that are no power of two (3 throughout a 7.5-minute log, 6 in a 15-minute one),
-    every start point."""
+    0, step, 2 step, ..`` with ``step = max(1, (n + 1 - 2m) // max_terms)`` for a cluster
+    shorter than the lattice ``s`` (that stride of the shortest cluster, to a power of two
+    below) and ``step = s`` for the others, the second differences of the cumulative sum in
+    extended precision. Short clusters' strides that are no power of two (3 in a 7.5-minute
+    log, 6 in a 15-minute one, 65 and 66 with s = 64), every start point (s = 1)."""
     rng = np.random.default_rng(n)
     x = _white_rate(rng, 3e-6, 3, n=n) + _rate_random_walk(rng, 1e-6, 3, n=n) + 1e-7   # a bias too
     sizes = 2 ** np.arange(int(math.log2(n // 2)) + 1)
     tau, adev, clusters = allan_deviation(x, TAU0, max_terms=max_terms, sizes=sizes)
     theta = np.concatenate([np.zeros((3, 1)), np.cumsum(x.astype(np.longdouble), axis=1)], axis=1)
+    s = 2 ** int(math.log2(max(1, (n - 1) // max_terms)))
     for i, m in enumerate(sizes.tolist()):
-        step = max(1, (n + 1 - 2 * m) // max_terms)
+        step = s if m >= s else max(1, (n + 1 - 2 * m) // max_terms)
         k = np.arange(0, n - 2 * m + 1, step)
         d = theta[:, k + 2 * m] - 2 * theta[:, k + m] + theta[:, k]
         ref = np.sqrt(np.mean(d ** 2, axis=1) / 2).astype(float) / (m * TAU0)
