@@ -638,6 +638,34 @@ def test_a_gyro_error_just_above_the_threshold_is_found_wherever_it_falls_in_a_b
         assert float(f.detail.split("steps by ")[1].split(" arcsec")[0]) == pytest.approx(0.06, abs=0.03)
 
 
+def test_check_3b_finds_the_same_with_the_passes_shared_with_the_allan_analysis(clean):
+    """hse-opt align takes the gyros' weighted sums and the encoder's steps with the block sums
+    (hse_opt.align.noise.block_sums) instead of in the checks: the same findings and repaired
+    log as the checks' own passes over the samples, for an error just above check 3b's
+    threshold in each gyro (the case most sensitive to the sums' last bits) and for a log whose
+    encoder check 1 repairs first (the repaired encoder's steps and sums taken anew)."""
+    from hse_opt.align.noise import block_sums
+    log, _ = clean
+    cases = []
+    for j in range(3):
+        def err(g, j=j):
+            g[K + 12, j] += 0.06 * units.ARCSEC
+        cases.append(_faulty(log, gyro=err))
+
+    def glitch(e):
+        e[K // 2] += 1.0
+
+    def step(g):
+        g[K, 1] += 0.2 * units.ARCSEC
+    cases.append(_faulty(log, encoder=glitch, gyro=step))
+    for bad in cases:
+        own, shared = assess(bad), assess(bad, sums=block_sums(bad))
+        assert own.findings == shared.findings and len(own.findings) in (1, 2)
+        assert all(f.action == "repaired" for f in own.findings)
+        assert np.array_equal(own.log.gyro, shared.log.gyro) and np.array_equal(own.log.encoder, shared.log.encoder)
+    assert [f.check for f in own.findings] == ["encoder", "channel"]
+
+
 def test_a_small_encoder_jump_is_noted_and_the_gyros_left_alone(clean):
     """An encoder jump of 1 arcsec that stays (below check 1's 2-arcsec floor and the window
     test) steps all three gyros' residuals in the ratio of their shares of the turn: noted as

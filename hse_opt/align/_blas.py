@@ -38,8 +38,8 @@ def one_thread():
     return controller.limit(limits=1, user_api="blas")
 
 
-def block_dot(x, w):
-    """``x @ w`` on one BLAS thread.
+def block_dot(x, w, out=None):
+    """``x @ w`` on one BLAS thread (into ``out`` when given).
 
     Parameters
     ----------
@@ -47,10 +47,12 @@ def block_dot(x, w):
         Blocks of ``h`` samples (each block contiguous).
     w : numpy.ndarray, shape (h,) or (h, k)
         Weights.
+    out : numpy.ndarray, shape (..., nb) or (..., nb, k), optional
+        Where to write the product (a row block of a larger array: no copy to join them).
 
     Returns
     -------
     numpy.ndarray, shape (..., nb) or (..., nb, k)
     """
     with one_thread():
-        return np.matmul(x, w)
+        return np.matmul(x, w, out=out)

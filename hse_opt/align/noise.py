@@ -253,17 +253,40 @@ class NoiseFigures:
                 f"{c['accel_bias_instability_ug']:.3g} ug, quantization {c['accel_quantization_mps']:.3g} m/s")
 
 
-def _block_sums(x, stop, nb, block):
+def _block_sums(x, stop, nb, block, out=None):
     """Sums of rows 1..stop-1 of ``x`` (n, 3) over blocks of ``block`` rows, shape (3, nb)
     (summed in the array's own memory order: a column-major array as a view of its columns,
     by a matrix-vector product on one BLAS thread (:mod:`hse_opt.align._blas`), a row-major
     one by ``reduceat``, 4 times faster there than a reshaped sum over the middle
-    axis; the quality checks use it too)."""
+    axis; the quality checks use it too); written into ``out`` (3, nb) when given."""
     x = np.asarray(x)
     if x.T.flags.c_contiguous:
-        return block_dot(x.T[:, 1:stop].reshape(3, nb, block), np.ones(block))
-    return np.add.reduceat(x[1:stop], np.arange(0, nb * block, block), axis=0).T
+        return block_dot(x.T[:, 1:stop].reshape(3, nb, block), np.ones(block), out=out)
+    s = np.add.reduceat(x[1:stop], np.arange(0, nb * block, block), axis=0).T
+    if out is None:
+        return s
+    out[...] = s
+    return out
 
+
+def _weighted_block_sums(x, nb, block):
+    """The weighted sums of rows 1 .. nb block of ``x`` (n, 3) over blocks of ``block`` rows
+    (row ``i`` of a block weighted ``block + 1 - i``), shape (3, nb), by a matrix-vector
+    product on one BLAS thread (:mod:`hse_opt.align._blas`); a row-major ``x`` is copied to
+    columns first. Check 3b's gyro sums (:func:`hse_opt.align.steps.weighted_sums`)."""
+    g = np.asarray(x).T                              # (3, n): rows (a view for a column-major log)
+    if g.strides[1] != g.itemsize:
+        g = np.ascontiguousarray(g)                  # (a row-major log: the blocks as contiguous rows)
+    return block_dot(g[:, 1:nb * block + 1].reshape(3, nb, block), np.arange(block, 0, -1, dtype=float))
+
+
+def _weighted_step_sums(steps, nb, block):
+    """The encoder's weighted block sums from its steps ``steps`` (n - 1,), rad: steps
+    ``b block .. (b + 1) block - 1`` (into samples ``1 + b block .. (b + 1) block``) weighted
+    ``block .. 1``, i.e. ``sum (enc[start + i] - enc[start])``, i = 1 .. block, shape (nb,):
+    the rounding of the steps, not of the angles (a by-parts sum of the angles rounds at
+    their size, up to thousands of rad)."""
+    return block_dot(steps[:nb * block].reshape(nb, block), np.arange(block, 0, -1, dtype=float))
 
 
 def _blocking(log, block_period):
@@ -288,9 +311,10 @@ def _blocking(log, block_period):
 @dataclass(frozen=True, eq=False)
 class BlockSums:
     """A raw log's six channels summed over blocks (module docstring, step 1): one pass over
-    the samples that the Allan analysis (:func:`noise_from_log`) and the quality checks'
-    windows (:func:`hse_opt.align.quality.assess`, whose windows are whole numbers of blocks
-    at the default sample rates) share.
+    the samples that the Allan analysis (:func:`noise_from_log`) and the quality checks
+    (:func:`hse_opt.align.quality.assess`, whose windows are whole numbers of blocks at the
+    default sample rates) share; with ``checks``, also what the checks read of the record
+    (taken while the arrays are in the cache, not in a second pass after others).
 
     Attributes
     ----------
@@ -301,15 +325,31 @@ class BlockSums:
     sums : numpy.ndarray, shape (6, nb)
         Block ``b``'s sums of rows ``1 + b block .. (b + 1) block`` of the gyros (rad) and
         the accelerometers (m/s), in :data:`CHANNELS` order.
+    weighted : numpy.ndarray, shape (3, nb), or None
+        The gyros' weighted sums over the same blocks (row ``i`` of a block weighted
+        ``block + 1 - i``), rad: check 3b's (:func:`hse_opt.align.steps.weighted_sums`).
+    steps : numpy.ndarray, shape (n - 1,), or None
+        The encoder's steps ``alpha_k - alpha_{k-1}``, rad: checks 1 and 3's
+        (:class:`hse_opt.align._quanta.Quanta`).
+    step_sums : numpy.ndarray, shape (nb,), or None
+        The encoder's weighted sums over the blocks, from ``steps``
+        (:func:`hse_opt.align.steps.weighted_sums`), rad.
     """
 
     log: object
     block: int
     sums: np.ndarray
+    weighted: np.ndarray = None
+    steps: np.ndarray = None
+    step_sums: np.ndarray = None
 
     def of(self, log, block):
         """The sums when they are ``log``'s over blocks of ``block`` samples, else None."""
         return self.sums if self.log is log and self.block == block else None
+
+    def steps_of(self, encoder):
+        """:attr:`steps` when they are of the array ``encoder`` (the same object), else None."""
+        return self.steps if self.log.encoder is encoder else None
 
     @functools.cached_property
     def residual(self):
@@ -318,7 +358,7 @@ class BlockSums:
         return _fit_residual(self.log, self.block, self.sums)
 
 
-def block_sums(log, *, block_period=BLOCK_PERIOD):
+def block_sums(log, *, block_period=BLOCK_PERIOD, checks=True):
     """The six channels of ``log`` summed over the Allan analysis' blocks, once for both
     :func:`noise_from_log` and :func:`hse_opt.align.quality.assess` (their ``sums``).
 
@@ -327,6 +367,13 @@ def block_sums(log, *, block_period=BLOCK_PERIOD):
     log : RawLog
     block_period : float
         Target block length, s (rounded to whole samples).
+    checks : bool
+        Also take what the quality checks read of the record (:attr:`BlockSums.weighted`,
+        :attr:`BlockSums.steps`, :attr:`BlockSums.step_sums`) while each array is in the
+        cache: the gyros' weighted sums right after their plain ones, the encoder's weighted
+        sums from its steps just taken (the same bytes as the checks' own passes, which
+        come later, after others have pushed the arrays out); False for the Allan analysis
+        alone.
 
     Returns
     -------
@@ -339,8 +386,17 @@ def block_sums(log, *, block_period=BLOCK_PERIOD):
     """
     block, nb = _blocking(log, block_period)
     stop = nb * block + 1
-    return BlockSums(log=log, block=block, sums=np.concatenate([_block_sums(log.gyro, stop, nb, block),
-                                                                _block_sums(log.accel, stop, nb, block)]))
+    sums = np.empty((6, nb))
+    _block_sums(log.gyro, stop, nb, block, out=sums[:3])
+    if not checks:
+        _block_sums(log.accel, stop, nb, block, out=sums[3:])
+        return BlockSums(log=log, block=block, sums=sums)
+    weighted = _weighted_block_sums(log.gyro, nb, block)         # (while the gyros are in the cache)
+    _block_sums(log.accel, stop, nb, block, out=sums[3:])
+    enc = log.encoder
+    steps = enc[1:] - enc[:-1]
+    return BlockSums(log=log, block=block, sums=sums, weighted=weighted, steps=steps,
+                     step_sums=_weighted_step_sums(steps, nb, block))
 
 #: largest angle the series of :func:`_cos_sin_small` takes, rad (error |d|^7 / 5040 < 3e-9)
 _SERIES_MAX = 0.2
@@ -480,7 +536,7 @@ def deterministic_residual(log, *, block_period=BLOCK_PERIOD, sums=None):
     """
     block, _ = _blocking(log, block_period)
     if sums is None or sums.of(log, block) is None:
-        sums = block_sums(log, block_period=block_period)
+        sums = block_sums(log, block_period=block_period, checks=False)
     return sums.residual
 
 

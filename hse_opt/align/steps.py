@@ -32,8 +32,10 @@ block's plain sum of the residual (the Allan analysis' own) and its weighted sum
 ``i`` of a block of ``h`` weighted ``h + 1 - i``: :func:`weighted_sums`, less the fitted part's,
 :func:`weighted_regressors`) by moving sums over ``GRID`` blocks, so a step's peak is seen at
 7/8 of it at least; the step's exact sample comes from the per-sample statistic around the peak.
-What 3b adds to the Allan analysis' sums and fit on a 10-minute 500 Hz log is one pass over
-the gyros and the encoder for the weighted sums, moving sums and the slow part's fit over
+What 3b adds to the Allan analysis' sums and fit on a 10-minute 500 Hz log is the gyros' and
+the encoder's weighted sums (one pass over each; ``hse-opt align`` takes them with the block
+sums, :func:`hse_opt.align.noise.block_sums`, while the arrays are in the cache from the
+plain sums and the encoder's steps), moving sums and the slow part's fit over
 9,375 block edges (the table angle's cos and sin there are the fit's), and the robust
 1-sigma from every ``K``-th of them.
 
@@ -70,7 +72,7 @@ import numpy as np
 from hse_opt import units
 from hse_opt.align._blas import block_dot, one_thread
 from hse_opt.align._stats import MAD as _MAD, median as _median
-from hse_opt.align.noise import BLOCK_PERIOD
+from hse_opt.align.noise import BLOCK_PERIOD, _weighted_block_sums, _weighted_step_sums
 
 __all__ = ["block_period", "weighted_sums", "weighted_regressors", "shares", "check_steps", "find_steps",
            "step_statistic", "GRID"]
@@ -86,10 +88,10 @@ def block_period(span):
     return BLOCK_PERIOD if round(span / BLOCK_PERIOD) == GRID else span / GRID
 
 
-def weighted_sums(enc, gyro, h, nb):
+def weighted_sums(enc, gyro, h, nb, sums=None):
     """The gyros' and the encoder's weighted sums over blocks of ``h`` increments (increments
     ``1 + b h .. (b + 1) h``; increment ``i`` of a block weighted ``h + 1 - i``), as
-    matrix-vector products on one BLAS thread (:mod:`hse_opt.align._blas`).
+    matrix-vector products on one BLAS thread (:mod:`hse_opt.align._blas`), or from ``sums``.
 
     Parameters
     ----------
@@ -99,21 +101,29 @@ def weighted_sums(enc, gyro, h, nb):
         Gyro increments, rad.
     h, nb : int
         Increments a block, blocks.
+    sums : hse_opt.align.noise.BlockSums, optional
+        The log's block sums with the checks' passes (:func:`hse_opt.align.noise.block_sums`):
+        their weighted sums are taken where they are of these very arrays (a repaired copy is
+        summed here) over these blocks; the same bytes as summed here.
 
     Returns
     -------
     W : numpy.ndarray, shape (3, nb)
         Each gyro's, rad.
     E : numpy.ndarray, shape (nb,)
-        The encoder's, rad: by parts ``sum (enc[start + i] - enc[start])``, i = 1 .. h.
+        The encoder's, rad: ``sum (enc[start + i] - enc[start])``, i = 1 .. h, summed from its
+        steps ``enc[k] - enc[k - 1]``.
     """
-    M = nb * h
-    g = np.asarray(gyro).T                           # (3, n): rows (a view for a column-major log)
-    if g.strides[1] != g.itemsize:
-        g = np.ascontiguousarray(g)                  # (a row-major log: the blocks as contiguous rows)
-    W = block_dot(g[:, 1:M + 1].reshape(3, nb, h), np.arange(h, 0, -1, dtype=float))
-    E = block_dot(enc[1:M + 1].reshape(nb, h), np.ones(h))
-    E -= h * enc[:M:h]
+    W = E = None
+    if sums is not None and sums.weighted is not None and sums.block == h and sums.weighted.shape[1] == nb:
+        if sums.log.gyro is gyro:
+            W = sums.weighted
+        if sums.log.encoder is enc:
+            E = sums.step_sums
+    if W is None:
+        W = _weighted_block_sums(gyro, nb, h)
+    if E is None:
+        E = _weighted_step_sums(enc[1:nb * h + 1] - enc[:nb * h], nb, h)
     return W, E
 
 
@@ -144,7 +154,7 @@ def weighted_regressors(residual, E):
     return Xw
 
 
-def step_statistic(t, enc, gyro, residual, beta):
+def step_statistic(t, enc, gyro, residual, beta, sums=None):
     """``D`` on its grid, the slow part fitted out (module docstring).
 
     Parameters
@@ -163,6 +173,8 @@ def step_statistic(t, enc, gyro, residual, beta):
         taken off the gyros in this ratio (a step of the encoder alone then shows in all
         three in it), not in the fit's jitter coefficients, which a smooth table leaves
         undetermined.
+    sums : hse_opt.align.noise.BlockSums, optional
+        The log's block sums, for :func:`weighted_sums`.
 
     Returns
     -------
@@ -180,7 +192,7 @@ def step_statistic(t, enc, gyro, residual, beta):
     coef = residual.coefficients[:, :3].copy()       # (4, 3)
     r = residual.blocks[:3] + np.multiply.outer(coef[3] - beta, X[3])       # the jitter in the ratio beta
     coef[3] = beta
-    W, E = weighted_sums(enc, gyro, h, nb)
+    W, E = weighted_sums(enc, gyro, h, nb, sums)
     with one_thread():
         rw = W - coef.T @ weighted_regressors(residual, E)
     # block b's sum of e is rw_b + h e(end of block b - 1), e(end of b) = r_0 + .. + r_b; over the
@@ -262,12 +274,12 @@ def shares(residual):
     return residual.coefficients[0, :3] / residual.rate
 
 
-def find_steps(t, enc, gyro, residual, beta, level, quant, floor):
+def find_steps(t, enc, gyro, residual, beta, level, quant, floor, sums=None):
     """The steps of the three gyros (module docstring).
 
     Parameters
     ----------
-    t, enc, gyro, residual, beta
+    t, enc, gyro, residual, beta, sums
         As :func:`step_statistic`.
     level : float
         The Bonferroni multiplier of the statistic's robust 1-sigma.
@@ -285,7 +297,7 @@ def find_steps(t, enc, gyro, residual, beta, level, quant, floor):
     thr : numpy.ndarray, shape (3,)
         Each gyro's threshold, rad.
     """
-    D, p, local = step_statistic(t, enc, gyro, residual, beta)
+    D, p, local = step_statistic(t, enc, gyro, residual, beta, sums)
     # the robust 1-sigma: 1.4826 x the median of |D| (its fit holds a constant: D is centred on
     # 0), at every K (values a K apart are nearly independent)
     sigma = _MAD * _median(np.abs(D[:, ::GRID]).T)
@@ -323,7 +335,7 @@ def find_steps(t, enc, gyro, residual, beta, level, quant, floor):
     return out, thr
 
 
-def check_steps(t, enc, gyro, residual, *, jitter, q, qe, level, floor, bound, most, spikes=()):
+def check_steps(t, enc, gyro, residual, *, jitter, q, qe, level, floor, bound, most, spikes=(), sums=None):
     """Check 3b of :func:`hse_opt.align.quality.assess`: find the steps, repair or refuse.
 
     Parameters
@@ -346,6 +358,8 @@ def check_steps(t, enc, gyro, residual, *, jitter, q, qe, level, floor, bound, m
     spikes : collection of (int, int)
         ``(row, channel)`` of the spikes check 3 repaired: a step within a span of one is
         what that repair left (the neighbours' noise), taken off without a finding of its own.
+    sums : hse_opt.align.noise.BlockSums, optional
+        The log's block sums, for :func:`weighted_sums`.
 
     Returns
     -------
@@ -362,7 +376,7 @@ def check_steps(t, enc, gyro, residual, *, jitter, q, qe, level, floor, bound, m
     # (a noise of at least one quantum: Widrow); else their bounded error is added
     dithered = (jitter >= qe) & (np.abs(beta) * jitter >= q)
     quant = np.where(dithered, 0.0, bound * (q + np.abs(beta) * qe))
-    steps, thr = find_steps(t, enc, gyro, residual, beta, level(N / K), quant, floor)
+    steps, thr = find_steps(t, enc, gyro, residual, beta, level(N / K), quant, floor, sums)
     if not steps:
         return gyro, []
     gyro, out, count = gyro.copy(), [], [0, 0, 0]
