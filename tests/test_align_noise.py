@@ -136,12 +136,12 @@ def test_a_sum_of_terms_is_split_into_each():
 
 
 def test_the_fits_nonnegative_solution_is_scipys_nnls():
-    """The fit's non-negative least squares (every set of active terms; after the first pass
-    the previous pass's set where the KKT conditions hold) against scipy's active-set NNLS
-    (Lawson-Hanson) on weighted Allan-model systems whose solutions hold 0 to 3 terms at
-    zero, with a right, a wrong and no set to try first."""
+    """The fit's non-negative least squares (the Karush-Kuhn-Tucker set among all 16 from
+    the Schur complements of [G h]) against scipy's active-set NNLS (Lawson-Hanson) on
+    weighted Allan-model systems whose solutions hold 0 to 3 terms at zero; the inverse
+    normal matrix's diagonal on the solution's set against numpy's inverse."""
     from scipy.optimize import nnls
-    from hse_opt.align.allan_fit import _SUBSETS, _nonnegative
+    from hse_opt.align.allan_fit import _SETS, _nonnegative, _table
     rng = np.random.default_rng(12)
     tau = 0.002 * 2.0 ** np.arange(18)
     T = tau[:, None] ** np.arange(-2, 2)
@@ -160,11 +160,14 @@ def test_the_fits_nonnegative_solution_is_scipys_nnls():
     ref = np.array([nnls(np.vstack([a, math.sqrt(1e-13) * np.eye(4)]), np.concatenate([bb, np.zeros(4)]))[0]
                     for a, bb in zip(A, b)])
     assert len({tuple(r > 0) for r in ref}) >= 4                # several different active sets
-    sets = np.array([np.flatnonzero((_SUBSETS == (r > 0)).all(axis=1))[0] for r in ref])
-    for prev in (None, sets, (sets + 5) % 15):
-        best, x = _nonnegative(G, h, prev)
-        assert np.allclose(x, ref, rtol=1e-8, atol=1e-10 * np.abs(ref).max()), prev
-        assert np.array_equal(best, sets)
+    table = _table(len(G))
+    table[:24] = np.concatenate([G, h[:, :, None], -h[:, :, None]], axis=2).reshape(len(G), 24).T
+    x, var, best = _nonnegative(table, with_variance=True)
+    assert np.allclose(x, ref, rtol=1e-8, atol=1e-10 * np.abs(ref).max())
+    assert np.array_equal(_SETS[best], ref > 0)
+    for g, s, v in zip(G, _SETS[best], var):
+        assert np.allclose(v[s], np.diag(np.linalg.inv(g[np.ix_(s, s)])), rtol=1e-9, atol=0)
+        assert np.isnan(v[~s]).all()
 
 
 def test_the_overlapping_allan_deviation_is_allantools_oadev():

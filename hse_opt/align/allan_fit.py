@@ -4,21 +4,31 @@ module docstring, step 4): the Allan variance model ``sigma^2(tau) = sum_k A_k t
 (iterated with the fitted model in the weights), refitted with the model's own error where it
 misses its points by far more than their scatter.
 
-The non-negative least squares is solved exactly: the best feasible solution of the 15 sets
-of active terms, all rows (channels; the fit and its refit) in one batched solve; from the
-second pass each row first tries the previous pass's set and keeps it where it is optimal (the
-Karush-Kuhn-Tucker conditions, which one set only meets, the normal matrix being positive
-definite), so the 15 sets are solved only for the rows whose set changed.
+The non-negative least squares is solved exactly, all fits (channels; the fit and its refit)
+at once, by the Schur complements of the bordered normal matrix ``[G h]`` on every set of
+terms: eliminating the terms of a set ``T`` one by one (Gaussian elimination in the terms'
+order, the normal matrix being positive definite) leaves, for each term ``i`` outside it,
+
+- ``g_T(i) = (h - G x_T)_i``, the gain that term ``i`` would bring to the solution ``x_T``
+  on ``T`` alone, and
+- ``d_T(i) > 0``, the Schur complement of ``G_TT`` at ``(i, i)``.
+
+Adding ``i`` to ``T`` gives ``x_i = g_T(i) / d_T(i)`` (block elimination), and ``1 / d_T(i)``
+is the ``(i, i)`` entry of the inverse normal matrix on ``T + i``: the covariance of the
+chosen set's terms. A set ``S`` is the non-negative solution when it meets the
+Karush-Kuhn-Tucker conditions, ``g_{S-i}(i) >= 0`` for its terms (``x_i >= 0``) and ``g_S(j)
+<= 0`` for the others (no held term would lower the residuals); one set meets them, the
+normal matrix being positive definite. All 16 sets (the empty one too) are checked from one
+table of Schur complement entries per fit, built in three vectorised steps (the sets of one,
+two and three terms): a few dozen numpy operations a pass, whatever the sets.
 
 Units: those of the Allan deviation given (SI in the project: rad/s, m/s^2); ``tau`` s.
 """
 from __future__ import annotations
 
-import itertools
+import functools
 
 import numpy as np
-
-from hse_opt.align.processor import _vecdot
 
 __all__ = ["fit_allan", "MODEL_ERROR", "MISFIT"]
 
@@ -30,15 +40,81 @@ MODEL_ERROR = 0.1
 MISFIT = 10.0
 #: the powers of tau of the model's four terms
 _POWERS = np.arange(-2, 2)
-#: every non-empty set of active terms, (15, 4) bool
-_SUBSETS = np.array([s for s in itertools.product((False, True), repeat=4) if any(s)])
-#: the entries of each set's normal matrix, (15, 4, 4) bool, and the identity that fills the rest
-_SUBSETS_BOTH = _SUBSETS[:, :, None] & _SUBSETS[:, None, :]
-_EYE4 = np.eye(4)
-_DIAG4 = np.arange(4)
-#: the ridge added to the fit's scaled normal matrix
-_RIDGE = 1e-13 * _EYE4
-for _a in (_POWERS, _SUBSETS, _SUBSETS_BOTH, _EYE4, _DIAG4, _RIDGE):
+#: the ridge added to the diagonal of the fit's normal matrix scaled to a unit diagonal
+_RIDGE = 1e-13
+#: every set of active terms, (16, 4) bool: set ``s`` holds term ``i`` where bit ``i`` of ``s``
+#: is set (set 0 is empty, set 15 holds all four)
+_SETS = (np.arange(16)[:, None] >> np.arange(4)) & 1 == 1
+_DIAGONAL = np.arange(4)
+
+
+def _schur_tables():
+    """The layout of :func:`_nonnegative`'s table (the module docstring) and its index tables.
+
+    The table holds one fit per column. Rows 0-23: ``[G h -h]`` (``(i, j)`` at ``6 i + j``;
+    ``j = 4``: ``h``, ``j = 5``: ``-h``); then for each set ``T`` of one, two and three terms
+    the Schur complement entries ``(i, j)``, ``i <= j``, ``(i, h)`` and ``(i, -h)`` for ``i,
+    j`` outside ``T``; then three constants: 0, 1 and NaN.
+
+    Returns
+    -------
+    steps : tuple of (numpy.ndarray, slice)
+        For the sets of one, two and three terms: the rows ``(4, m)`` of each new entry's
+        parent entries ``(i, j)``, ``(i, l)``, ``(l, j)`` and ``(l, l)`` on ``T - l`` (``l``
+        the last term of ``T``), and the ``m`` rows the new entries go to.
+    width : int
+        Rows of the table.
+    kkt : numpy.ndarray, shape (4, 16)
+        Per term and set ``S``: the row of ``g_{S-i}(i)`` (a term of ``S``) or of
+        ``-g_S(i)``; ``S`` is the solution where all four are ``>= 0``.
+    solve : numpy.ndarray, shape (16, 8)
+        Per set: the rows of ``x``'s numerators ``g_{S-i}(i)`` and denominators
+        ``d_{S-i}(i)`` (0 and 1 for a term outside the set).
+    variance : numpy.ndarray, shape (16, 4)
+        Per set: the rows of ``d_{S-i}(i)`` (NaN outside the set).
+    """
+    row = {}
+
+    def at(t, i, j):                                  # (i, j) of set t's complement, j = 4, 5: +-h
+        return row[t, min(i, j), max(i, j)] if j < 4 else row[t, i, j]
+
+    for i in range(4):
+        for j in range(6):
+            row[0, i, j] = 6 * i + j
+    width, steps = 24, []
+    for size in (1, 2, 3):
+        parents = []
+        for t in range(16):
+            if bin(t).count("1") != size:
+                continue
+            last = t.bit_length() - 1
+            p = t & ~(1 << last)
+            rest = [i for i in range(4) if not t >> i & 1]
+            for i in rest:
+                for j in [j for j in rest if j >= i] + [4, 5]:
+                    parents.append((at(p, i, j), at(p, i, last), at(p, last, j), at(p, last, last)))
+                    row[t, i, j] = width + len(parents) - 1
+        steps.append((np.array(parents).T.copy(), slice(width, width + len(parents))))
+        width += len(parents)
+    zero, one, nan = width, width + 1, width + 2
+    kkt = np.empty((4, 16), dtype=np.intp)
+    solve, variance = np.empty((16, 2, 4), dtype=np.intp), np.empty((16, 4), dtype=np.intp)
+    for s in range(16):
+        for i in range(4):
+            if s >> i & 1:
+                t = s & ~(1 << i)
+                kkt[i, s] = at(t, i, 4)
+                solve[s, :, i] = at(t, i, 4), at(t, i, i)
+                variance[s, i] = at(t, i, i)
+            else:
+                kkt[i, s] = at(s, i, 5)
+                solve[s, :, i] = zero, one
+                variance[s, i] = nan
+    return tuple(steps), width + 3, kkt, solve.reshape(16, 8), variance
+
+
+_STEPS, _WIDTH, _KKT, _SOLVE, _VARIANCE = _schur_tables()
+for _a in (_POWERS, _SETS, _KKT, _SOLVE, _VARIANCE, *(s[0] for s in _STEPS)):
     _a.flags.writeable = False
 
 
@@ -60,87 +136,140 @@ def fit_allan(tau, adev, clusters, *, iterations=3):
         ``A_k``, k = -2..1, >= 0, and their 1-sigma (NaN where held at zero).
     """
     tau = np.asarray(tau, dtype=float)
-    avar = np.atleast_2d(np.asarray(adev, dtype=float)) ** 2
-    c = avar.shape[0]
-    rel = np.sqrt(2.0 / np.maximum(np.asarray(clusters, dtype=float) - 1.0, 1.0))
-    # the fit and its refit with the model's own error (taken where the fit misses its points
-    # by far more than their scatter) in one batched pass: rows c.. are the refit's
-    rels = np.empty((2, c, tau.size))
-    rels[0] = rel
-    rels[1] = np.sqrt(rel ** 2 + MODEL_ERROR ** 2)
-    coef, std, chi2 = _weighted_fit(tau, np.concatenate([avar, avar]), rels.reshape(2 * c, -1), iterations)
+    adev = np.atleast_2d(np.asarray(adev, dtype=float))
+    c, k = adev.shape
+    # each channel's variances scaled by a power of two to at most 1 (exactly: the fit scales
+    # with them), the fit and its refit with the model's own error (taken where the fit misses
+    # its points by far more than their scatter) side by side: columns c.. are the refit's
+    var = np.square(adev.T)
+    top = var.max(axis=0)
+    exponent = np.frexp(top)[1]
+    avar = np.empty((k, 2 * c))
+    np.ldexp(var, -exponent, out=avar[:, :c])
+    avar[:, c:] = avar[:, :c]
+    # 1 / rel^2, rel = sqrt(2 / (K - 1)) the variances' relative 1-sigma (the refit's with
+    # MODEL_ERROR in quadrature)
+    half_dof = 0.5 * np.maximum(np.asarray(clusters, dtype=float) - 1.0, 1.0)
+    inv_rel2 = np.empty((k, 2 * c))
+    inv_rel2[:, :c] = half_dof[:, None]
+    inv_rel2[:, c:] = (1.0 / (1.0 / half_dof + MODEL_ERROR ** 2))[:, None]
+    coef, std, chi2 = _weighted_fit(tau, avar, inv_rel2, iterations)
     pick = np.where(chi2[:c] > MISFIT, np.arange(c, 2 * c), np.arange(c))
-    return coef[pick], std[pick]
+    exponent = exponent[:, None]
+    coef, std = np.ldexp(coef[pick], exponent), np.ldexp(std[pick], exponent)
+    total = coef.sum() + top.sum()
+    if not total - total == 0.0:
+        # NaN or infinity in the Allan deviation, or no finite solution: NaN terms where the
+        # Allan deviation holds NaN, else zero terms; no 1-sigma
+        lost = ~(np.isfinite(coef).all(axis=1) & np.isfinite(top))
+        coef[lost] = np.where(np.isnan(top[lost]), np.nan, 0.0)[:, None]
+        std[lost] = np.nan
+    return coef, std
 
 
-def _weighted_fit(tau, avar, rel, iterations):
-    """The non-negative weighted least squares of :func:`fit_allan` with relative 1-sigma
-    ``rel`` (c, k) of each variance; returns ``(coef, std, chi2)``, ``chi2`` (c,) the weighted
-    residual sum of squares per degree of freedom.
+def _weighted_fit(tau, avar, inv_rel2, iterations):
+    """The non-negative weighted least squares of :func:`fit_allan`, a fit per column.
 
-    Each pass forms the weighted normal equations of all rows in one product (the variances
-    as a fifth column: ``[A b]' [A b]``), the columns scaled to unit norm. The non-negative
-    solution is the best feasible one of the 15 sets of active terms; after the first pass
-    the previous pass's set is tried alone and kept where it is optimal (its terms >= 0 and
-    no held term would lower the residuals: the Karush-Kuhn-Tucker conditions, met by one
-    set only, the normal matrix being positive definite), all 15 solved where it is not."""
+    Parameters
+    ----------
+    tau : numpy.ndarray, shape (k,)
+        s.
+    avar : numpy.ndarray, shape (k, c)
+        Allan variances, a column per fit.
+    inv_rel2 : numpy.ndarray, shape (k, c)
+        ``1 / rel^2``, ``rel`` the relative 1-sigma of each variance.
+    iterations : int
+        Passes, each weighted by the previous pass's model (the first by ``avar``).
+
+    Returns
+    -------
+    coef, std : numpy.ndarray, shape (c, 4)
+        The terms and their 1-sigma (NaN outside the solution's set).
+    chi2 : numpy.ndarray, shape (c,)
+        The weighted residual sum of squares per degree of freedom.
+
+    Each pass forms the weighted normal equations ``[G h]`` of all fits in one product: the
+    weights ``w = 1 / (model rel)^2`` and ``w avar`` against each point's ``T_i T_j`` and
+    ``T_i`` (``T = tau^k``), with the ridge ``G_ii *= 1 +`` :data:`_RIDGE` (a ridge of
+    :data:`_RIDGE` on the normal matrix scaled to a unit diagonal); :func:`_nonnegative`
+    solves them."""
     T = tau[:, None] ** _POWERS[None, :]                     # (k, 4)
-    c, k = avar.shape
-    Tb = np.empty((c, k, 5))
-    Tb[:, :, :4] = T
-    Tb[:, :, 4] = avar
-    model, best = avar, None
-    for _ in range(iterations):
-        s = np.maximum(model, 1e-300)
-        s *= rel                                              # (c, k) 1-sigma of each variance
-        Ab = Tb / s[:, :, None]
-        Gb = np.matmul(Ab.transpose(0, 2, 1), Ab)             # (c, 5, 5)
-        scale = np.sqrt(Gb[:, _DIAG4, _DIAG4])
-        scale[scale == 0] = 1.0
-        G = Gb[:, :4, :4] / (scale[:, :, None] * scale[:, None, :])
-        G += _RIDGE
-        h = Gb[:, :4, 4] / scale
-        best, x = _nonnegative(G, h, best)
-        coef = x / scale
-        model = coef @ T.T
-    cov = np.linalg.inv(np.where(_SUBSETS_BOTH[best], G, _EYE4))
-    std = np.sqrt(np.maximum(np.diagonal(cov, axis1=1, axis2=2), 0.0)) / scale
-    std[~(_SUBSETS[best] & np.isfinite(x).all(axis=1, keepdims=True))] = np.nan
-    w = np.maximum(model, 1e-300)
-    w *= rel
-    chi2 = _vecdot(avar - model, (avar - model) / w ** 2, None) / max(tau.size - 4, 1)
-    return coef, std, chi2
+    k, c = avar.shape
+    basis = np.zeros((4, 6, 2 * k))                           # [G h -h] = basis @ [w; w avar]
+    basis[:, :4, :k] = T.T[:, None, :] * T.T[None, :, :]
+    basis[_DIAGONAL, _DIAGONAL, :k] *= 1.0 + _RIDGE
+    basis[:, 4, k:] = T.T
+    basis[:, 5, k:] = -T.T
+    basis = basis.reshape(24, 2 * k)
+    weights = np.empty((2 * k, c))
+    w, wa = weights[:k], weights[k:]
+    table = _table(c)
+    model = avar
+    for it in range(iterations):
+        np.square(model, out=w)
+        np.divide(inv_rel2, w, out=w)                         # 1 / (model rel)^2
+        np.multiply(w, avar, out=wa)
+        np.matmul(basis, weights, out=table[:24])
+        x, var, _ = _nonnegative(table, with_variance=it + 1 == iterations)
+        model = T @ x.T
+    np.square(model, out=w)
+    np.divide(inv_rel2, w, out=w)
+    r = avar - model
+    r *= r
+    r *= w
+    chi2 = r.sum(axis=0) / max(tau.size - 4, 1)
+    return x, np.sqrt(var), chi2
 
 
-def _nonnegative(G, h, prev=None):
-    """``min x' G x - 2 h' x`` over ``x >= 0`` per row (G (c, 4, 4) positive definite, h (c,
-    4)): ``(best, x)``, ``best`` the index of the set of active terms in :data:`_SUBSETS`, x
-    zero outside it (all zero where no set is feasible: NaN input). ``prev``: each row's set
-    to try first, kept where the KKT conditions hold; the other rows try all 15."""
-    if prev is None:
-        return _best_set(G, h)
-    S = _SUBSETS[prev]
-    x = np.linalg.solve(np.where(_SUBSETS_BOTH[prev], G, _EYE4), np.where(S, h, 0.0)[..., None])[..., 0]
-    # KKT: the active terms >= 0, no held term's gain h - G x above 0
-    kkt = np.where(S, x, np.matmul(G, x[..., None])[..., 0] - h)
-    ok = kkt.min(axis=1) >= 0.0
-    if not ok.all():
-        redo = ~ok
-        prev = prev.copy()
-        prev[redo], x[redo] = _best_set(G[redo], h[redo])
-    return prev, x
+@functools.lru_cache(maxsize=16)
+def _template(c):
+    """:func:`_table`'s empty table and the flat indices of its solutions' entries (read-only)."""
+    table = np.empty((_WIDTH, c))
+    table[-3:] = np.array([0.0, 1.0, np.nan])[:, None]
+    fits = np.arange(c)
+    solve = np.ascontiguousarray(_SOLVE[:, None, :] * c + fits[None, :, None])
+    variance = np.ascontiguousarray(_VARIANCE[:, None, :] * c + fits[None, :, None])
+    for a in (table, fits, solve, variance):
+        a.flags.writeable = False
+    return table, fits, solve, variance
 
 
-def _best_set(G, h):
-    """:func:`_nonnegative` by trying every set of active terms: the best feasible one."""
-    Gm = np.where(_SUBSETS_BOTH[None], G[:, None], _EYE4)    # (c, 15, 4, 4)
-    hm = np.where(_SUBSETS[None], h[:, None], 0.0)           # (c, 15, 4)
-    x = np.linalg.solve(Gm, hm[..., None])[..., 0]
-    # the weighted residual sum of squares less b'b: -h_S' G_SS^-1 h_S at each set's solution
-    cost = -_vecdot(x, hm, None)
-    cost[~(x.min(axis=2) >= 0.0)] = np.inf                  # (NaN too)
-    best = cost.argmin(axis=1)
-    rows = np.arange(G.shape[0])
-    xs = x[rows, best]
-    xs[~np.isfinite(cost[rows, best])] = 0.0
-    return best, xs
+def _table(c):
+    """A table of :func:`_nonnegative` for ``c`` fits, shape (:data:`_WIDTH`, c): each fit's
+    ``[G h]``, (4, 5) flat, goes to its first 20 rows."""
+    return _template(c)[0].copy()
+
+
+def _nonnegative(table, with_variance=False):
+    """``min x' G x - 2 h' x`` over ``x >= 0`` per fit (G positive definite): the solution
+    set by the Karush-Kuhn-Tucker conditions from the Schur complements of ``[G h]`` on every
+    set of terms (the module docstring).
+
+    Parameters
+    ----------
+    table : numpy.ndarray, shape (:data:`_WIDTH`, c)
+        From :func:`_table`, each fit's ``[G h -h]`` ((4, 6) flat) in its first 24 rows; the
+        Schur complements are written to the rest.
+    with_variance : bool
+        Also the diagonal of ``G_SS^-1`` on the solution's set ``S``.
+
+    Returns
+    -------
+    x : numpy.ndarray, shape (c, 4)
+        Zero outside the solution's set (not finite where the input is not).
+    variance : numpy.ndarray, shape (c, 4) or None
+        ``(G_SS^-1)_ii``, NaN outside ``S``.
+    best : numpy.ndarray, shape (c,)
+        The solution's set, an index of :data:`_SETS`.
+    """
+    c = table.shape[1]
+    for parents, out in _STEPS:
+        p = np.take(table, parents, axis=0)                   # (4, m, c)
+        np.subtract(p[0], p[1] * p[2] / p[3], out=table[out])
+    margin = np.minimum.reduce(np.take(table, _KKT, axis=0), axis=0)   # (16, c): >= 0 at S
+    best = margin.argmax(axis=0)
+    _, fits, solve, variance = _template(c)
+    num_den = np.take(table, solve[best, fits])               # (c, 8)
+    x = num_den[:, :4] / num_den[:, 4:]
+    var = 1.0 / np.take(table, variance[best, fits]) if with_variance else None
+    return x, var, best

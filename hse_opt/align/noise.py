@@ -89,10 +89,9 @@ Steps
    drift (the warm-up transient, temperature) therefore reads as rate random walk.
 
    The non-negative least squares is solved exactly (:mod:`hse_opt.align.allan_fit`): the
-   best feasible one of every set of active terms (15 small systems per channel, one batched
-   solve); from the second pass each channel first tries its previous set, kept where the
-   Karush-Kuhn-Tucker conditions hold (the same solution: the normal matrix is positive
-   definite).
+   set of free terms that meets the Karush-Kuhn-Tucker conditions, found among all 16 from
+   the Schur complements of the normal equations on each (all channels in one table), which
+   also give the free terms' 1-sigma.
 5. A campaign (:func:`combine_noise`): the Allan variances of its logs at equal cluster
    times pooled with their independent clusters as weights, then fitted as one curve.
 
