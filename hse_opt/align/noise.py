@@ -630,23 +630,43 @@ def _short_allan(log, residual, sizes, segments=SEGMENTS, length=SEGMENT_SAMPLES
     # are doubled as one flat array (a sum that straddles two rows is never read: each row's
     # first length - 2m + 1 differences are), the sums and the differences taking the two
     # buffers in turn
-    ss, clusters = np.empty((rows, len(sizes))), np.empty(len(sizes))
+    ms, norm, clusters = _short_plan(tuple(sizes), count, length)
+    ss = np.empty((rows, len(ms)))
     size, width, at = work.shape[1], 1, 0                         # the sums of width in work[at]
     for i, m in enumerate(sizes):
         while width < m:
             sums = work[at]
             np.add(sums[width:size], sums[:size - width], out=work[1 - at, :size - width])
             size, width, at = size - width, 2 * width, 1 - at
-        if width != m:
-            raise ValueError(f"short cluster sizes must be powers of two, got {m}")
         sums, d = work[at], work[1 - at]
         np.subtract(sums[m:size], sums[:size - m], out=d[:size - m])
         valid = d.reshape(rows, length)[:, :length - 2 * m + 1]
         _vecdot(valid, valid, out=ss[:, i])
-        clusters[i] = count * length / m
-    sizes = np.asarray(sizes)
-    adev = np.sqrt(ss.reshape(6, count, -1).sum(axis=1) / (2.0 * count * (length - 2 * sizes + 1))) / (sizes * dt)
-    return sizes * dt, adev, clusters
+    adev = np.sqrt(ss.reshape(6, count, -1).sum(axis=1) / norm) / (ms * dt)
+    return ms * dt, adev, clusters.copy()
+
+
+@functools.lru_cache(maxsize=32)
+def _short_plan(sizes, count, length):
+    """The constants of :func:`_short_allan` for cluster ``sizes`` (tuple, samples) over
+    ``count`` stretches of ``length`` samples: ``(sizes, norm, clusters)``, float arrays (k,),
+    read-only: ``norm = 2 count (length - 2m + 1)`` (twice the start points) and the
+    independent clusters ``count length / m``.
+
+    Raises
+    ------
+    ValueError
+        A size is no power of two.
+    """
+    bad = [m for m in sizes if m < 1 or m & (m - 1)]
+    if bad:
+        raise ValueError(f"short cluster sizes must be powers of two, got {bad[0]}")
+    ms = np.asarray(sizes)
+    norm = 2.0 * count * (length - 2 * ms + 1)
+    clusters = np.array([count * length / m for m in sizes])
+    for a in (ms, norm, clusters):
+        a.flags.writeable = False
+    return ms, norm, clusters
 
 
 def cluster_sizes(n, steps_per_octave=2):
@@ -804,15 +824,25 @@ def noise_from_log(log, *, block_period=BLOCK_PERIOD, max_terms=MAX_TERMS, sums=
         The log is too short (fewer than :data:`MIN_BLOCKS` blocks).
     """
     res = deterministic_residual(log, block_period=block_period, sums=sums)
-    short = [m for m in cluster_sizes(res.block, steps_per_octave=1).tolist() if m < res.block]
-    tau, adev, clusters = allan_deviation(res.blocks, res.tau0, max_terms=max_terms,
-                                          sizes=cluster_sizes(res.blocks.shape[1], steps_per_octave=1))
+    short, sizes = _log_sizes(res.blocks.shape[1], res.block)
+    tau, adev, clusters = allan_deviation(res.blocks, res.tau0, max_terms=max_terms, sizes=sizes)
     if short:
         tau_s, adev_s, clusters_s = _short_allan(log, res, short)
         tau, adev = np.concatenate([tau_s, tau]), np.concatenate([adev_s, adev], axis=1)
         clusters = np.concatenate([clusters_s, clusters])
     coef, std = fit_allan(tau, adev, clusters)
     return NoiseFigures(tau=tau, adev=adev, clusters=clusters, coefficients=coef, coefficients_std=std)
+
+
+@functools.lru_cache(maxsize=32)
+def _log_sizes(nb, block):
+    """The cluster sizes of :func:`noise_from_log` for ``nb`` blocks of ``block`` samples
+    (cached per log shape): ``(short, sizes)``, the octaves shorter than a block in samples
+    (tuple) and those of ``nb`` blocks (int array, read-only)."""
+    short = tuple(m for m in cluster_sizes(block, steps_per_octave=1).tolist() if m < block)
+    sizes = cluster_sizes(nb, steps_per_octave=1)
+    sizes.flags.writeable = False
+    return short, sizes
 
 
 def combine_noise(figures):
