@@ -639,11 +639,11 @@ def test_a_gyro_error_just_above_the_threshold_is_found_wherever_it_falls_in_a_b
 
 
 def test_check_3b_finds_the_same_with_the_passes_shared_with_the_allan_analysis(clean):
-    """hse-opt align takes the gyros' weighted sums and the encoder's steps with the block sums
-    (hse_opt.align.noise.block_sums) instead of in the checks: the same findings and repaired
-    log as the checks' own passes over the samples, for an error just above check 3b's
-    threshold in each gyro (the case most sensitive to the sums' last bits) and for a log whose
-    encoder check 1 repairs first (the repaired encoder's steps and sums taken anew)."""
+    """hse-opt align takes check 3b's weighted sums of the gyros and the encoder with the block
+    sums (hse_opt.align.noise.block_sums) instead of in the check: the same findings and
+    repaired log as the check's own passes over the samples, for an error just above check
+    3b's threshold in each gyro and for a log whose encoder check 1 repairs first (the
+    repaired encoder's sums taken anew)."""
     from hse_opt.align.noise import block_sums
     log, _ = clean
     cases = []

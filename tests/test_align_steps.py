@@ -24,25 +24,21 @@ def test_weighted_sums_match_per_sample_sums(log):
     d = np.diff(enc)[:nb * h].reshape(nb, h)                  # the encoder's steps, block by block
     x = gyro[1:nb * h + 1].reshape(nb, h, 3)
     assert np.abs(W - np.einsum("bic,i->cb", x, w)).max() < 1e-14 * np.abs(gyro).max() * h * h
-    # from the steps, not by parts from the angles: the rounding of the sum (1e-16 of |E|), not
-    # that of h angles of up to |enc| (70 rad here, 1e-9 of |E|); each block's exact sum (fsum
-    # of exact steps: a difference of two angles within a factor 2 of each other is exact)
-    exact = np.array([math.fsum(r) for r in d * w])
-    assert np.abs(E - exact).max() < 4 * np.finfo(float).eps * np.abs(exact).max()
+    # by parts from the angles: the rounding of h angles of up to |enc| (1e-10 arcsec here)
+    assert np.abs(E - d @ w).max() < 1e-14 * np.abs(enc).max() * h
 
 
-def test_the_block_sums_carry_the_checks_passes_and_serve_their_own_arrays_only(log):
-    """block_sums with the checks' passes (the gyros' weighted sums and the encoder's steps and
-    weighted sums, taken while the arrays are in the cache) gives the bytes weighted_sums and
-    the checks take from the samples themselves; a repaired copy's arrays are summed anew; the
-    Allan analysis alone (checks=False) takes none of them."""
+def test_the_block_sums_carry_check_3bs_weighted_sums_for_their_own_arrays_only(log):
+    """block_sums with the checks' passes (the gyros' weighted sums right after their plain
+    ones, the encoder's) gives the bytes weighted_sums takes from the samples themselves; a
+    repaired copy's arrays are summed anew; the Allan analysis alone (checks=False) takes
+    neither, and its plain sums are the same."""
     from hse_opt.align.noise import block_sums
     s = block_sums(log)
     h, nb = s.block, s.sums.shape[1]
-    assert np.array_equal(s.steps, np.diff(log.encoder))
     W, E = steps.weighted_sums(log.encoder, log.gyro, h, nb)
     W2, E2 = steps.weighted_sums(log.encoder, log.gyro, h, nb, s)
-    assert W2 is s.weighted and E2 is s.step_sums
+    assert W2 is s.weighted and E2 is s.weighted_encoder
     assert np.array_equal(W, W2) and np.array_equal(E, E2)
     assert np.array_equal(s.sums, block_sums(log, checks=False).sums)
     # a copy with one gyro sample off by 1 arcsec: its own weighted sums, not the log's
@@ -50,14 +46,16 @@ def test_the_block_sums_carry_the_checks_passes_and_serve_their_own_arrays_only(
     bad[1000, 2] += ARCSEC
     W3, E3 = steps.weighted_sums(log.encoder, bad, h, nb, s)
     b, i = divmod(999, h)                                     # increment 1000: block b, weight h - i
-    assert E3 is s.step_sums and (W3 - W)[2, b] == pytest.approx((h - i) * ARCSEC, rel=1e-6)
+    assert E3 is s.weighted_encoder and (W3 - W)[2, b] == pytest.approx((h - i) * ARCSEC, rel=1e-6)
     assert np.count_nonzero(W3 != W) == 1
     enc2 = log.encoder.copy()
-    assert steps.weighted_sums(enc2, log.gyro, h, nb, s)[1] is not s.step_sums
-    assert s.steps_of(enc2) is None and s.steps_of(log.encoder) is s.steps
+    enc2[1000] += ARCSEC                                      # steps 999 (+) and 1000 (-): weights h - i, h - i - 1
+    W4, E4 = steps.weighted_sums(enc2, log.gyro, h, nb, s)
+    assert W4 is s.weighted and (E4 - E)[b] == pytest.approx(ARCSEC, rel=1e-3)
+    assert np.count_nonzero(np.abs(E4 - E) > 1e-12) == 1
     assert steps.weighted_sums(log.encoder, log.gyro, h // 2, 2 * nb, s)[0].shape == (3, 2 * nb)
     alone = block_sums(log, checks=False)
-    assert alone.weighted is None and alone.steps is None and alone.step_sums is None
+    assert alone.weighted is None and alone.weighted_encoder is None
 
 
 def _per_sample_statistic(log, residual, beta):

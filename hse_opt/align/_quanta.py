@@ -113,11 +113,9 @@ class Quanta:
         return self.step_sigma / math.sqrt(2.0)
 
     @classmethod
-    def of(cls, enc, gyro, accel, resolution=0.0, like=None, steps=None):
+    def of(cls, enc, gyro, accel, resolution=0.0, like=None):
         """The quanta of the arrays ``enc`` (n,), ``gyro`` (n, 3), ``accel`` (n, 3) (rad, rad,
         m/s); ``resolution``: the encoder's count when known, rad (0: as seen in the data).
-        ``steps``: the encoder's steps ``enc[1:] - enc[:-1]`` when already taken (with the
-        block sums: :attr:`hse_opt.align.noise.BlockSums.steps`), else taken here.
 
         ``like``: quanta worked out before (of the log before a repair), returned when they are
         of these very arrays (the same objects) and resolution; their encoder's or channels'
@@ -136,7 +134,7 @@ class Quanta:
         if same_enc:
             steps, step, sigma, count = like.steps, like.step, like.step_sigma, like.count
         else:
-            steps = enc[1:] - enc[:-1] if steps is None else steps
+            steps = enc[1:] - enc[:-1]
             step, sigma = step_stats(steps)
         N = min(QUANTUM_SAMPLES, steps.shape[0] - 1)
         if same_channels:

@@ -44,9 +44,10 @@ def step_stats(d, taken=False):
     step and its jitter; a handful of glitches does not move a median); ``taken``: ``d`` is
     already that selection (:func:`every_29th_step`)."""
     sub = d if taken else d[::29] if d.size >= 2900 else d
-    c = float(median(sub))
-    dev = sub - c
-    return c, MAD * float(row_median(np.abs(dev, out=dev)))
+    x = np.array(sub, dtype=float)                  # one copy, partitioned for both medians
+    c = float(row_median(x))
+    x -= c
+    return c, MAD * float(row_median(np.abs(x, out=x)))
 
 
 def every_29th_step(enc):

@@ -279,13 +279,16 @@ def _weighted_block_sums(x, nb, block):
     return block_dot(g[:, 1:nb * block + 1].reshape(3, nb, block), np.arange(block, 0, -1, dtype=float))
 
 
-def _weighted_step_sums(steps, nb, block):
-    """The encoder's weighted block sums from its steps ``steps`` (n - 1,), rad: steps
-    ``b block .. (b + 1) block - 1`` (into samples ``1 + b block .. (b + 1) block``) weighted
-    ``block .. 1``, i.e. ``sum (enc[start + i] - enc[start])``, i = 1 .. block, shape (nb,):
-    the rounding of the steps, not of the angles (a by-parts sum of the angles rounds at
-    their size, up to thousands of rad)."""
-    return block_dot(steps[:nb * block].reshape(nb, block), np.arange(block, 0, -1, dtype=float))
+def _weighted_encoder_sums(enc, nb, block):
+    """The encoder's weighted sums over blocks of ``block`` steps: ``sum (enc[start + i] -
+    enc[start])``, i = 1 .. block (steps into samples ``1 + b block .. (b + 1) block`` weighted
+    ``block .. 1``), shape (nb,), rad; by parts from the angles ``enc`` (n,), rad: their block
+    sums (a matrix-vector product on one BLAS thread) less ``block`` times each block's start
+    angle, without a temporary of the steps."""
+    M = nb * block
+    E = block_dot(enc[1:M + 1].reshape(nb, block), np.ones(block))
+    E -= block * enc[:M:block]
+    return E
 
 
 def _blocking(log, block_period):
@@ -313,7 +316,7 @@ class BlockSums:
     the samples that the Allan analysis (:func:`noise_from_log`) and the quality checks
     (:func:`hse_opt.align.quality.assess`, whose windows are whole numbers of blocks at the
     default sample rates) share; with ``checks``, also what the checks read of the record
-    (taken while the arrays are in the cache, not in a second pass after others).
+    (:func:`block_sums`: the record's passes in one place).
 
     Attributes
     ----------
@@ -327,28 +330,20 @@ class BlockSums:
     weighted : numpy.ndarray, shape (3, nb), or None
         The gyros' weighted sums over the same blocks (row ``i`` of a block weighted
         ``block + 1 - i``), rad: check 3b's (:func:`hse_opt.align.steps.weighted_sums`).
-    steps : numpy.ndarray, shape (n - 1,), or None
-        The encoder's steps ``alpha_k - alpha_{k-1}``, rad: checks 1 and 3's
-        (:class:`hse_opt.align._quanta.Quanta`).
-    step_sums : numpy.ndarray, shape (nb,), or None
-        The encoder's weighted sums over the blocks, from ``steps``
-        (:func:`hse_opt.align.steps.weighted_sums`), rad.
+    weighted_encoder : numpy.ndarray, shape (nb,), or None
+        The encoder's, ``sum (enc[start + i] - enc[start])``, i = 1 .. block, rad: check
+        3b's too.
     """
 
     log: object
     block: int
     sums: np.ndarray
     weighted: np.ndarray = None
-    steps: np.ndarray = None
-    step_sums: np.ndarray = None
+    weighted_encoder: np.ndarray = None
 
     def of(self, log, block):
         """The sums when they are ``log``'s over blocks of ``block`` samples, else None."""
         return self.sums if self.log is log and self.block == block else None
-
-    def steps_of(self, encoder):
-        """:attr:`steps` when they are of the array ``encoder`` (the same object), else None."""
-        return self.steps if self.log.encoder is encoder else None
 
     @functools.cached_property
     def residual(self):
@@ -367,12 +362,12 @@ def block_sums(log, *, block_period=BLOCK_PERIOD, checks=True):
     block_period : float
         Target block length, s (rounded to whole samples).
     checks : bool
-        Also take what the quality checks read of the record (:attr:`BlockSums.weighted`,
-        :attr:`BlockSums.steps`, :attr:`BlockSums.step_sums`) while each array is in the
-        cache: the gyros' weighted sums right after their plain ones, the encoder's weighted
-        sums from its steps just taken (the same bytes as the checks' own passes, which
-        come later, after others have pushed the arrays out); False for the Allan analysis
-        alone.
+        Also take check 3b's weighted sums of the gyros and the encoder
+        (:attr:`BlockSums.weighted`, :attr:`BlockSums.weighted_encoder`; the bytes
+        :func:`hse_opt.align.steps.weighted_sums` gives), the gyros' right after their plain
+        sums. Nothing of a record's size is kept (a 2.4-MB array of the encoder's steps kept
+        here through the alignment made ``align`` 0.07 ms slower, 2026-11-26). False for the
+        Allan analysis alone.
 
     Returns
     -------
@@ -392,10 +387,8 @@ def block_sums(log, *, block_period=BLOCK_PERIOD, checks=True):
         return BlockSums(log=log, block=block, sums=sums)
     weighted = _weighted_block_sums(log.gyro, nb, block)         # (while the gyros are in the cache)
     _block_sums(log.accel, stop, nb, block, out=sums[3:])
-    enc = log.encoder
-    steps = enc[1:] - enc[:-1]
-    return BlockSums(log=log, block=block, sums=sums, weighted=weighted, steps=steps,
-                     step_sums=_weighted_step_sums(steps, nb, block))
+    return BlockSums(log=log, block=block, sums=sums, weighted=weighted,
+                     weighted_encoder=_weighted_encoder_sums(log.encoder, nb, block))
 
 #: largest angle the series of :func:`_cos_sin_small` takes, rad (error |d|^7 / 5040 < 3e-9)
 _SERIES_MAX = 0.2

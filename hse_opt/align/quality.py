@@ -142,10 +142,9 @@ Checks, rules and thresholds (:class:`Thresholds`; the reasons are physical)
 
 Cost: a few passes over the samples and one least-squares fit of a thousand windows; the
 window sums come from the Allan analysis' block sums when ``hse-opt align`` passes them
-(``sums``: one pass over the samples for both; the encoder's steps and check 3b's weighted
-sums come with them, each taken while its array is in the cache), and the quanta and the encoder's step
-statistics that checks 1, 3 and 3b take are worked out once
-(:class:`~hse_opt.align._quanta.Quanta`). Checks 1-5 without 3b on a 10-minute 500 Hz log
+(``sums``: one pass over the samples for both; check 3b's weighted sums come with them),
+and the quanta and the encoder's step statistics that checks 1, 3 and 3b take are worked out
+once (:class:`~hse_opt.align._quanta.Quanta`). Checks 1-5 without 3b on a 10-minute 500 Hz log
 (``benchmarks/align.py``'s, 2026-11-26): 5.2 M instructions (callgrind, one BLAS thread; were
 7.3 M) against the alignment's 47 M; CPU on one core of the busy 2-core machine (load 3-4)
 0.36 ms when repeated (were 0.56) and 0.7-0.8 ms after the alignment as ``hse-opt align`` runs
@@ -870,8 +869,7 @@ def assess(log, *, thresholds=None, temperature=None, encoder_counts_per_rev=Non
     gyro, accel = log.gyro, log.accel
     n = t.size
     dt = float(t[-1] - t[0]) / (n - 1)
-    quanta = Quanta.of(enc, gyro, accel, resolution,      # once for checks 1, 3 and 3b
-                       steps=None if sums is None else sums.steps_of(enc))
+    quanta = Quanta.of(enc, gyro, accel, resolution)      # once for checks 1, 3 and 3b
     enc2 = _check_encoder(t, enc, gyro, th, findings, quanta)
     L, m = _windows(n, dt, th)
     if m >= 2 and not any(f.action == "refused" and f.check == "encoder" for f in findings):

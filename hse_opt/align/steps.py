@@ -34,8 +34,7 @@ block's plain sum of the residual (the Allan analysis' own) and its weighted sum
 7/8 of it at least; the step's exact sample comes from the per-sample statistic around the peak.
 What 3b adds to the Allan analysis' sums and fit on a 10-minute 500 Hz log is the gyros' and
 the encoder's weighted sums (one pass over each; ``hse-opt align`` takes them with the block
-sums, :func:`hse_opt.align.noise.block_sums`, while the arrays are in the cache from the
-plain sums and the encoder's steps), moving sums and the slow part's fit over
+sums, :func:`hse_opt.align.noise.block_sums`), moving sums and the slow part's fit over
 9,375 block edges (the table angle's cos and sin there are the fit's), and the robust
 1-sigma from every ``K``-th of them.
 
@@ -72,7 +71,7 @@ import numpy as np
 from hse_opt import units
 from hse_opt.align._blas import block_dot, one_thread
 from hse_opt.align._stats import MAD as _MAD, median as _median
-from hse_opt.align.noise import BLOCK_PERIOD, _weighted_block_sums, _weighted_step_sums
+from hse_opt.align.noise import BLOCK_PERIOD, _weighted_block_sums, _weighted_encoder_sums
 
 __all__ = ["block_period", "weighted_sums", "weighted_regressors", "shares", "check_steps", "find_steps",
            "step_statistic", "GRID"]
@@ -111,19 +110,18 @@ def weighted_sums(enc, gyro, h, nb, sums=None):
     W : numpy.ndarray, shape (3, nb)
         Each gyro's, rad.
     E : numpy.ndarray, shape (nb,)
-        The encoder's, rad: ``sum (enc[start + i] - enc[start])``, i = 1 .. h, summed from its
-        steps ``enc[k] - enc[k - 1]``.
+        The encoder's, rad: by parts ``sum (enc[start + i] - enc[start])``, i = 1 .. h.
     """
     W = E = None
     if sums is not None and sums.weighted is not None and sums.block == h and sums.weighted.shape[1] == nb:
         if sums.log.gyro is gyro:
             W = sums.weighted
         if sums.log.encoder is enc:
-            E = sums.step_sums
+            E = sums.weighted_encoder
     if W is None:
         W = _weighted_block_sums(gyro, nb, h)
     if E is None:
-        E = _weighted_step_sums(enc[1:nb * h + 1] - enc[:nb * h], nb, h)
+        E = _weighted_encoder_sums(enc, nb, h)
     return W, E
 
 
