@@ -294,6 +294,42 @@ def test_simulated_logs_give_the_truths_arw_vrw_and_quanta():
     assert cols["accel_quantization_mps"] == pytest.approx(truth.accel.pulse / math.sqrt(12), rel=0.1)
 
 
+def test_the_clusters_shorter_than_a_block_are_allantools_oadev_of_the_stretches():
+    """The clusters of 1..16 samples (shorter than a 32-sample block) against allantools' fully
+    overlapping estimator on the raw samples of the eight stretches of 1024 samples spread over
+    the log at block edges (module docstring, step 3), the fitted deterministic part taken off
+    every sample here with numpy's cos and sin of the mid-sample encoder angle, the variances
+    of the stretches averaged (each has as many start points). Within 1e-6: the sums are
+    single precision (their rounding, 6e-8 of a sum of at most 16 samples, is far below the
+    estimator's own scatter, 1/sqrt(2 x 512) at 16 samples)."""
+    allantools = pytest.importorskip("allantools", reason="allantools is a test extra (pyproject [test])")
+    from hse_opt.align.noise import deterministic_residual
+    from hse_opt.sim import TruthConfig
+    log = _sim_log(TruthConfig.default(), 4, duration=60.0)
+    fig = noise_from_log(log)
+    res = deterministic_residual(log)
+    t, enc = np.asarray(log.t), np.asarray(log.encoder)
+    n, block, count, length = t.size - 1, res.block, 8, 1024
+    dt = (t[-1] - t[0]) / n
+    first = np.round(np.linspace(0, (n - length) // block, count)).astype(int) * block
+    sizes = [1, 2, 4, 8, 16]
+    assert block == 32 and np.allclose(fig.tau[:5], np.array(sizes) * dt, rtol=1e-12)
+    var = np.zeros((6, len(sizes)))
+    for s0 in first:
+        i = np.arange(s0 + 1, s0 + 1 + length)                  # the stretch's samples
+        h, da = t[i] - t[i - 1], enc[i] - enc[i - 1]
+        mid = enc[i - 1] + 0.5 * da
+        X = np.array([h, h * np.cos(mid), h * np.sin(mid), da - res.rate * h])
+        r = np.column_stack([log.gyro[i], log.accel[i]]).T - res.coefficients.T @ X
+        for c in range(6):
+            taus, adev, _, _ = allantools.oadev(r[c] / dt, rate=1 / dt, data_type="freq",
+                                                taus=np.array(sizes) * dt)
+            assert np.allclose(taus, np.array(sizes) * dt)
+            var[c] += adev ** 2 / count
+    assert np.allclose(fig.adev[:, :5], np.sqrt(var), rtol=1e-6, atol=0)
+    assert np.allclose(fig.clusters[:5], count * length / np.array(sizes))
+
+
 def test_a_noise_free_simulated_log_leaves_nothing():
     from hse_opt.sim import TruthConfig
     truth = TruthConfig.default()
