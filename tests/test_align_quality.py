@@ -387,6 +387,15 @@ def test_the_windows_shared_with_the_allan_analysis_are_the_samples_summed_and_f
     for q in (assess(bad, sums=sums), assess(bad, sums=block_sums(log))):
         f = _only(q, "repaired")
         assert (f.check, f.sample, f.time) == ("channel", K, log.t[K]) and "gyro_y spike of +" in f.detail
+    # the windows' middle angles' cos and sin from the Allan analysis' fit are numpy's of the
+    # encoder there; not taken for another log's sums nor for a repaired encoder
+    from hse_opt.align.quality import _middles
+    c, s = _middles(bad, bad.encoder, L, m, sums)
+    mid = bad.encoder[L // 2:L // 2 + L * m:L]
+    assert c.shape == (m,) and np.abs(c - np.cos(mid)).max() < 1e-12 and np.abs(s - np.sin(mid)).max() < 1e-12
+    assert _middles(bad, bad.encoder, L, m, block_sums(log)) is None
+    assert _middles(bad, bad.encoder.copy(), L, m, sums) is None
+
 
 @pytest.mark.parametrize("j, name", [(0, "gyro_x"), (3, "accel_x")])
 def test_a_stuck_channel_is_refused_from_its_first_sample(clean, j, name):

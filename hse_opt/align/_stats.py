@@ -82,15 +82,19 @@ def robust_flags(v, sigmas, floor, quant=0.0, level=0.0):
     return dev, thr, np.abs(dev) > thr[:, None]
 
 
-def regressors(mid):
+def regressors(mid, cos_sin=None):
     """The slow model of a static base's windows (check 3 of :mod:`hse_opt.align.quality`):
     rows 1, cos, sin of the windows' middle table angles ``mid`` (m,), rad, then ``tau`` and
-    ``tau^2``, ``tau`` from -1 to 1 (``numpy.linspace``'s values); shape (5, m)."""
+    ``tau^2``, ``tau`` from -1 to 1 (``numpy.linspace``'s values); shape (5, m).
+    ``cos_sin``: their cos and sin when already known (two arrays (m,))."""
     m = mid.shape[0]
     A = np.empty((5, m))
     A[0] = 1.0
-    np.cos(mid, out=A[1])
-    np.sin(mid, out=A[2])
+    if cos_sin is None:
+        np.cos(mid, out=A[1])
+        np.sin(mid, out=A[2])
+    else:
+        A[1], A[2] = cos_sin
     np.multiply(np.arange(m), 2.0 / (m - 1), out=A[3])
     A[3] -= 1.0
     A[3, -1] = 1.0

@@ -506,6 +506,17 @@ def _channel_sums(log, L, m, sums):
     return np.hstack([_window_sums(log.gyro, L, m), _window_sums(log.accel, L, m)])
 
 
+def _middles(log, enc, L, m, sums):
+    """cos and sin of the table angle at the middles of check 3's ``m`` windows of ``L``
+    samples (samples ``L // 2 + w L``) from the Allan analysis' fit (its block edges'), when
+    ``sums`` are ``log``'s, ``enc`` is its encoder and the middles are block edges; else None."""
+    if sums is None or sums.log is not log or enc is not log.encoder or L % (2 * sums.block):
+        return None
+    k = L // sums.block
+    r = sums.residual
+    return r.edge_cos[k // 2:k // 2 + k * m:k], r.edge_sin[k // 2:k // 2 + k * m:k]
+
+
 def _level(th, tests, m):
     """The multiplier of a robust 1-sigma at which ``tests`` two-sided Gaussian tests have a
     false-alarm probability of ``th.false_alarm`` together (Bonferroni), widened by three
@@ -517,11 +528,12 @@ def _level(th, tests, m):
     return z * (1.0 + 3.0 * 1.166 / math.sqrt(max(m, 1)))
 
 
-def _check_channels(t, enc, gyro, accel, turn, L, m, th, findings, X, quanta):
+def _check_channels(t, enc, gyro, accel, turn, L, m, th, findings, X, quanta, middles=None):
     """Check 3 on the window sums ``X`` (m, 6); returns (gyro, accel, enc), repaired copies
     where a spike rule applied. ``quanta``: the log's :class:`~hse_opt.align._quanta.Quanta`
-    (the channels' pulses, the encoder's count). Each channel's window values are a row here
-    (numpy's operations along a short last axis cost more than the arithmetic)."""
+    (the channels' pulses, the encoder's count); ``middles``: cos and sin of the table angle
+    at the windows' middles when known (:func:`_middles`). Each channel's window values are a
+    row here (numpy's operations along a short last axis cost more than the arithmetic)."""
     if m < 8:
         return gyro, accel, enc
     total = float(turn.sum())
@@ -568,7 +580,7 @@ def _check_channels(t, enc, gyro, accel, turn, L, m, th, findings, X, quanta):
     np.multiply(beta[:, None], turn, out=Y[:3])
     np.subtract(X.T[:3], Y[:3], out=Y[:3])
     Y[3:] = X.T[3:]
-    A = _regressors(enc[L // 2:L // 2 + L * m:L])
+    A = _regressors(enc[L // 2:L // 2 + L * m:L], middles)
     # the fit over all windows, flagged with the norms (the same values as after them when no
     # norm is off; otherwise fitted again without those windows)
     np.subtract(Y, _fit(A, Y).T @ A, out=V[2:])
@@ -877,7 +889,8 @@ def assess(log, *, thresholds=None, temperature=None, encoder_counts_per_rev=Non
         if not any(f.check == "rate" for f in findings):
             quanta = Quanta.of(enc2, gyro, accel, resolution, like=quanta)
             gyro, accel, enc2 = _check_channels(t, enc2, gyro, accel, turn, L, m, th, findings,
-                                                _channel_sums(log, L, m, sums) if m >= 8 else None, quanta)
+                                                _channel_sums(log, L, m, sums) if m >= 8 else None, quanta,
+                                                _middles(log, enc2, L, m, sums) if m >= 8 else None)
             if not any(f.action == "refused" for f in findings):
                 gyro = _check_gyro_steps(log, sums, enc2, gyro, accel, th, findings,
                                          Quanta.of(enc2, gyro, accel, resolution, like=quanta))
