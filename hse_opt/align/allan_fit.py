@@ -27,6 +27,7 @@ Units: those of the Allan deviation given (SI in the project: rad/s, m/s^2); ``t
 from __future__ import annotations
 
 import functools
+from dataclasses import dataclass
 
 import numpy as np
 
@@ -135,9 +136,9 @@ def fit_allan(tau, adev, clusters, *, iterations=3):
     coefficients, coefficients_std : numpy.ndarray, shape (c, 4)
         ``A_k``, k = -2..1, >= 0, and their 1-sigma (NaN where held at zero).
     """
-    tau = np.asarray(tau, dtype=float)
     adev = np.atleast_2d(np.asarray(adev, dtype=float))
     c, k = adev.shape
+    design = _design(np.asarray(tau, dtype=float).tobytes(), np.asarray(clusters, dtype=float).tobytes(), c)
     # each channel's variances scaled by a power of two to at most 1 (exactly: the fit scales
     # with them), the fit and its refit with the model's own error (taken where the fit misses
     # its points by far more than their scatter) side by side: columns c.. are the refit's
@@ -147,16 +148,11 @@ def fit_allan(tau, adev, clusters, *, iterations=3):
     avar = np.empty((k, 2 * c))
     np.ldexp(var, -exponent, out=avar[:, :c])
     avar[:, c:] = avar[:, :c]
-    # 1 / rel^2, rel = sqrt(2 / (K - 1)) the variances' relative 1-sigma (the refit's with
-    # MODEL_ERROR in quadrature)
-    half_dof = 0.5 * np.maximum(np.asarray(clusters, dtype=float) - 1.0, 1.0)
-    inv_rel2 = np.empty((k, 2 * c))
-    inv_rel2[:, :c] = half_dof[:, None]
-    inv_rel2[:, c:] = (1.0 / (1.0 / half_dof + MODEL_ERROR ** 2))[:, None]
-    coef, std, chi2 = _weighted_fit(tau, avar, inv_rel2, iterations)
-    pick = np.where(chi2[:c] > MISFIT, np.arange(c, 2 * c), np.arange(c))
+    coef, std, chi2 = _weighted_fit(design, avar, iterations)
+    refit = (chi2[:c] > MISFIT)[:, None]
     exponent = exponent[:, None]
-    coef, std = np.ldexp(coef[pick], exponent), np.ldexp(std[pick], exponent)
+    coef = np.ldexp(np.where(refit, coef[c:], coef[:c]), exponent)
+    std = np.ldexp(np.where(refit, std[c:], std[:c]), exponent)
     total = coef.sum() + top.sum()
     if not total - total == 0.0:
         # NaN or infinity in the Allan deviation, or no finite solution: NaN terms where the
@@ -167,17 +163,60 @@ def fit_allan(tau, adev, clusters, *, iterations=3):
     return coef, std
 
 
-def _weighted_fit(tau, avar, inv_rel2, iterations):
+@dataclass(frozen=True)
+class _Design:
+    """What the fits of ``c`` channels on one set of cluster times need besides their Allan
+    variances (:func:`_design`); read-only arrays.
+
+    Attributes
+    ----------
+    T : numpy.ndarray, shape (k, 4)
+        ``tau^k``, k = -2..1.
+    basis : numpy.ndarray, shape (24, 2 k)
+        ``[G h -h]`` ((4, 6) flat) ``= basis @ [w; w avar]`` for weights ``w`` (k, fits):
+        each point's ``T_i T_j`` (the diagonal's times ``1 +`` :data:`_RIDGE`), ``T_i`` and
+        ``-T_i``.
+    inv_rel2 : numpy.ndarray, shape (k, 2 c)
+        ``1 / rel^2``, ``rel = sqrt(2 / (K - 1))`` each variance's relative 1-sigma (``K``
+        its independent clusters); columns c.. the refit's, :data:`MODEL_ERROR` added in
+        quadrature.
+    """
+
+    T: np.ndarray
+    basis: np.ndarray
+    inv_rel2: np.ndarray
+
+
+@functools.lru_cache(maxsize=64)
+def _design(tau, clusters, c):
+    """The :class:`_Design` of ``c`` channels on cluster times ``tau`` (s) with ``clusters``
+    independent clusters (both float64 bytes): the same for every log of one length."""
+    tau, clusters = np.frombuffer(tau), np.frombuffer(clusters)
+    k = tau.size
+    T = tau[:, None] ** _POWERS[None, :]
+    basis = np.zeros((4, 6, 2 * k))
+    basis[:, :4, :k] = T.T[:, None, :] * T.T[None, :, :]
+    basis[_DIAGONAL, _DIAGONAL, :k] *= 1.0 + _RIDGE
+    basis[:, 4, k:] = T.T
+    basis[:, 5, k:] = -T.T
+    half_dof = 0.5 * np.maximum(clusters - 1.0, 1.0)
+    inv_rel2 = np.empty((k, 2 * c))
+    inv_rel2[:, :c] = half_dof[:, None]
+    inv_rel2[:, c:] = (1.0 / (1.0 / half_dof + MODEL_ERROR ** 2))[:, None]
+    design = _Design(T=T, basis=basis.reshape(24, 2 * k), inv_rel2=inv_rel2)
+    for a in (design.T, design.basis, design.inv_rel2):
+        a.flags.writeable = False
+    return design
+
+
+def _weighted_fit(design, avar, iterations):
     """The non-negative weighted least squares of :func:`fit_allan`, a fit per column.
 
     Parameters
     ----------
-    tau : numpy.ndarray, shape (k,)
-        s.
+    design : _Design
     avar : numpy.ndarray, shape (k, c)
-        Allan variances, a column per fit.
-    inv_rel2 : numpy.ndarray, shape (k, c)
-        ``1 / rel^2``, ``rel`` the relative 1-sigma of each variance.
+        Allan variances, a column per fit (``c`` twice the design's: the fit and its refit).
     iterations : int
         Passes, each weighted by the previous pass's model (the first by ``avar``).
 
@@ -188,19 +227,11 @@ def _weighted_fit(tau, avar, inv_rel2, iterations):
     chi2 : numpy.ndarray, shape (c,)
         The weighted residual sum of squares per degree of freedom.
 
-    Each pass forms the weighted normal equations ``[G h]`` of all fits in one product: the
-    weights ``w = 1 / (model rel)^2`` and ``w avar`` against each point's ``T_i T_j`` and
-    ``T_i`` (``T = tau^k``), with the ridge ``G_ii *= 1 +`` :data:`_RIDGE` (a ridge of
-    :data:`_RIDGE` on the normal matrix scaled to a unit diagonal); :func:`_nonnegative`
-    solves them."""
-    T = tau[:, None] ** _POWERS[None, :]                     # (k, 4)
+    Each pass forms the weighted normal equations ``[G h -h]`` of all fits in one product
+    (:attr:`_Design.basis`, the weights ``w = 1 / (model rel)^2`` and ``w avar``), which
+    :func:`_nonnegative` solves."""
     k, c = avar.shape
-    basis = np.zeros((4, 6, 2 * k))                           # [G h -h] = basis @ [w; w avar]
-    basis[:, :4, :k] = T.T[:, None, :] * T.T[None, :, :]
-    basis[_DIAGONAL, _DIAGONAL, :k] *= 1.0 + _RIDGE
-    basis[:, 4, k:] = T.T
-    basis[:, 5, k:] = -T.T
-    basis = basis.reshape(24, 2 * k)
+    T, inv_rel2 = design.T, design.inv_rel2
     weights = np.empty((2 * k, c))
     w, wa = weights[:k], weights[k:]
     table = _table(c)
@@ -209,7 +240,7 @@ def _weighted_fit(tau, avar, inv_rel2, iterations):
         np.square(model, out=w)
         np.divide(inv_rel2, w, out=w)                         # 1 / (model rel)^2
         np.multiply(w, avar, out=wa)
-        np.matmul(basis, weights, out=table[:24])
+        np.matmul(design.basis, weights, out=table[:24])
         x, var, _ = _nonnegative(table, with_variance=it + 1 == iterations)
         model = T @ x.T
     np.square(model, out=w)
@@ -217,7 +248,7 @@ def _weighted_fit(tau, avar, inv_rel2, iterations):
     r = avar - model
     r *= r
     r *= w
-    chi2 = r.sum(axis=0) / max(tau.size - 4, 1)
+    chi2 = r.sum(axis=0) / max(k - 4, 1)
     return x, np.sqrt(var), chi2
 
 
@@ -236,7 +267,7 @@ def _template(c):
 
 def _table(c):
     """A table of :func:`_nonnegative` for ``c`` fits, shape (:data:`_WIDTH`, c): each fit's
-    ``[G h]``, (4, 5) flat, goes to its first 20 rows."""
+    ``[G h -h]``, (4, 6) flat, goes to its first 24 rows."""
     return _template(c)[0].copy()
 
 
