@@ -27,6 +27,7 @@ Units: those of the Allan deviation given (SI in the project: rad/s, m/s^2); ``t
 from __future__ import annotations
 
 import functools
+import math
 from dataclasses import dataclass
 
 import numpy as np
@@ -47,6 +48,8 @@ _RIDGE = 1e-13
 #: is set (set 0 is empty, set 15 holds all four)
 _SETS = (np.arange(16)[:, None] >> np.arange(4)) & 1 == 1
 _DIAGONAL = np.arange(4)
+#: Allan deviations whose largest lies outside are scaled by a power of two towards 1
+_RANGE = (1e-30, 1e30)
 
 
 def _schur_tables():
@@ -134,31 +137,39 @@ def fit_allan(tau, adev, clusters, *, iterations=3):
     Returns
     -------
     coefficients, coefficients_std : numpy.ndarray, shape (c, 4)
-        ``A_k``, k = -2..1, >= 0, and their 1-sigma (NaN where held at zero).
+        ``A_k``, k = -2..1, >= 0, and their 1-sigma (NaN where held at zero). A channel
+        with NaN in its Allan deviation gets NaN terms; one of zeros, or with an infinite
+        point, zero terms without 1-sigma. Any unit: the deviations are scaled by a power of
+        two when their largest lies outside :data:`_RANGE` (a channel more than 1e30 below
+        the largest may then get zero terms).
     """
     adev = np.atleast_2d(np.asarray(adev, dtype=float))
     c, k = adev.shape
     design = _design(np.asarray(tau, dtype=float).tobytes(), np.asarray(clusters, dtype=float).tobytes(), c)
-    # each channel's variances scaled by a power of two to at most 1 (exactly: the fit scales
-    # with them), the fit and its refit with the model's own error (taken where the fit misses
-    # its points by far more than their scatter) side by side: columns c.. are the refit's
-    var = np.square(adev.T)
-    top = var.max(axis=0)
-    exponent = np.frexp(top)[1]
+    # the deviations scaled by a power of two where the largest is far from 1 (exactly: the
+    # fit scales with them), so that the normal equations' products stay within range
+    top = float(adev.max())
+    scale = 0
+    if not _RANGE[0] < top < _RANGE[1] and 0.0 < top < math.inf:
+        scale = math.frexp(top)[1]
+        adev = adev * math.ldexp(1.0, -scale)
+    # the fit and its refit with the model's own error (taken where the fit misses its points
+    # by far more than their scatter) side by side: columns c.. are the refit's
     avar = np.empty((k, 2 * c))
-    np.ldexp(var, -exponent, out=avar[:, :c])
+    np.square(adev.T, out=avar[:, :c])
     avar[:, c:] = avar[:, :c]
     coef, std, chi2 = _weighted_fit(design, avar, iterations)
-    refit = (chi2[:c] > MISFIT)[:, None]
-    exponent = exponent[:, None]
-    coef = np.ldexp(np.where(refit, coef[c:], coef[:c]), exponent)
-    std = np.ldexp(np.where(refit, std[c:], std[:c]), exponent)
-    total = coef.sum() + top.sum()
-    if not total - total == 0.0:
-        # NaN or infinity in the Allan deviation, or no finite solution: NaN terms where the
-        # Allan deviation holds NaN, else zero terms; no 1-sigma
-        lost = ~(np.isfinite(coef).all(axis=1) & np.isfinite(top))
-        coef[lost] = np.where(np.isnan(top[lost]), np.nan, 0.0)[:, None]
+    refit = (chi2[:c] > MISFIT * max(k - 4, 1))[:, None]
+    coef = np.where(refit, coef[c:], coef[:c])
+    std = np.where(refit, std[c:], std[:c])
+    if scale:
+        for a in (coef, std, coef, std):
+            a *= math.ldexp(1.0, scale)
+    if top != top:
+        # NaN in a channel's Allan deviation: NaN terms (a channel of zeros or with an infinite
+        # point has no solution but 0, with no 1-sigma)
+        lost = np.isnan(adev).any(axis=1)
+        coef[lost] = np.nan
         std[lost] = np.nan
     return coef, std
 
@@ -225,7 +236,7 @@ def _weighted_fit(design, avar, iterations):
     coef, std : numpy.ndarray, shape (c, 4)
         The terms and their 1-sigma (NaN outside the solution's set).
     chi2 : numpy.ndarray, shape (c,)
-        The weighted residual sum of squares per degree of freedom.
+        The weighted residual sum of squares.
 
     Each pass forms the weighted normal equations ``[G h -h]`` of all fits in one product
     (:attr:`_Design.basis`, the weights ``w = 1 / (model rel)^2`` and ``w avar``), which
@@ -248,8 +259,7 @@ def _weighted_fit(design, avar, iterations):
     r = avar - model
     r *= r
     r *= w
-    chi2 = r.sum(axis=0) / max(k - 4, 1)
-    return x, np.sqrt(var), chi2
+    return x, np.sqrt(var), r.sum(axis=0)
 
 
 @functools.lru_cache(maxsize=16)
