@@ -198,7 +198,8 @@ def test_the_overlapping_allan_deviation_is_allantools_oadev():
 
 
 @pytest.mark.parametrize("n, max_terms", [(9374, MAX_TERMS), (9999, MAX_TERMS), (8194, MAX_TERMS), (20000, 300),
-                                           (937, MAX_TERMS), (5000, 10 ** 9), (7000, MAX_TERMS), (14000, MAX_TERMS)])
+                                           (937, MAX_TERMS), (5000, 10 ** 9), (5000, MAX_TERMS), (7000, MAX_TERMS),
+                                           (14000, MAX_TERMS)])
 def test_octave_clusters_take_the_definitions_start_points(n, max_terms):
     """Octave cluster sizes (as the logs' analysis takes them: a 10-minute log's 9374 blocks at
     500 Hz, 9999 at 100 Hz) against the definition written out here: the start points ``k =
@@ -206,7 +207,10 @@ def test_octave_clusters_take_the_definitions_start_points(n, max_terms):
     shorter than the lattice ``s`` (that stride of the shortest cluster, to a power of two
     below) and ``step = s`` for the others, the second differences of the cumulative sum in
     extended precision. Short clusters' strides that are no power of two (3 in a 7.5-minute
-    log, 6 in a 15-minute one, 65 and 66 with s = 64), every start point (s = 1)."""
+    log, 6 in a 15-minute one, 65 and 66 with s = 64), every start point (s = 1); the first
+    pairs by the complex product (an even n and an even stride: 9374, 14000,
+    5000 with s = 2), by strided sums (9999: n odd; 7000: stride 3), and the cumulative sum
+    where a short cluster's stride is no multiple of it (8194, 20000)."""
     rng = np.random.default_rng(n)
     x = _white_rate(rng, 3e-6, 3, n=n) + _rate_random_walk(rng, 1e-6, 3, n=n) + 1e-7   # a bias too
     sizes = 2 ** np.arange(int(math.log2(n // 2)) + 1)
