@@ -370,8 +370,9 @@ def test_the_windows_shared_with_the_allan_analysis_are_the_samples_summed_and_f
     """hse-opt align sums the channels once for the checks and the Allan analysis
     (hse_opt.align.noise.block_sums): at 500 Hz a window is 8 of the analysis' 64-ms blocks.
     The window sums taken from those blocks are the samples' own (numpy's reduceat over the
-    rows, here), and a spike is found at its sample with them; another log's sums (the clean
-    log's, which hold no spike) are not used for this one."""
+    rows, here), and a spike is found at its sample with them, with the same finding and repair
+    as from the samples; another log's sums (the clean log's, which hold no spike) are not used
+    for this one."""
     from hse_opt.align.noise import block_sums
     from hse_opt.align.quality import _channel_sums, _windows
     log, _ = clean
@@ -384,9 +385,11 @@ def test_the_windows_shared_with_the_allan_analysis_are_the_samples_summed_and_f
     assert (sums.block, L) == (32, 256)
     ref = np.add.reduceat(np.hstack([bad.gyro, bad.accel])[1:m * L + 1], np.arange(0, m * L, L), axis=0)
     assert np.allclose(_channel_sums(bad, L, m, sums), ref, rtol=1e-12, atol=1e-15)
-    for q in (assess(bad, sums=sums), assess(bad, sums=block_sums(log))):
+    shared = assess(bad, sums=sums)
+    for q in (shared, assess(bad, sums=block_sums(log)), assess(bad)):
         f = _only(q, "repaired")
         assert (f.check, f.sample, f.time) == ("channel", K, log.t[K]) and "gyro_y spike of +" in f.detail
+        assert q.findings == shared.findings and np.array_equal(q.log.gyro, shared.log.gyro)
     # the windows' middle angles' cos and sin from the Allan analysis' fit are numpy's of the
     # encoder there; not taken for another log's sums nor for a repaired encoder
     from hse_opt.align.quality import _middles
