@@ -24,8 +24,11 @@ def test_weighted_sums_match_per_sample_sums(log):
     d = np.diff(enc)[:nb * h].reshape(nb, h)                  # the encoder's steps, block by block
     x = gyro[1:nb * h + 1].reshape(nb, h, 3)
     assert np.abs(W - np.einsum("bic,i->cb", x, w)).max() < 1e-14 * np.abs(gyro).max() * h * h
-    # by parts from the angles: the rounding of h angles of up to |enc| (1e-10 arcsec here)
-    assert np.abs(E - d @ w).max() < 1e-14 * np.abs(enc).max() * h
+    # from the steps, not by parts from the angles: the rounding of the sum (1e-16 of |E|), not
+    # that of h angles of up to |enc| (70 rad here, 1e-9 of |E|); each block's exact sum (fsum
+    # of exact steps: a difference of two angles within a factor 2 of each other is exact)
+    exact = np.array([math.fsum(r) for r in d * w])
+    assert np.abs(E - exact).max() < 4 * np.finfo(float).eps * np.abs(exact).max()
 
 
 def test_the_block_sums_carry_check_3bs_weighted_sums_for_their_own_arrays_only(log):
@@ -55,7 +58,31 @@ def test_the_block_sums_carry_check_3bs_weighted_sums_for_their_own_arrays_only(
     assert np.count_nonzero(np.abs(E4 - E) > 1e-12) == 1
     assert steps.weighted_sums(log.encoder, log.gyro, h // 2, 2 * nb, s)[0].shape == (3, 2 * nb)
     alone = block_sums(log, checks=False)
-    assert alone.weighted is None and alone.weighted_encoder is None
+    assert alone.weighted is None and alone.weighted_encoder is None and alone.encoder_steps is None
+
+
+def test_the_encoder_steps_seen_in_one_pass_are_numpys_and_the_steps_are_taken_on_demand(log):
+    """What checks 1 and 3 read of the encoder's steps, taken with the block sums (their
+    extremes, numpy's median of every 29th and the median absolute deviation, steps 1 ..
+    4000): numpy's own figures of np.diff; the steps are not kept, but given when asked for;
+    the quanta made from them are the quanta made from the log."""
+    from hse_opt.align._quanta import Quanta
+    from hse_opt.align.noise import block_sums
+    s = block_sums(log)
+    seen, d = s.encoder_steps, np.diff(log.encoder)
+    assert seen.encoder is log.encoder and "steps" not in vars(seen)
+    assert (seen.largest, seen.smallest) == (d.max(), d.min())
+    sub = d[::29]
+    assert seen.step == np.median(sub)
+    assert seen.step_sigma == pytest.approx(1.4826 * np.median(np.abs(sub - np.median(sub))), rel=1e-15)
+    assert np.array_equal(seen.first, d[1:4001])
+    assert np.array_equal(seen.steps, d)
+    q, q0 = Quanta.of(log.encoder, log.gyro, log.accel, seen=seen), Quanta.of(log.encoder, log.gyro, log.accel)
+    assert q.seen is seen and q0.seen is not seen
+    assert (q.step, q.step_sigma, q.count) == (q0.step, q0.step_sigma, q0.count)
+    assert np.array_equal(q.pulses, q0.pulses)
+    enc2 = log.encoder.copy()                               # another encoder's steps are not taken
+    assert Quanta.of(enc2, log.gyro, log.accel, seen=seen).seen is not seen
 
 
 def _per_sample_statistic(log, residual, beta):

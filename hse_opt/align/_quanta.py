@@ -10,6 +10,7 @@ for an unquantized one.
 """
 from __future__ import annotations
 
+import functools
 import math
 from dataclasses import dataclass
 
@@ -17,7 +18,7 @@ import numpy as np
 
 from hse_opt.align._stats import step_stats
 
-__all__ = ["Quanta", "quantum", "encoder_quantum", "QUANTUM_SAMPLES", "QUANTUM_CHANGES"]
+__all__ = ["Quanta", "EncoderSteps", "quantum", "encoder_quantum", "QUANTUM_SAMPLES", "QUANTUM_CHANGES"]
 
 #: the quanta are seen in this many first samples (of a channel, or of the encoder's steps)
 QUANTUM_SAMPLES = 4000
@@ -71,6 +72,49 @@ def encoder_quantum(enc, resolution):
 
 
 @dataclass(frozen=True, eq=False)
+class EncoderSteps:
+    """What the checks read of the encoder's steps ``alpha_k - alpha_{k-1}`` over the whole
+    log, from one pass over them (:meth:`of`; :func:`hse_opt.align.noise.block_sums` makes it
+    with the pass it takes for check 3b's sums): their extremes, the table's step and its
+    robust 1-sigma, and the first steps the encoder's count is seen in. The steps themselves
+    (a record's size) are not kept: :attr:`steps` takes them again when a check needs them
+    (an encoder sample to repair or refuse).
+
+    Attributes
+    ----------
+    encoder : numpy.ndarray, shape (n,)
+        The angles they are of, rad.
+    largest, smallest : float
+        The largest and the smallest step, rad.
+    step, step_sigma : float
+        :func:`hse_opt.align._stats.step_stats` of the steps, rad.
+    first : numpy.ndarray, shape (min(QUANTUM_SAMPLES, n - 2),)
+        Steps 1 .. :data:`QUANTUM_SAMPLES`, rad (a copy).
+    """
+
+    encoder: np.ndarray
+    largest: float
+    smallest: float
+    step: float
+    step_sigma: float
+    first: np.ndarray
+
+    @classmethod
+    def of(cls, enc, steps=None):
+        """Of the encoder ``enc`` (n,), rad; ``steps``: its steps ``enc[1:] - enc[:-1]`` when
+        already taken (else taken here, and let go)."""
+        steps = enc[1:] - enc[:-1] if steps is None else steps
+        step, sigma = step_stats(steps)
+        N = min(QUANTUM_SAMPLES, steps.shape[0] - 1)
+        return cls(enc, float(steps.max()), float(steps.min()), step, sigma, steps[1:N + 1].copy())
+
+    @functools.cached_property
+    def steps(self):
+        """The steps, shape (n - 1,), rad (taken on first use)."""
+        return self.encoder[1:] - self.encoder[:-1]
+
+
+@dataclass(frozen=True, eq=False)
 class Quanta:
     """A raw log's quanta and its encoder's step statistics, for the checks that take them
     (module docstring); :meth:`of` works them out once for a log's arrays.
@@ -81,14 +125,9 @@ class Quanta:
         The arrays they are of (the log's, or a repaired copy's): rad, rad, m/s.
     resolution : float
         The encoder's count when known (its counts per revolution), else 0, rad.
-    steps : numpy.ndarray, shape (n - 1,)
-        The encoder's steps ``alpha_k - alpha_{k-1}``, rad.
-    step : float
-        The table's step: the median of the encoder's every 29th step
-        (:func:`hse_opt.align._stats.step_stats`), rad.
-    step_sigma : float
-        The robust 1-sigma of those steps (the table's jitter and the encoder's resolution seen
-        in the steps), rad.
+    seen : EncoderSteps
+        The encoder's steps' extremes and statistics (:attr:`steps`, :attr:`step`,
+        :attr:`step_sigma` are its).
     count : float
         One encoder count: :func:`encoder_quantum`, rad.
     pulses : numpy.ndarray, shape (6,)
@@ -100,11 +139,27 @@ class Quanta:
     gyro: np.ndarray
     accel: np.ndarray
     resolution: float
-    steps: np.ndarray
-    step: float
-    step_sigma: float
+    seen: EncoderSteps
     count: float
     pulses: np.ndarray
+
+    @property
+    def steps(self):
+        """The encoder's steps ``alpha_k - alpha_{k-1}``, shape (n - 1,), rad (taken on first
+        use: :attr:`EncoderSteps.steps`)."""
+        return self.seen.steps
+
+    @property
+    def step(self):
+        """The table's step: the median of the encoder's every 29th step
+        (:func:`hse_opt.align._stats.step_stats`), rad."""
+        return self.seen.step
+
+    @property
+    def step_sigma(self):
+        """The robust 1-sigma of those steps (the table's jitter and the encoder's resolution
+        seen in the steps), rad."""
+        return self.seen.step_sigma
 
     @property
     def jitter(self):
@@ -113,13 +168,14 @@ class Quanta:
         return self.step_sigma / math.sqrt(2.0)
 
     @classmethod
-    def of(cls, enc, gyro, accel, resolution=0.0, like=None):
+    def of(cls, enc, gyro, accel, resolution=0.0, like=None, seen=None):
         """The quanta of the arrays ``enc`` (n,), ``gyro`` (n, 3), ``accel`` (n, 3) (rad, rad,
         m/s); ``resolution``: the encoder's count when known, rad (0: as seen in the data).
 
         ``like``: quanta worked out before (of the log before a repair), returned when they are
         of these very arrays (the same objects) and resolution; their encoder's or channels'
-        part is kept when only those arrays are the same.
+        part is kept when only those arrays are the same. ``seen``: the encoder's
+        :class:`EncoderSteps` when already taken (with the block sums), used when of ``enc``.
 
         Returns
         -------
@@ -132,19 +188,19 @@ class Quanta:
             if same_enc and same_channels:
                 return like
         if same_enc:
-            steps, step, sigma, count = like.steps, like.step, like.step_sigma, like.count
-        else:
-            steps = enc[1:] - enc[:-1]
-            step, sigma = step_stats(steps)
-        N = min(QUANTUM_SAMPLES, steps.shape[0] - 1)
+            seen, count = like.seen, like.count
+        elif seen is None or seen.encoder is not enc:
+            seen = EncoderSteps.of(enc)
+        first = seen.first
         if same_channels:
             pulses = like.pulses
-        elif N == QUANTUM_SAMPLES and not same_enc:
+        elif first.shape[0] == QUANTUM_SAMPLES and not same_enc:
             # the encoder's steps 1 .. N and the channels' samples 1 .. N, one row each
-            q = _row_quanta(np.concatenate((steps[None, 1:N + 1], gyro.T[:, 1:N + 1], accel.T[:, 1:N + 1])))
-            return cls(enc, gyro, accel, resolution, steps, step, sigma, max(float(q[0]), resolution), q[1:])
+            q = _row_quanta(np.concatenate((first[None], gyro.T[:, 1:QUANTUM_SAMPLES + 1],
+                                            accel.T[:, 1:QUANTUM_SAMPLES + 1])))
+            return cls(enc, gyro, accel, resolution, seen, max(float(q[0]), resolution), q[1:])
         else:
             pulses = _row_quanta(np.concatenate((gyro.T[:, 1:QUANTUM_SAMPLES + 1], accel.T[:, 1:QUANTUM_SAMPLES + 1])))
         if not same_enc:
-            count = max(float(_row_quanta(steps[None, 1:N + 1])[0]), resolution)
-        return cls(enc, gyro, accel, resolution, steps, step, sigma, count, pulses)
+            count = max(float(_row_quanta(first[None])[0]), resolution)
+        return cls(enc, gyro, accel, resolution, seen, count, pulses)

@@ -118,6 +118,7 @@ import numpy as np
 
 from hse_opt import units
 from hse_opt.align._angles import rotate
+from hse_opt.align._quanta import EncoderSteps
 from hse_opt.align._blas import block_dot, one_thread
 from hse_opt.align.allan_fit import MISFIT, MODEL_ERROR, _POWERS, fit_allan
 from hse_opt.align.processor import _vecdot
@@ -283,16 +284,14 @@ def _weighted_block_sums(x, nb, block):
     return block_dot(g[:, 1:nb * block + 1].reshape(3, nb, block), np.arange(block, 0, -1, dtype=float))
 
 
-def _weighted_encoder_sums(enc, nb, block):
+def _weighted_step_sums(steps, nb, block):
     """The encoder's weighted sums over blocks of ``block`` steps: ``sum (enc[start + i] -
-    enc[start])``, i = 1 .. block (steps into samples ``1 + b block .. (b + 1) block`` weighted
-    ``block .. 1``), shape (nb,), rad; by parts from the angles ``enc`` (n,), rad: their block
-    sums (a matrix-vector product on one BLAS thread) less ``block`` times each block's start
-    angle, without a temporary of the steps."""
-    M = nb * block
-    E = block_dot(enc[1:M + 1].reshape(nb, block), np.ones(block))
-    E -= block * enc[:M:block]
-    return E
+    enc[start])``, i = 1 .. block, shape (nb,), rad, from its steps ``steps`` (the first
+    ``nb block`` of them at least), rad: steps ``b block .. (b + 1) block - 1`` (into samples
+    ``1 + b block .. (b + 1) block``) weighted ``block .. 1`` by a matrix-vector product on
+    one BLAS thread; the rounding of the steps, not of the angles (a by-parts sum of the
+    angles rounds at their size, up to thousands of rad)."""
+    return block_dot(steps[:nb * block].reshape(nb, block), np.arange(block, 0, -1, dtype=float))
 
 
 def _blocking(log, block_period):
@@ -335,8 +334,11 @@ class BlockSums:
         The gyros' weighted sums over the same blocks (row ``i`` of a block weighted
         ``block + 1 - i``), rad: check 3b's (:func:`hse_opt.align.steps.weighted_sums`).
     weighted_encoder : numpy.ndarray, shape (nb,), or None
-        The encoder's, ``sum (enc[start + i] - enc[start])``, i = 1 .. block, rad: check
-        3b's too.
+        The encoder's, ``sum (enc[start + i] - enc[start])``, i = 1 .. block, from its steps,
+        rad: check 3b's too.
+    encoder_steps : hse_opt.align._quanta.EncoderSteps, or None
+        What checks 1 and 3 read of the encoder's steps (their extremes and statistics; the
+        steps themselves are not kept), taken from the same steps.
     """
 
     log: object
@@ -344,6 +346,7 @@ class BlockSums:
     sums: np.ndarray
     weighted: np.ndarray = None
     weighted_encoder: np.ndarray = None
+    encoder_steps: EncoderSteps = None
 
     def of(self, log, block):
         """The sums when they are ``log``'s over blocks of ``block`` samples, else None."""
@@ -366,12 +369,13 @@ def block_sums(log, *, block_period=BLOCK_PERIOD, checks=True):
     block_period : float
         Target block length, s (rounded to whole samples).
     checks : bool
-        Also take check 3b's weighted sums of the gyros and the encoder
-        (:attr:`BlockSums.weighted`, :attr:`BlockSums.weighted_encoder`; the bytes
-        :func:`hse_opt.align.steps.weighted_sums` gives), the gyros' right after their plain
-        sums. Nothing of a record's size is kept (a 2.4-MB array of the encoder's steps kept
-        here through the alignment made ``align`` 0.07 ms slower, 2026-11-26). False for the
-        Allan analysis alone.
+        Also take what the quality checks read of the record: check 3b's weighted sums of
+        the gyros (right after their plain sums) and of the encoder (:attr:`BlockSums.weighted`,
+        :attr:`BlockSums.weighted_encoder`; the bytes :func:`hse_opt.align.steps.weighted_sums`
+        gives) and, from the same pass over the encoder's steps, what checks 1 and 3 read of
+        them (:attr:`BlockSums.encoder_steps`). Nothing of a record's size is kept (a 2.4-MB
+        array of the encoder's steps kept here through the alignment made ``align`` 0.07 ms
+        slower, 2026-11-26). False for the Allan analysis alone.
 
     Returns
     -------
@@ -391,8 +395,10 @@ def block_sums(log, *, block_period=BLOCK_PERIOD, checks=True):
         return BlockSums(log=log, block=block, sums=sums)
     weighted = _weighted_block_sums(log.gyro, nb, block)         # (while the gyros are in the cache)
     _block_sums(log.accel, stop, nb, block, out=sums[3:])
+    enc = log.encoder
+    steps = enc[1:] - enc[:-1]
     return BlockSums(log=log, block=block, sums=sums, weighted=weighted,
-                     weighted_encoder=_weighted_encoder_sums(log.encoder, nb, block))
+                     weighted_encoder=_weighted_step_sums(steps, nb, block), encoder_steps=EncoderSteps.of(enc, steps))
 
 #: largest angle the series of :func:`_cos_sin_small` takes, rad (error |d|^7 / 5040 < 3e-9)
 _SERIES_MAX = 0.2

@@ -149,7 +149,9 @@ once (:class:`~hse_opt.align._quanta.Quanta`). Checks 1-5 without 3b on a 10-min
 7.3 M) against the alignment's 47 M; CPU on one core of the busy 2-core machine (load 3-4)
 0.36 ms when repeated (were 0.56) and 0.7-0.8 ms after the alignment as ``hse-opt align`` runs
 them, its caches cold (were 0.9-1.0); the floor is the per-sample encoder check (the steps,
-their extremes and every 29th's median: 0.15-0.18 ms of it). Check 3b: :mod:`hse_opt.align.steps`.
+their extremes and every 29th's median: 0.15-0.18 ms of it; with ``hse-opt align``'s block sums
+they come from the pass check 3b's sums of the encoder take:
+:class:`~hse_opt.align._quanta.EncoderSteps`). Check 3b: :mod:`hse_opt.align.steps`.
 """
 from __future__ import annotations
 
@@ -347,18 +349,19 @@ def _clusters(idx, gap):
 def _check_encoder(t, enc, gyro, th, findings, quanta):
     """Check 1; returns the encoder (a repaired copy, or ``enc`` itself). ``quanta``: the
     log's :class:`~hse_opt.align._quanta.Quanta` (the table's step and its 1-sigma, the
-    encoder's count)."""
+    encoder's count, its steps' extremes; the steps themselves are taken only for a log
+    with an encoder fault)."""
     n = enc.size
-    d = quanta.steps
     c, s = quanta.step, quanta.step_sigma
     if c == 0.0:            # one reading held over half the log or more: frozen, if the table turned
-        frozen = _frozen_encoder(t, enc, gyro, d)
+        frozen = _frozen_encoder(t, enc, gyro, quanta.steps)
         if frozen is not None:
             findings.append(frozen)
             return enc
     thr = max(th.encoder_sigmas * s, th.encoder_floor, _QUANTA * quanta.count)
-    if float(d.max()) - c <= thr and c - float(d.min()) <= thr:      # (two reductions, no temporaries)
+    if quanta.seen.largest - c <= thr and c - quanta.seen.smallest <= thr:
         return enc
+    d = quanta.steps
     dev = d - c
     bad = np.flatnonzero(np.abs(dev) > thr)
     out = enc.copy()
@@ -884,7 +887,8 @@ def assess(log, *, thresholds=None, temperature=None, encoder_counts_per_rev=Non
     gyro, accel = log.gyro, log.accel
     n = t.size
     dt = float(t[-1] - t[0]) / (n - 1)
-    quanta = Quanta.of(enc, gyro, accel, resolution)      # once for checks 1, 3 and 3b
+    quanta = Quanta.of(enc, gyro, accel, resolution,      # once for checks 1, 3 and 3b
+                       seen=None if sums is None else sums.encoder_steps)
     enc2 = _check_encoder(t, enc, gyro, th, findings, quanta)
     L, m = _windows(n, dt, th)
     if m >= 2 and not any(f.action == "refused" and f.check == "encoder" for f in findings):

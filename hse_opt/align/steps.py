@@ -71,7 +71,7 @@ import numpy as np
 from hse_opt import units
 from hse_opt.align._blas import block_dot, one_thread
 from hse_opt.align._stats import MAD as _MAD, median as _median
-from hse_opt.align.noise import BLOCK_PERIOD, _weighted_block_sums, _weighted_encoder_sums
+from hse_opt.align.noise import BLOCK_PERIOD, _weighted_block_sums, _weighted_step_sums
 
 __all__ = ["block_period", "weighted_sums", "weighted_regressors", "shares", "check_steps", "find_steps",
            "step_statistic", "GRID"]
@@ -110,7 +110,8 @@ def weighted_sums(enc, gyro, h, nb, sums=None):
     W : numpy.ndarray, shape (3, nb)
         Each gyro's, rad.
     E : numpy.ndarray, shape (nb,)
-        The encoder's, rad: by parts ``sum (enc[start + i] - enc[start])``, i = 1 .. h.
+        The encoder's, rad: ``sum (enc[start + i] - enc[start])``, i = 1 .. h, summed from its
+        steps ``enc[k] - enc[k - 1]``.
     """
     W = E = None
     if sums is not None and sums.weighted is not None and sums.block == h and sums.weighted.shape[1] == nb:
@@ -121,7 +122,7 @@ def weighted_sums(enc, gyro, h, nb, sums=None):
     if W is None:
         W = _weighted_block_sums(gyro, nb, h)
     if E is None:
-        E = _weighted_encoder_sums(enc, nb, h)
+        E = _weighted_step_sums(enc[1:nb * h + 1] - enc[:nb * h], nb, h)
     return W, E
 
 
