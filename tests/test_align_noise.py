@@ -303,9 +303,7 @@ def test_the_clusters_shorter_than_a_block_are_allantools_oadev_of_the_stretches
     overlapping estimator on the raw samples of the eight stretches of 1024 samples spread over
     the log at block edges (module docstring, step 3), the fitted deterministic part taken off
     every sample here with numpy's cos and sin of the mid-sample encoder angle, the variances
-    of the stretches averaged (each has as many start points). Within 1e-6: the sums are
-    single precision (their rounding, 6e-8 of a sum of at most 16 samples, is far below the
-    estimator's own scatter, 1/sqrt(2 x 512) at 16 samples)."""
+    of the stretches averaged (each has as many start points). Within 1e-12."""
     allantools = pytest.importorskip("allantools", reason="allantools is a test extra (pyproject [test])")
     from hse_opt.align.noise import deterministic_residual
     from hse_opt.sim import TruthConfig
@@ -330,7 +328,7 @@ def test_the_clusters_shorter_than_a_block_are_allantools_oadev_of_the_stretches
                                                 taus=np.array(sizes) * dt)
             assert np.allclose(taus, np.array(sizes) * dt)
             var[c] += adev ** 2 / count
-    assert np.allclose(fig.adev[:, :5], np.sqrt(var), rtol=1e-6, atol=0)
+    assert np.allclose(fig.adev[:, :5], np.sqrt(var), rtol=1e-12, atol=0)
     assert np.allclose(fig.clusters[:5], count * length / np.array(sizes))
 
 

@@ -58,11 +58,11 @@ Steps
    Clusters shorter than a block (1, 2, 4, 8, 16 samples at 500 Hz) come
    from the raw samples of :data:`SEGMENTS` stretches of :data:`SEGMENT_SAMPLES` samples
    spread over the log, fully overlapping within each, the fitted deterministic part taken
-   off every sample (in double precision), the sums of up to 16 of what remains and their
-   differences in single precision: half the memory traffic of that part (0.20 -> 0.17 ms
-   on a 10-minute log), a rounding of 6e-8 of a sum against the estimator's own scatter of
-   3 % and more (512 clusters at 16 samples); on 36 logs of six systems the deviations moved
-   by at most 9e-7 of themselves, the fitted terms by at most 1.3e-5 of their 1-sigma.
+   off every sample. (Not in single precision, though that halves the memory traffic of the
+   sums and differences, 0.20 -> 0.17 ms on a 10-minute log, and moved the deviations by at
+   most 9e-7, the terms by 1.3e-5 of their 1-sigma on 36 logs of six systems: a rounding of
+   6e-8 amplifies a difference of 1e-9 in the samples, as between a log and its stand CSV,
+   into the filter's tuning and a heading 1.1e-6 arcsec apart.)
 4. IEEE Std 952-1997 Annex C terms: the least-squares fit of the Allan variance model
    ``sigma^2(tau) = sum_k A_k tau^k``, k = -2..1, with every ``A_k >= 0``, weighted by the
    estimate's own variance (relative standard deviation ``sqrt(2 / (K - 1))`` of a
@@ -585,8 +585,7 @@ def _short_allan(log, residual, sizes, segments=SEGMENTS, length=SEGMENT_SAMPLES
     is taken off every sample (its angle by the angle-addition series from the block edge's;
     the rule's error over one sample, ``d alpha^2 / 24``, is below 1e-6), the Allan
     difference of two adjacent sums of ``m`` samples (``sizes``: powers of two, the sums by
-    doubling), those sums and differences in single precision (module docstring, step 3).
-    Returns ``(tau, adev (6, k), clusters)``, ``clusters = min(n, segments x length) / m``."""
+    doubling). Returns ``(tau, adev (6, k), clusters)``, ``clusters = min(n, segments x length) / m``."""
     t, enc = np.asarray(log.t, dtype=float), np.asarray(log.encoder, dtype=float)
     n = t.shape[0] - 1                                            # increments: rows 1..n
     dt = (t[-1] - t[0]) / n
@@ -627,8 +626,7 @@ def _short_allan(log, residual, sizes, segments=SEGMENTS, length=SEGMENT_SAMPLES
     # (each entry a dot product of four: the same bytes whatever the threads, and below
     # OpenBLAS's size for a second thread)
     det = np.matmul(residual.coefficients.T, X.reshape(4, -1), out=work[1].reshape(6, -1))
-    work = np.empty((2, work.shape[1]), dtype=np.float32)    # the residual, single precision
-    np.subtract(r.reshape(-1), det.reshape(-1), out=work[0])
+    r -= det.reshape(r.shape)
     # sums of m consecutive samples by doubling (sizes are powers of two): cheaper than the
     # cumulative sum; the Allan difference is then of two adjacent sums. The 6 x count rows
     # are doubled as one flat array (a sum that straddles two rows is never read: each row's
