@@ -264,7 +264,9 @@ def _weighted_fit(design, avar, iterations):
 
 @functools.lru_cache(maxsize=16)
 def _template(c):
-    """:func:`_table`'s empty table and the flat indices of its solutions' entries (read-only)."""
+    """For ``c`` fits: :func:`_table`'s empty table (its constants set), ``arange(c)``, and
+    per set, fit and term the flat indices into the table of ``x``'s numerator and
+    denominator (16, c, 8) and of ``d_{S-i}(i)`` (16, c, 4); read-only."""
     table = np.empty((_WIDTH, c))
     table[-3:] = np.array([0.0, 1.0, np.nan])[:, None]
     fits = np.arange(c)
@@ -297,7 +299,8 @@ def _nonnegative(table, with_variance=False):
     Returns
     -------
     x : numpy.ndarray, shape (c, 4)
-        Zero outside the solution's set (not finite where the input is not).
+        Zero outside the solution's set. A fit with NaN in its table gets the first set
+        whose conditions are NaN (the empty one, x = 0, where all are).
     variance : numpy.ndarray, shape (c, 4) or None
         ``(G_SS^-1)_ii``, NaN outside ``S``.
     best : numpy.ndarray, shape (c,)
