@@ -50,11 +50,12 @@ def _scipy_fit(tau, adev, clusters):
     return np.array(coef), np.array(std), np.array(refitted)
 
 
-def _curves(rng, n):
+def _curves(rng, n, most=1000.0):
     """``n`` Allan deviations on TAU: random terms (some zero), each point's variance scattered
     by about its own relative 1-sigma (log-normally); every third channel with a bump of 1.5 to
-    3 times over three points, which the four terms cannot follow."""
-    clusters = np.minimum(2.0 ** (19 - np.arange(18)), 1000.0)
+    3 times over three points, which the four terms cannot follow. At most ``most``
+    independent clusters behind a point."""
+    clusters = np.minimum(2.0 ** (19 - np.arange(18)), most)
     coef = rng.uniform(0.1, 1, (n, 4)) * np.array([1e-12, 1e-10, 1e-12, 1e-14]) * (rng.uniform(size=(n, 4)) < 0.7)
     coef[:, 1] += 1e-11                                          # a random walk in every channel
     avar = coef @ T.T
@@ -63,14 +64,18 @@ def _curves(rng, n):
     return np.sqrt(avar), clusters
 
 
-def test_the_fit_is_the_procedure_with_scipys_nnls():
+@pytest.mark.parametrize("channels, most, tau", [(60, 1000.0, TAU), (7, 300.0, TAU), (6, 1000.0, TAU[:15])])
+def test_the_fit_is_the_procedure_with_scipys_nnls(channels, most, tau):
+    """Every set of cluster times, clusters and channels fitted (what a fit of them needs is
+    made once for them and kept)."""
     rng = np.random.default_rng(25)
-    adev, clusters = _curves(rng, 60)
-    coef, std = fit_allan(TAU, adev, clusters)
-    ref, ref_std, refitted = _scipy_fit(TAU, adev, clusters)
+    adev, clusters = _curves(rng, channels, most)
+    adev, clusters = adev[:, :tau.size], clusters[:tau.size]
+    coef, std = fit_allan(tau, adev, clusters)
+    ref, ref_std, refitted = _scipy_fit(tau, adev, clusters)
     # both paths and several sets of free terms are covered
     assert 0 < refitted.sum() < len(refitted)
-    assert len({tuple(r > 0) for r in ref}) >= 4
+    assert len({tuple(r > 0) for r in ref}) >= 3
     assert np.array_equal(coef > 0, ref > 0)
     big = np.abs(ref).max(axis=1, keepdims=True)
     assert np.allclose(coef, ref, rtol=1e-9, atol=1e-12 * big)
@@ -102,3 +107,15 @@ def test_a_channel_without_a_finite_curve_gets_no_terms_and_leaves_the_others_al
     assert np.isnan(std[:2]).all()
     assert np.allclose(coef[2:], good, rtol=1e-12, atol=0)
     assert np.allclose(std[2:], good_std, rtol=1e-12, atol=0, equal_nan=True)
+
+
+def test_fits_on_the_same_cluster_times_take_each_their_own_clusters():
+    """What a fit needs is kept per cluster times, clusters and channels: one after another on
+    the same curves, each fit is still the procedure with its own clusters' weights."""
+    adev, clusters = _curves(np.random.default_rng(6), 6)
+    for most in (1000.0, 30.0, 1000.0):
+        weights = np.minimum(clusters, most)
+        coef, _ = fit_allan(TAU, adev, weights)
+        ref, _, _ = _scipy_fit(TAU, adev, weights)
+        assert np.allclose(coef, ref, rtol=1e-9, atol=1e-12 * np.abs(ref).max(axis=1, keepdims=True)), most
+    assert not np.allclose(fit_allan(TAU, adev, np.minimum(clusters, 30.0))[0], coef, rtol=1e-3, atol=0)
