@@ -370,6 +370,27 @@ def test_cos_sin_of_a_nearly_linear_angle_is_numpys():
     assert np.array_equal(c, np.cos(a)) and np.array_equal(s, np.sin(a))
 
 
+def test_the_deterministic_fits_normal_equations_are_least_squares_or_leave_out_what_is_undetermined():
+    """noise._normal_solve against numpy's SVD least squares: the coefficients where the
+    regressors determine them (by the LDL^T route), the fitted values where a column is zero or
+    two are collinear (a perfect encoder's jitter term, a table at rest: the eigen route), with
+    no coefficient blown up by the undetermined direction."""
+    from hse_opt.align.noise import _normal_solve
+    rng = np.random.default_rng(7)
+    X = rng.standard_normal((4, 300)) * np.array([[1e-3], [2e-3], [2e-3], [1e-5]])
+    Y = rng.standard_normal((6, 300)) * 1e-6 + np.array([1.0, -2.0, 0.5, 3.0]) @ X
+    ref = np.linalg.lstsq(X.T, Y.T, rcond=None)[0]
+    coef = _normal_solve(X @ X.T, X @ Y.T)
+    assert np.abs(coef - ref).max() < 1e-9 * np.abs(ref).max()
+    for broken in ("zero", "collinear"):
+        Xb = X.copy()
+        Xb[3] = 0.0 if broken == "zero" else 0.5 * Xb[0]
+        coef = _normal_solve(Xb @ Xb.T, Xb @ Y.T)
+        ref = np.linalg.lstsq(Xb.T, Y.T, rcond=None)[0]
+        assert np.abs(coef.T @ Xb - ref.T @ Xb).max() < 1e-9 * np.abs(Y).max()
+        assert np.isfinite(coef).all() and np.abs(coef).max() < 10 * np.abs(ref).max()
+
+
 def test_the_block_sums_are_the_rows_summed_and_serve_their_own_log_only():
     """The block sums hse-opt align takes once for the quality checks and the Allan analysis
     (block_sums): each block's rows summed (by numpy's reduceat, here), 32 samples (64 ms) at

@@ -547,20 +547,74 @@ def _fit_residual(log, block, y):
     t, enc = np.asarray(log.t, dtype=float), np.asarray(log.encoder, dtype=float)
     nb = y.shape[1]
     stop = nb * block + 1
-    a, te = enc[:stop:block], t[:stop:block]
+    # the block edges gathered once (each strided read of the record touches a cache line an edge)
+    a, te = enc[:stop:block].copy(), t[:stop:block].copy()
     rate = float((a[-1] - a[0]) / (te[-1] - te[0]))
     ce, se = _cos_sin(a)
     X = _regressors(ce[:-1], se[:-1], np.diff(a), np.diff(te), rate)        # (4, nb)
     with one_thread():       # (the same bytes whatever the threads: hse_opt.align._blas)
         G, H = X @ X.T, X @ y.T
-        norm = np.sqrt(np.diagonal(G)).copy()
-        norm[norm == 0] = 1.0
-        ev, V = np.linalg.eigh(G / np.outer(norm, norm))                # scaled columns
-        keep = ev > 1e-12 * ev[-1]
-        coef = ((V[:, keep] / ev[keep]) @ (V[:, keep].T @ (H / norm[:, None]))) / norm[:, None]
+        coef = _normal_solve(G, H)
         residual = y - coef.T @ X
     return Residual(blocks=residual, tau0=float((te[-1] - te[0]) / nb), block=block,
                     coefficients=coef, rate=rate, edge_cos=ce, edge_sin=se, regressors=X)
+
+
+def _normal_solve(G, H):
+    """The least-squares coefficients (k, c) from the normal equations ``G coef = H`` (G (k, k)
+    symmetric positive semi-definite, H (k, c)), the columns scaled to unit norm: a term whose
+    column is zero or that the others determine (an eigenvalue of the scaled matrix below
+    1e-12 of the largest: the table's jitter with a perfect encoder, the sinusoid of a table
+    at rest) is left out by the eigen-decomposition's pseudo-inverse. Where the scaled
+    matrix's determinant (the product of its eigenvalues) exceeds ``1e-12 k^k``, which
+    ``trace = k`` makes the bound of every eigenvalue above 1e-12 of the largest, its inverse is
+    the pseudo-inverse and comes from an LDL^T factorisation in Python floats: no LAPACK
+    call, whose first after the alignment has run costs tens of microseconds."""
+    k = G.shape[0]
+    norm = np.sqrt(np.diagonal(G)).copy()
+    norm[norm == 0] = 1.0
+    Gs = G / np.outer(norm, norm)
+    Hs = H / norm[:, None]
+    inv = _ldl_inverse(Gs.tolist(), 1e-12 * k ** k)
+    if inv is None:
+        ev, V = np.linalg.eigh(Gs)
+        keep = ev > 1e-12 * ev[-1]
+        return ((V[:, keep] / ev[keep]) @ (V[:, keep].T @ Hs)) / norm[:, None]
+    return (np.array(inv) @ Hs) / norm[:, None]
+
+
+def _ldl_inverse(A, det_min):
+    """The inverse (nested lists) of the small symmetric matrix ``A`` (nested lists of floats)
+    by ``A = L D L^T`` without pivoting, or None where a pivot is not positive or their
+    product, the determinant, is not above ``det_min``."""
+    k = len(A)
+    L = [row[:] for row in A]                  # L (unit lower, below the diagonal) and D in place
+    det = 1.0
+    for j in range(k):
+        Lj = L[j]
+        for m in range(j):
+            Lj[j] -= Lj[m] * Lj[m] * L[m][m]
+        dj = Lj[j]
+        det *= dj
+        if not dj > 0.0:
+            return None
+        for i in range(j + 1, k):
+            Li = L[i]
+            for m in range(j):
+                Li[j] -= Li[m] * Lj[m] * L[m][m]
+            Li[j] /= dj
+    if not det > det_min:
+        return None
+    # M = L^-1 (unit lower triangular), then A^-1 = M^T D^-1 M
+    M = [[1.0 if i == j else 0.0 for j in range(k)] for i in range(k)]
+    for i in range(k):
+        for j in range(i):
+            x = 0.0
+            for m in range(j, i):
+                x -= L[i][m] * M[m][j]
+            M[i][j] = x
+    W = [[M[m][i] / L[m][m] for i in range(k)] for m in range(k)]      # D^-1 M
+    return [[sum(M[m][i] * W[m][j] for m in range(max(i, j), k)) for j in range(k)] for i in range(k)]
 
 
 @functools.lru_cache(maxsize=32)
