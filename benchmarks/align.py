@@ -2,7 +2,7 @@
 
 1. The alignment of one 10-minute 500 Hz raw log (the paper-like default system, 40 deg/s),
    reading excluded (target <= 20 ms); its quality checks (``hse_opt.align.quality.assess``,
-   with the block sums it shares with the Allan analysis: ``hse_opt.align.noise.block_sums``)
+   with the block sums it shares with the Allan analysis: ``hse_opt.align.blocks.block_sums``)
    and Allan analysis (``hse_opt.align.noise.noise_from_log`` on those sums), as ``hse-opt
    align`` runs them (issue 25: together <= 50 % of the alignment; BLAS on one thread, as the
    command line loads it); the reading of its ``.npz`` file.
@@ -33,7 +33,8 @@ _one_blas_thread()          # BLAS as the command line runs it (one thread), bef
 
 import numpy as np  # noqa: E402
 
-from hse_opt.align.noise import block_sums, noise_from_log
+from hse_opt.align.blocks import block_sums
+from hse_opt.align.noise import noise_from_log
 from hse_opt.align.quality import assess
 from hse_opt.sim import (AlignConfig, RawLog, RunSpec, TruthConfig, align, align_config_from_truth, generate,
                          load_rawlog, save_rawlog, save_truth)

@@ -305,7 +305,7 @@ def test_the_clusters_shorter_than_a_block_are_allantools_oadev_of_the_stretches
     every sample here with numpy's cos and sin of the mid-sample encoder angle, the variances
     of the stretches averaged (each has as many start points). Within 1e-12."""
     allantools = pytest.importorskip("allantools", reason="allantools is a test extra (pyproject [test])")
-    from hse_opt.align.noise import deterministic_residual
+    from hse_opt.align.blocks import deterministic_residual
     from hse_opt.sim import TruthConfig
     log = _sim_log(TruthConfig.default(), 4, duration=60.0)
     fig = noise_from_log(log)
@@ -345,10 +345,10 @@ def test_a_noise_free_simulated_log_leaves_nothing():
 
 @pytest.mark.parametrize("top, bound", [(1e-3, 5e-14), (0.03, 2e-12), (0.2, 3e-9), (1.5, 1e-15)])
 def test_small_angles_cos_sin_and_sinc_by_series_within_their_stated_errors(top, bound):
-    """noise._cos_sin_small's series (and numpy's above _SERIES_MAX) against numpy's cos, sin
+    """blocks._cos_sin_small's series (and numpy's above _SERIES_MAX) against numpy's cos, sin
     and sinc, within the errors its docstring states for the largest angle ``top`` (the sinc's:
     the sine's over ``top``)."""
-    from hse_opt.align.noise import _cos_sin_small
+    from hse_opt.align.blocks import _cos_sin_small
     d = np.linspace(-top, top, 2001)
     c, s, sinc = _cos_sin_small(d, sinc=True)
     assert np.abs(c - np.cos(d)).max() < bound and np.abs(s - np.sin(d)).max() < bound
@@ -358,9 +358,9 @@ def test_small_angles_cos_sin_and_sinc_by_series_within_their_stated_errors(top,
 
 
 def test_cos_sin_of_a_nearly_linear_angle_is_numpys():
-    """noise._cos_sin (short phase tables, the deviation by series) against numpy's on a turning
+    """blocks._cos_sin (short phase tables, the deviation by series) against numpy's on a turning
     table's edge angles with jitter, and on a stall (numpy's own route)."""
-    from hse_opt.align.noise import _cos_sin
+    from hse_opt.align.blocks import _cos_sin
     rng = np.random.default_rng(3)
     a = 0.7 + 0.02 * np.arange(9376) + 1e-4 * rng.standard_normal(9376)
     c, s = _cos_sin(a)
@@ -371,11 +371,11 @@ def test_cos_sin_of_a_nearly_linear_angle_is_numpys():
 
 
 def test_the_deterministic_fits_normal_equations_are_least_squares_or_leave_out_what_is_undetermined():
-    """noise._normal_solve against numpy's SVD least squares: the coefficients where the
+    """blocks._normal_solve against numpy's SVD least squares: the coefficients where the
     regressors determine them (by the LDL^T route), the fitted values where a column is zero or
     two are collinear (a perfect encoder's jitter term, a table at rest: the eigen route), with
     no coefficient blown up by the undetermined direction."""
-    from hse_opt.align.noise import _normal_solve
+    from hse_opt.align.blocks import _normal_solve
     rng = np.random.default_rng(7)
     X = rng.standard_normal((4, 300)) * np.array([[1e-3], [2e-3], [2e-3], [1e-5]])
     Y = rng.standard_normal((6, 300)) * 1e-6 + np.array([1.0, -2.0, 0.5, 3.0]) @ X
@@ -397,7 +397,7 @@ def test_the_block_sums_are_the_rows_summed_and_serve_their_own_log_only():
     500 Hz; the analysis gives the same figures with them as without; a changed copy of the
     log (as a repair makes) is summed anew, not read from the original's sums."""
     from hse_opt.align import RawLog
-    from hse_opt.align.noise import block_sums
+    from hse_opt.align.blocks import block_sums
     from hse_opt.sim import TruthConfig
     log = _sim_log(TruthConfig.default(), 5, duration=60.0)
     s = block_sums(log)

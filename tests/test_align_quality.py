@@ -368,12 +368,12 @@ def test_an_accelerometer_spike_is_repaired(clean):
 
 def test_the_windows_shared_with_the_allan_analysis_are_the_samples_summed_and_find_a_spike(clean):
     """hse-opt align sums the channels once for the checks and the Allan analysis
-    (hse_opt.align.noise.block_sums): at 500 Hz a window is 8 of the analysis' 64-ms blocks.
+    (hse_opt.align.blocks.block_sums): at 500 Hz a window is 8 of the analysis' 64-ms blocks.
     The window sums taken from those blocks are the samples' own (numpy's reduceat over the
     rows, here), and a spike is found at its sample with them, with the same finding and repair
     as from the samples; another log's sums (the clean log's, which hold no spike) are not used
     for this one."""
-    from hse_opt.align.noise import block_sums
+    from hse_opt.align.blocks import block_sums
     from hse_opt.align.quality import _channel_sums, _windows
     log, _ = clean
 
@@ -652,11 +652,11 @@ def test_a_gyro_error_just_above_the_threshold_is_found_wherever_it_falls_in_a_b
 
 def test_check_3b_finds_the_same_with_the_passes_shared_with_the_allan_analysis(clean):
     """hse-opt align takes check 3b's weighted sums of the gyros and the encoder with the block
-    sums (hse_opt.align.noise.block_sums) instead of in the check: the same findings and
+    sums (hse_opt.align.blocks.block_sums) instead of in the check: the same findings and
     repaired log as the check's own passes over the samples, for an error just above check
     3b's threshold in each gyro and for a log whose encoder check 1 repairs first (the
     repaired encoder's sums taken anew)."""
-    from hse_opt.align.noise import block_sums
+    from hse_opt.align.blocks import block_sums
     log, _ = clean
     cases = []
     for j in range(3):

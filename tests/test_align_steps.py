@@ -36,7 +36,7 @@ def test_the_block_sums_carry_check_3bs_weighted_sums_for_their_own_arrays_only(
     ones, the encoder's) gives the bytes weighted_sums takes from the samples themselves; a
     repaired copy's arrays are summed anew; the Allan analysis alone (checks=False) takes
     neither, and its plain sums are the same."""
-    from hse_opt.align.noise import block_sums
+    from hse_opt.align.blocks import block_sums
     s = block_sums(log)
     h, nb = s.block, s.sums.shape[1]
     W, E = steps.weighted_sums(log.encoder, log.gyro, h, nb)
@@ -67,7 +67,7 @@ def test_the_encoder_steps_seen_in_one_pass_are_numpys_and_the_steps_are_taken_o
     4000): numpy's own figures of np.diff; the steps are not kept, but given when asked for;
     the quanta made from them are the quanta made from the log."""
     from hse_opt.align._quanta import Quanta
-    from hse_opt.align.noise import block_sums
+    from hse_opt.align.blocks import block_sums
     s = block_sums(log)
     seen, d = s.encoder_steps, np.diff(log.encoder)
     assert seen.encoder is log.encoder and "steps" not in vars(seen)
@@ -115,7 +115,7 @@ def test_statistic_matches_its_per_sample_definition(log):
     definition computed sample by sample (the fitted part's per-sample terms, the encoder's
     steps in the ratio beta) within 0.2 % of its robust 1-sigma; a 0.2-arcsec step in gyro_y
     shows as d (1 - |p - p0| / K) at its peak."""
-    from hse_opt.align.noise import deterministic_residual
+    from hse_opt.align.blocks import deterministic_residual
     k0 = 20011
     bad = log.gyro.copy()
     bad[k0, 1] += 0.2 * ARCSEC

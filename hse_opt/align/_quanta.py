@@ -74,7 +74,7 @@ def encoder_quantum(enc, resolution):
 @dataclass(frozen=True, eq=False)
 class EncoderSteps:
     """What the checks read of the encoder's steps ``alpha_k - alpha_{k-1}`` over the whole
-    log, from one pass over them (:meth:`of`; :func:`hse_opt.align.noise.block_sums` makes it
+    log, from one pass over them (:meth:`of`; :func:`hse_opt.align.blocks.block_sums` makes it
     with the pass it takes for check 3b's sums): their extremes, the table's step and its
     robust 1-sigma, and the first steps the encoder's count is seen in. The steps themselves
     (a record's size) are not kept: :attr:`steps` takes them again when a check needs them

@@ -13,7 +13,8 @@ import numpy as np
 
 from hse_opt import units
 from hse_opt.align._blas import one_thread
-from hse_opt.align.noise import NOISE_COLUMNS, block_sums, combine_noise, noise_from_log
+from hse_opt.align.blocks import block_sums
+from hse_opt.align.noise import NOISE_COLUMNS, combine_noise, noise_from_log
 from hse_opt.align.processor import align, latitude_of
 from hse_opt.align.mapping import read_mapped
 from hse_opt.align.quality import assess

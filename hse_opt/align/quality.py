@@ -164,7 +164,7 @@ import numpy as np
 from hse_opt import units
 from hse_opt.align._blas import block_dot
 from hse_opt.align.rotations import EARTH_RATE
-from hse_opt.align.noise import _block_sums, deterministic_residual
+from hse_opt.align.blocks import _block_sums, deterministic_residual
 from hse_opt.align.metadata import encoder_counts, metadata_problems
 from hse_opt.align.steps import block_period, check_steps
 from hse_opt.align._quanta import Quanta
@@ -502,7 +502,7 @@ def _window_sums(x, L, m):
 
 def _channel_sums(log, L, m, sums):
     """The six channels' window sums, shape (m, 6): from the Allan analysis' block sums
-    ``sums`` (:class:`~hse_opt.align.noise.BlockSums`) when they are this log's and a window
+    ``sums`` (:class:`~hse_opt.align.blocks.BlockSums`) when they are this log's and a window
     is a whole number of their blocks (the default windows at 125 x 2^k Hz: ``k`` blocks each,
     by a matrix-vector product, 0.012 ms against ``einsum``'s 0.021 for 1171 windows of 8),
     else summed here."""
@@ -865,8 +865,8 @@ def assess(log, *, thresholds=None, temperature=None, encoder_counts_per_rev=Non
         ``encoder.counts_per_rev``); the log's metadata ``encoder_counts_per_rev`` serves when
         this is None, and the two differing refuses the log. Its count, ``2 pi / counts``, is
         the encoder's quantum in checks 1 and 3 (module docstring, *Encoder resolution*).
-    sums : hse_opt.align.noise.BlockSums, optional
-        The log's block sums for the Allan analysis (:func:`hse_opt.align.noise.block_sums`),
+    sums : hse_opt.align.blocks.BlockSums, optional
+        The log's block sums for the Allan analysis (:func:`hse_opt.align.blocks.block_sums`),
         taken once for both: check 3's window sums come from them when they are this log's and
         a window is a whole number of their blocks (8 at the default 500 Hz), else from the
         samples.

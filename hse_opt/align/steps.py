@@ -16,7 +16,7 @@ encoder count of quantization. But a counter carries its remainder, so its error
 The statistic
 -------------
 For each gyro the cumulative residual ``e``: each increment less the table's deterministic part,
-the Allan analysis' fit (:func:`hse_opt.align.noise.deterministic_residual`: a constant rate,
+the Allan analysis' fit (:func:`hse_opt.align.blocks.deterministic_residual`: a constant rate,
 the Earth's rate and gravity's leak turning with the table), except that the encoder's steps
 beyond the mean rate (the table's jitter, real motion that the gyros sense too) are taken off
 in the ratio ``beta_j`` of each gyro's mean rate to the encoder's (:func:`shares`), not in the
@@ -34,7 +34,7 @@ block's plain sum of the residual (the Allan analysis' own) and its weighted sum
 7/8 of it at least; the step's exact sample comes from the per-sample statistic around the peak.
 What 3b adds to the Allan analysis' sums and fit on a 10-minute 500 Hz log is the gyros' and
 the encoder's weighted sums (one pass over each; ``hse-opt align`` takes them with the block
-sums, :func:`hse_opt.align.noise.block_sums`), moving sums and the slow part's fit over
+sums, :func:`hse_opt.align.blocks.block_sums`), moving sums and the slow part's fit over
 9,375 block edges (the table angle's cos and sin there are the fit's), and the robust
 1-sigma from every ``K``-th of them.
 
@@ -71,7 +71,7 @@ import numpy as np
 from hse_opt import units
 from hse_opt.align._blas import block_dot, one_thread
 from hse_opt.align._stats import MAD as _MAD, median as _median
-from hse_opt.align.noise import BLOCK_PERIOD, _weighted_block_sums, _weighted_step_sums
+from hse_opt.align.blocks import BLOCK_PERIOD, _weighted_block_sums, _weighted_step_sums
 
 __all__ = ["block_period", "weighted_sums", "weighted_regressors", "shares", "check_steps", "find_steps",
            "step_statistic", "GRID"]
@@ -100,8 +100,8 @@ def weighted_sums(enc, gyro, h, nb, sums=None):
         Gyro increments, rad.
     h, nb : int
         Increments a block, blocks.
-    sums : hse_opt.align.noise.BlockSums, optional
-        The log's block sums with the checks' passes (:func:`hse_opt.align.noise.block_sums`):
+    sums : hse_opt.align.blocks.BlockSums, optional
+        The log's block sums with the checks' passes (:func:`hse_opt.align.blocks.block_sums`):
         their weighted sums are taken where they are of these very arrays (a repaired copy is
         summed here) over these blocks; the same bytes as summed here.
 
@@ -127,7 +127,7 @@ def weighted_sums(enc, gyro, h, nb, sums=None):
 
 
 def weighted_regressors(residual, E):
-    """The deterministic part's regressors (:class:`hse_opt.align.noise.Residual`) summed with
+    """The deterministic part's regressors (:class:`hse_opt.align.blocks.Residual`) summed with
     the weights of :func:`weighted_sums`, shape (4, nb).
 
     Within a block of ``h`` samples the angle is taken as linear (as the regressors are): with
@@ -164,7 +164,7 @@ def step_statistic(t, enc, gyro, residual, beta, sums=None):
         The encoder angle, rad (unwrapped).
     gyro : numpy.ndarray, shape (n, 3)
         Gyro increments, rad.
-    residual : hse_opt.align.noise.Residual
+    residual : hse_opt.align.blocks.Residual
         The deterministic part fitted out of these samples' block sums (its block ``h``; the
         span ``K = GRID h``).
     beta : numpy.ndarray, shape (3,)
@@ -172,7 +172,7 @@ def step_statistic(t, enc, gyro, residual, beta, sums=None):
         taken off the gyros in this ratio (a step of the encoder alone then shows in all
         three in it), not in the fit's jitter coefficients, which a smooth table leaves
         undetermined.
-    sums : hse_opt.align.noise.BlockSums, optional
+    sums : hse_opt.align.blocks.BlockSums, optional
         The log's block sums, for :func:`weighted_sums`.
 
     Returns
@@ -341,7 +341,7 @@ def check_steps(t, enc, gyro, residual, *, jitter, q, qe, level, floor, bound, m
     ----------
     t, enc, gyro, residual
         As :func:`step_statistic` (the residual's blocks of :func:`block_period`, at least
-        :data:`hse_opt.align.noise.MIN_BLOCKS` of them).
+        :data:`hse_opt.align.blocks.MIN_BLOCKS` of them).
     jitter : float
         The table's jitter in angle, rad (1/sqrt(2) of the encoder steps' robust 1-sigma).
     q : numpy.ndarray, shape (3,)
@@ -357,7 +357,7 @@ def check_steps(t, enc, gyro, residual, *, jitter, q, qe, level, floor, bound, m
     spikes : collection of (int, int)
         ``(row, channel)`` of the spikes check 3 repaired: a step within a span of one is
         what that repair left (the neighbours' noise), taken off without a finding of its own.
-    sums : hse_opt.align.noise.BlockSums, optional
+    sums : hse_opt.align.blocks.BlockSums, optional
         The log's block sums, for :func:`weighted_sums`.
 
     Returns
