@@ -29,14 +29,18 @@ def median(x):
 
 def row_median(x):
     """:func:`median` of each row of ``x``, a C-contiguous float array (n,) or (k, n) that is
-    partitioned in place (a temporary's: no copy)."""
+    partitioned in place (a temporary's: no copy).
+
+    One order statistic partitioned for: for an even ``n`` the lower middle one is the largest
+    of the values below the upper (the same value as a partition at both; numpy partitions at
+    one by its vectorised selection, at two by its scalar one: 6 times slower on fresh data,
+    0.05 ms for (3, 2342))."""
     n = x.shape[-1]
     h = n // 2
+    x.partition(h, axis=-1)
     if n % 2:
-        x.partition(h, axis=-1)
         return x[..., h]
-    x.partition((h - 1, h), axis=-1)
-    return (x[..., h - 1] + x[..., h]) / 2.0
+    return (x[..., :h].max(axis=-1) + x[..., h]) / 2.0
 
 
 def step_stats(d, taken=False):

@@ -70,7 +70,7 @@ import numpy as np
 
 from hse_opt import units
 from hse_opt.align._blas import block_dot, one_thread
-from hse_opt.align._stats import MAD as _MAD, median as _median
+from hse_opt.align._stats import MAD as _MAD, row_median as _row_median
 from hse_opt.align.blocks import BLOCK_PERIOD, _weighted_block_sums, _weighted_step_sums
 
 __all__ = ["block_period", "weighted_sums", "weighted_regressors", "shares", "check_steps", "find_steps",
@@ -299,9 +299,11 @@ def find_steps(t, enc, gyro, residual, beta, level, quant, floor, sums=None):
     D, p, local = step_statistic(t, enc, gyro, residual, beta, sums)
     # the robust 1-sigma: 1.4826 x the median of |D| (its fit holds a constant: D is centred on
     # 0), at every K (values a K apart are nearly independent)
-    sigma = _MAD * _median(np.abs(D[:, ::GRID]).T)
+    # (D is this call's own: its magnitude taken in place, all that is looked at here)
+    D = np.abs(D, out=D)
+    sigma = _MAD * _row_median(np.array(D[:, ::GRID]))
     thr = np.maximum(level * sigma + quant, floor)
-    bad = np.abs(D) > thr[:, None]
+    bad = D > thr[:, None]
     if not bad.any():
         return [], thr
     h, N = residual.block, t.size - 1
@@ -312,7 +314,7 @@ def find_steps(t, enc, gyro, residual, beta, level, quant, floor, sums=None):
         if not idx.size:
             continue
         for run in np.split(idx, np.flatnonzero(np.diff(idx) > 2 * GRID) + 1):
-            g0 = int(run[0]) + int(np.argmax(np.abs(D[j, run[0]:run[-1] + 1])))
+            g0 = int(run[0]) + int(np.argmax(D[j, run[0]:run[-1] + 1]))
             a, b = max(K, int(p[g0]) - h), min(N - K, int(p[g0]) + h + 1)
             d = local(j, a, b)
             i = int(np.argmax(np.abs(d)))
