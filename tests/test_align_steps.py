@@ -186,3 +186,37 @@ def test_jitter_from_every_29th_step_as_from_all_steps(n):
     d = np.diff(enc)
     assert np.array_equal(sub, d[::29] if d.size >= 2900 else d)
     assert _stats.step_stats(sub, True) == _stats.step_stats(d)
+
+
+@pytest.mark.parametrize("shape", [(1,), (2,), (7,), (2342,), (3, 2342), (8, 1171), (3, 10)])
+def test_row_median_is_numpys_median(shape):
+    """The checks' median (one partition; for an even count the lower middle value the largest
+    below the upper) equals numpy's, ties and all."""
+    from hse_opt.align import _stats
+    x = np.random.default_rng(shape[-1]).standard_normal(shape)
+    x[..., ::3] = np.round(x[..., ::3], 1)                    # ties
+    assert np.array_equal(_stats.row_median(x.copy()), np.median(x, axis=-1))
+    assert np.array_equal(_stats.median(x.T), np.median(x, axis=-1))
+
+
+def test_the_checks_normal_equations_give_numpys_least_squares():
+    """The slow model's coefficients (Cholesky in Python floats) against numpy's SVD least
+    squares on check 3's regressors, on every row, within 1e-13 of the largest; a regressor
+    dependent on the others is left to numpy's solve, as before."""
+    from hse_opt.align import _stats
+    rng = np.random.default_rng(11)
+    m = 1171
+    A = _stats.regressors(np.linspace(0.0, 40.0, m))
+    Y = A.T @ rng.standard_normal((5, 6)) + 1e-3 * rng.standard_normal((m, 6))
+    ref = np.linalg.lstsq(A.T, Y, rcond=None)[0]
+    got = _stats.fit(A, Y.T)
+    assert np.abs(got - ref).max() < 1e-13 * np.abs(ref).max()
+    keep = rng.random(m) > 0.1
+    ref = np.linalg.lstsq(A[:, keep].T, Y[keep], rcond=None)[0]
+    assert np.abs(_stats.fit(A, Y.T, keep) - ref).max() < 1e-13 * np.abs(ref).max()
+    N = A @ A.T
+    N[4] = N[3]
+    N[:, 4] = N[:, 3]                                         # the drift's square a copy of the drift
+    N[4, 4] *= 1.0 + 1e-14
+    R = A @ Y
+    assert np.array_equal(_stats.solve_normal(N, R), np.linalg.solve(N, R))

@@ -70,7 +70,7 @@ import numpy as np
 
 from hse_opt import units
 from hse_opt.align._blas import block_dot, one_thread
-from hse_opt.align._stats import MAD as _MAD, row_median as _row_median
+from hse_opt.align._stats import MAD as _MAD, row_median as _row_median, solve_normal as _solve_normal
 from hse_opt.align.blocks import BLOCK_PERIOD, _weighted_block_sums, _weighted_step_sums
 
 __all__ = ["block_period", "weighted_sums", "weighted_regressors", "shares", "check_steps", "find_steps",
@@ -215,7 +215,7 @@ def step_statistic(t, enc, gyro, residual, beta, sums=None):
     M[5:] = D[:, ::GRID]
     with one_thread():
         P = M @ M[:5].T                                  # (8, 5): the normal matrix and right sides
-        model = np.linalg.solve(P[:5], P[5:].T).T @ A
+        model = _solve_normal(P[:5], P[5:].T).T @ A
     g = np.asarray(gyro).T
     dt = residual.tau0 / h                           # the mean sample period (weighted_regressors)
 
