@@ -157,6 +157,7 @@ they come from the pass check 3b's sums of the encoder take:
 """
 from __future__ import annotations
 
+import functools
 import math
 from dataclasses import dataclass
 from statistics import NormalDist
@@ -532,8 +533,14 @@ def _level(th, tests, m):
     standard error 1.166 / sqrt(m)): e.g. 6.3 for 8 x 1171 tests (a 10-minute log's windows,
     six channels and two norms), 8.0 for 8 x 39 (20 s); 5.9 for a 10-minute log's 1171 rate
     windows."""
-    z = -NormalDist().inv_cdf(th.false_alarm / (2.0 * tests))
-    return z * (1.0 + 3.0 * 1.166 / math.sqrt(max(m, 1)))
+    return _z(th.false_alarm / (2.0 * tests)) * (1.0 + 3.0 * 1.166 / math.sqrt(max(m, 1)))
+
+
+@functools.lru_cache(maxsize=64)
+def _z(p):
+    """The standard normal's upper ``p`` quantile (once per log length: a few microseconds of
+    Python each)."""
+    return -NormalDist().inv_cdf(p)
 
 
 def _check_channels(t, enc, gyro, accel, turn, L, m, th, findings, X, quanta, middles=None):

@@ -126,7 +126,7 @@ def weighted_sums(enc, gyro, h, nb, sums=None):
     return W, E
 
 
-def weighted_regressors(residual, E):
+def weighted_regressors(residual, E, halved=False):
     """The deterministic part's regressors (:class:`hse_opt.align.blocks.Residual`) summed with
     the weights of :func:`weighted_sums`, shape (4, nb).
 
@@ -136,20 +136,33 @@ def weighted_regressors(residual, E):
     cos(u delta)``, ``B = sum u sin(u delta)``; ``B / A = cot(delta / 2) / 2 - h cot(h delta /
     2) / 2 = delta (h^2 - 1) / 12 (1 + delta^2 (h^2 + 1) / 60)`` to ``O(delta^5 h^4)``. The
     time's weighted sum is ``(h + 1) / 2`` times the block's (its coefficient less the jitter
-    term's share of it is the bias alone); the encoder's is ``E``, less the mean rate's."""
+    term's share of it is the bias alone); the encoder's is ``E``, less the mean rate's.
+    ``halved``: the first three rows divided by ``(h + 1) / 2`` (the factor left to the
+    coefficients: four passes fewer)."""
     X = residual.regressors
     h = residual.block
     half = 0.5 * (h + 1)
-    d = (X[3] + residual.rate * X[0]) / h            # the turn a sample, each block
-    c = d * ((h * h - 1) / 12.0) * (1.0 + d * d * ((h * h + 1) / 60.0))
+    # c / half, c = B / A: with d = (X[3] + rate X[0]) k1, k1 = (h^2 - 1) / (12 h half),
+    # c / half = d (1 + d^2 k2 / k1^2), k2 = (h^2 + 1) / (60 h^2)
+    k1 = (h * h - 1) / (12.0 * h * half)
     Xw = np.empty_like(X)
-    np.multiply(X[0], half, out=Xw[0])
-    np.multiply(X[1], half, out=Xw[1])
-    Xw[1] += c * X[2]
-    np.multiply(X[2], half, out=Xw[2])
-    Xw[2] -= c * X[1]
-    np.multiply(Xw[0], -residual.rate, out=Xw[3])
+    d = np.multiply(X[0], residual.rate * k1)
+    np.multiply(X[3], k1, out=Xw[0])
+    d += Xw[0]
+    c = np.multiply(d, d)
+    c *= ((h * h + 1) / (60.0 * h * h)) / (k1 * k1)
+    c += 1.0
+    c *= d
+    Xw[0] = X[0]
+    np.multiply(c, X[2], out=Xw[1])
+    Xw[1] += X[1]
+    np.multiply(c, X[1], out=Xw[2])
+    np.subtract(X[2], Xw[2], out=Xw[2])
+    np.multiply(X[0], half, out=Xw[3])               # (in this order: E less a term of its size)
+    Xw[3] *= -residual.rate
     Xw[3] += E
+    if not halved:
+        Xw[:3] *= half
     return Xw
 
 
@@ -192,8 +205,10 @@ def step_statistic(t, enc, gyro, residual, beta, sums=None):
     r = residual.blocks[:3] + np.multiply.outer(coef[3] - beta, X[3])       # the jitter in the ratio beta
     coef[3] = beta
     W, E = weighted_sums(enc, gyro, h, nb, sums)
+    C = coef.T.copy()                                # (3, 4): the halved rows' coefficients
+    C[:, :3] *= 0.5 * (h + 1)
     with one_thread():
-        rw = W - coef.T @ weighted_regressors(residual, E)
+        rw = W - C @ weighted_regressors(residual, E, halved=True)
     # block b's sum of e is rw_b + h e(end of block b - 1), e(end of b) = r_0 + .. + r_b; over the
     # GRID blocks after edge b less the GRID before, the e(end) terms leave h times the sum of r
     # over a triangle of 2 GRID - 1 blocks: one moving sum over GRID blocks of rw's change over
