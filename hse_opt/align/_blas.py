@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import contextlib
 import functools
+import sys
 
 import numpy as np
 
@@ -21,8 +22,10 @@ _NOTHING = contextlib.nullcontext()
 
 
 @functools.lru_cache(maxsize=1)
-def _controller():
-    """threadpoolctl's controller and its BLAS libraries' own controllers."""
+def _controller(modules):
+    """threadpoolctl's controller and its BLAS libraries' own controllers, made anew when the
+    number of imported modules ``modules`` has changed (a BLAS library comes with an import:
+    scipy's own, loaded after numpy's; a few milliseconds, never in a steady loop)."""
     from threadpoolctl import ThreadpoolController
     controller = ThreadpoolController()
     return controller, tuple(c for c in controller.lib_controllers if c.user_api == "blas")
@@ -32,7 +35,7 @@ def one_thread():
     """A context in which BLAS runs on one thread: nothing to do (well under a microsecond)
     where every BLAS library already runs on one (``hse-opt``: :mod:`hse_opt.app.cli` loads it
     so), else threadpoolctl's limit (5 microseconds to enter and leave)."""
-    controller, blas = _controller()
+    controller, blas = _controller(len(sys.modules))
     if all(c.get_num_threads() == 1 for c in blas):
         return _NOTHING
     return controller.limit(limits=1, user_api="blas")
