@@ -131,10 +131,10 @@ def fit(A, Y, keep=None):
 def solve_normal(N, R):
     """``N^-1 R`` for a small normal matrix ``N`` (k, k) of nearly orthogonal O(1) regressors
     (:func:`fit`; check 3b's slow part, :func:`hse_opt.align.steps.step_statistic`) and right
-    sides ``R`` (k, r): ``N = L L^T`` by Cholesky in Python floats, ``L^-1`` by substitution,
-    then ``L^-T (L^-1 R)``. No LAPACK call: the first of a routine after the alignment has run
-    costs tens of microseconds (0.037 ms for check 3's 5x5 ``numpy.linalg.solve`` against 0.01
-    here). ``numpy.linalg.solve`` where a pivot is not above ``1e-12`` of its diagonal entry (a
+    sides ``R`` (k, r): ``L^-T (L^-1 R)`` with ``L^-1`` from :func:`cholesky_inverse` (no
+    LAPACK call: the first of a routine after the alignment has run costs tens of
+    microseconds, 0.037 ms for check 3's 5x5 ``numpy.linalg.solve`` against 0.01 here);
+    ``numpy.linalg.solve`` where a pivot is not above ``1e-12`` of its diagonal entry (a
     regressor dependent on the others: as before).
 
     Parameters
@@ -147,15 +147,33 @@ def solve_normal(N, R):
     -------
     numpy.ndarray, shape (k, r)
     """
+    factor = cholesky_inverse(N)
+    if factor is None:
+        return np.linalg.solve(N, R)
+    Li = factor[0]
+    return Li.T @ (Li @ R)
+
+
+def cholesky_inverse(N, rtol=1e-12):
+    """``L^-1`` for ``N = L L^T`` (a small symmetric matrix (k, k)) by Cholesky in Python floats
+    and substitution, with ``det N`` (the product of the squared pivots); None where a squared
+    pivot is not above ``rtol`` of its diagonal entry (not positive definite, or nearly so).
+
+    Returns
+    -------
+    tuple of (numpy.ndarray, shape (k, k), lower triangular; float), or None
+    """
     k = N.shape[0]
     a = N.tolist()                                   # L in place, below and on the diagonal
+    det = 1.0
     for j in range(k):
         aj = a[j]
         d = aj[j]
         for m in range(j):
             d -= aj[m] * aj[m]
-        if not d > 1e-12 * N[j, j]:
-            return np.linalg.solve(N, R)
+        if not d > rtol * N[j, j]:
+            return None
+        det *= d
         d = math.sqrt(d)
         aj[j] = d
         for i in range(j + 1, k):
@@ -173,5 +191,4 @@ def solve_normal(N, R):
             for m in range(j, i):
                 x -= ai[m] * inv[m][j]
             row[j] = x / ai[i]
-    Li = np.array(inv)
-    return Li.T @ (Li @ R)
+    return np.array(inv), det

@@ -40,6 +40,7 @@ import numpy as np
 from hse_opt.align._angles import rotate
 from hse_opt.align._blas import block_dot, one_thread
 from hse_opt.align._quanta import EncoderSteps
+from hse_opt.align._stats import cholesky_inverse
 
 __all__ = ["BlockSums", "block_sums", "Residual", "deterministic_residual", "CHANNELS", "BLOCK_PERIOD",
            "MIN_BLOCKS"]
@@ -363,50 +364,18 @@ def _normal_solve(G, H):
     at rest) is left out by the eigen-decomposition's pseudo-inverse. Where the scaled
     matrix's determinant (the product of its eigenvalues) exceeds ``1e-12 k^k``, which
     ``trace = k`` makes the bound of every eigenvalue above 1e-12 of the largest, its inverse is
-    the pseudo-inverse and comes from an LDL^T factorisation in Python floats: no LAPACK
-    call, whose first after the alignment has run costs tens of microseconds."""
+    the pseudo-inverse and comes from a Cholesky factorisation in Python floats
+    (:func:`hse_opt.align._stats.cholesky_inverse`): no LAPACK call, whose first after the
+    alignment has run costs tens of microseconds."""
     k = G.shape[0]
     norm = np.sqrt(np.diagonal(G)).copy()
     norm[norm == 0] = 1.0
     Gs = G / np.outer(norm, norm)
     Hs = H / norm[:, None]
-    inv = _ldl_inverse(Gs.tolist(), 1e-12 * k ** k)
-    if inv is None:
+    factor = cholesky_inverse(Gs)
+    if factor is None or not factor[1] > 1e-12 * k ** k:
         ev, V = np.linalg.eigh(Gs)
         keep = ev > 1e-12 * ev[-1]
         return ((V[:, keep] / ev[keep]) @ (V[:, keep].T @ Hs)) / norm[:, None]
-    return (np.array(inv) @ Hs) / norm[:, None]
-
-
-def _ldl_inverse(A, det_min):
-    """The inverse (nested lists) of the small symmetric matrix ``A`` (nested lists of floats)
-    by ``A = L D L^T`` without pivoting, or None where a pivot is not positive or their
-    product, the determinant, is not above ``det_min``."""
-    k = len(A)
-    L = [row[:] for row in A]                  # L (unit lower, below the diagonal) and D in place
-    det = 1.0
-    for j in range(k):
-        Lj = L[j]
-        for m in range(j):
-            Lj[j] -= Lj[m] * Lj[m] * L[m][m]
-        dj = Lj[j]
-        det *= dj
-        if not dj > 0.0:
-            return None
-        for i in range(j + 1, k):
-            Li = L[i]
-            for m in range(j):
-                Li[j] -= Li[m] * Lj[m] * L[m][m]
-            Li[j] /= dj
-    if not det > det_min:
-        return None
-    # M = L^-1 (unit lower triangular), then A^-1 = M^T D^-1 M
-    M = [[1.0 if i == j else 0.0 for j in range(k)] for i in range(k)]
-    for i in range(k):
-        for j in range(i):
-            x = 0.0
-            for m in range(j, i):
-                x -= L[i][m] * M[m][j]
-            M[i][j] = x
-    W = [[M[m][i] / L[m][m] for i in range(k)] for m in range(k)]      # D^-1 M
-    return [[sum(M[m][i] * W[m][j] for m in range(max(i, j), k)) for j in range(k)] for i in range(k)]
+    Li = factor[0]
+    return (Li.T @ (Li @ Hs)) / norm[:, None]
