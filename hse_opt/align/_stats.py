@@ -1,6 +1,7 @@
 """Robust statistics of the raw-log checks (private): the exact median by partition, the
-Gaussian 1-sigma of a median absolute deviation and the encoder steps' centre and spread; shared by :mod:`hse_opt.align.quality` and
-its step check (:mod:`hse_opt.align.steps`); the window test's flags and its slow model's fit."""
+Gaussian 1-sigma of a median absolute deviation and the encoder steps' centre and spread;
+shared by :mod:`hse_opt.align.quality` and its step check (:mod:`hse_opt.align.steps`); the
+window test's flags and its slow model's fit."""
 from __future__ import annotations
 
 import functools

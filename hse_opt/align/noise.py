@@ -62,7 +62,8 @@ Steps
    noise dithers - an accelerometer on a static base - has a quantization error that is not
    white, and its shortest clusters sit up to 35 % below ``sqrt(3) Q / tau``; flicker bends),
    and the few shortest points, each worth tens of thousands of clusters, would otherwise
-   decide the whole fit (simulated accelerometers: VRW 17 % high; refitted, 3 %). The terms (rate units; angle for a gyro, velocity for an accelerometer):
+   decide the whole fit (simulated accelerometers: VRW 17 % high; refitted, 3 %). The terms
+   (rate units; angle for a gyro, velocity for an accelerometer):
 
    ==================  =====  ===================================================
    term                slope  from the coefficient

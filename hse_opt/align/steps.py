@@ -59,8 +59,9 @@ by less than that). Measured (``tests/test_align_quality.py``): at two times and
 gyros the ``d`` that moves the 10-minute heading by half its sigma (about 0.2 arcsec) is found
 at its sample (within 2) and, taken off, leaves the heading within a tenth of a sigma; 0.06
 arcsec (a third above the threshold) is found wherever it falls in a block, 0.05 at 5 of 9 places
-(as before this check shared the Allan analysis' blocks). False alarms (``studies/quality_false_alarms.py``): 0 in 3,600 clean logs
-of six systems, 20 s to 10 minutes (``--full``), and 0 in 240 at its CI size.
+(as before this check shared the Allan analysis' blocks). False alarms
+(``studies/quality_false_alarms.py``): 0 in 3,600 clean logs of six systems, 20 s to 10
+minutes (``--full``), and 0 in 240 at its CI size.
 """
 from __future__ import annotations
 
