@@ -209,7 +209,7 @@ def align_logs(paths, config, jobs=1, progress=None, client=None, *, mapping=Non
         (``t_{n-1} - t_0``, to the microsecond: the span the processor aligns; the first
         row's increments have no encoder angle at their start),
         ``pitch_arcsec``, ``roll_arcsec``, ``heading_std_arcsec`` (the filter's 1-sigma),
-        ``quality`` (:meth:`hse_opt.align.quality.Quality.summary`: ``ok``, or what was
+        ``quality`` (:meth:`hse_opt.align.findings.Quality.summary`: ``ok``, or what was
         repaired or noted before alignment), ``noise_source`` (:data:`NOISE_SOURCE_COLUMN`:
         where each of the filter's noise figures came from), the noise columns
         (:data:`hse_opt.align.noise.NOISE_COLUMNS`: ``gyro_arw_dph_rthz``, ...) and ``noise``

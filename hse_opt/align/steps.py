@@ -383,7 +383,7 @@ def check_steps(t, enc, gyro, residual, *, jitter, q, qe, level, floor, bound, m
     gyro : numpy.ndarray
         A repaired copy, or the input.
     findings : list of tuple
-        ``(check, sample, time, action, detail)`` (:class:`hse_opt.align.quality.Finding`'s
+        ``(check, sample, time, action, detail)`` (:class:`hse_opt.align.findings.Finding`'s
         fields).
     """
     N = t.size - 1
