@@ -127,9 +127,10 @@ def weighted_sums(enc, gyro, h, nb, sums=None):
     return W, E
 
 
-def weighted_regressors(residual, E, halved=False):
+def weighted_regressors(residual, E):
     """The deterministic part's regressors (:class:`hse_opt.align.blocks.Residual`) summed with
-    the weights of :func:`weighted_sums`, shape (4, nb).
+    the weights of :func:`weighted_sums`, the first three rows divided by ``(h + 1) / 2`` (the
+    factor left to the coefficients: four passes fewer), shape (4, nb).
 
     Within a block of ``h`` samples the angle is taken as linear (as the regressors are): with
     ``delta`` its turn a sample and ``u_i = i - (h + 1) / 2``, the weighted sum of the
@@ -137,9 +138,7 @@ def weighted_regressors(residual, E, halved=False):
     cos(u delta)``, ``B = sum u sin(u delta)``; ``B / A = cot(delta / 2) / 2 - h cot(h delta /
     2) / 2 = delta (h^2 - 1) / 12 (1 + delta^2 (h^2 + 1) / 60)`` to ``O(delta^5 h^4)``. The
     time's weighted sum is ``(h + 1) / 2`` times the block's (its coefficient less the jitter
-    term's share of it is the bias alone); the encoder's is ``E``, less the mean rate's.
-    ``halved``: the first three rows divided by ``(h + 1) / 2`` (the factor left to the
-    coefficients: four passes fewer)."""
+    term's share of it is the bias alone); the encoder's is ``E``, less the mean rate's."""
     X = residual.regressors
     h = residual.block
     half = 0.5 * (h + 1)
@@ -162,8 +161,6 @@ def weighted_regressors(residual, E, halved=False):
     np.multiply(X[0], half, out=Xw[3])               # (in this order: E less a term of its size)
     Xw[3] *= -residual.rate
     Xw[3] += E
-    if not halved:
-        Xw[:3] *= half
     return Xw
 
 
@@ -209,7 +206,7 @@ def step_statistic(t, enc, gyro, residual, beta, sums=None):
     C = coef.T.copy()                                # (3, 4): the halved rows' coefficients
     C[:, :3] *= 0.5 * (h + 1)
     with one_thread():
-        rw = W - C @ weighted_regressors(residual, E, halved=True)
+        rw = W - C @ weighted_regressors(residual, E)
     # block b's sum of e is rw_b + h e(end of block b - 1), e(end of b) = r_0 + .. + r_b; over the
     # GRID blocks after edge b less the GRID before, the e(end) terms leave h times the sum of r
     # over a triangle of 2 GRID - 1 blocks: one moving sum over GRID blocks of rw's change over
