@@ -280,6 +280,27 @@ def _sim_log(truth, seed, duration=120.0):
                     np.random.default_rng(seed))
 
 
+def test_a_term_the_logs_cannot_resolve_is_said_so_not_printed_as_zero():
+    """The printed figures: a simulated system with no flicker (the default truth) leaves the
+    gyros' bias instability at zero or within its 1-sigma of it: the line says it is not
+    resolved; white rate noise plus a flicker floor (the closed forms above) prints the bias
+    instability it resolves, and both print the angle random walk."""
+    from hse_opt.align.noise import NoiseFigures
+    from hse_opt.sim import TruthConfig
+    fig = noise_from_log(_sim_log(TruthConfig.default(), 4))
+    b, sb = fig.coefficients[:3, 2], fig.coefficients_std[:3, 2]
+    assert not (b > 2 * sb).any()                      # (NaN 1-sigma: held at zero)
+    text = fig.summary()
+    assert "bias instability not resolved by these logs" in text and "gyro ARW 0." in text
+    rng = np.random.default_rng(8)
+    x = _white_rate(rng, 3e-7, 6) + _flicker(rng, 1e-6, 6)
+    tau, adev, clusters = allan_deviation(x, TAU0)
+    coef, std = fit_allan(tau, adev, clusters)
+    assert (coef[:, 2] > 2 * std[:, 2]).all()
+    shown = NoiseFigures(tau=tau, adev=adev, clusters=clusters, coefficients=coef, coefficients_std=std).summary()
+    assert float(shown.split("bias instability ")[1].split(" deg/h")[0]) > 0
+
+
 def test_simulated_logs_give_the_truths_arw_vrw_and_quanta():
     from hse_opt.sim import TruthConfig
     # a noisier gyro than the default (0.05 deg/h/sqrt(Hz)): its white noise shows above the

@@ -230,13 +230,27 @@ class NoiseFigures:
         }
 
     def summary(self):
-        """One line of the figures in file units (the means over the three sensors)."""
+        """One line of the figures in file units (the means over the three sensors); a term that
+        no sensor of the three resolves (its coefficient held at zero by the non-negative fit, or
+        within twice its own 1-sigma of zero) is said to be not resolved by the logs, not printed
+        as a measured figure (its RUNS.csv column keeps the fitted mean)."""
         c = self.columns()
+        with np.errstate(invalid="ignore"):
+            held = ~(self.coefficients > 2.0 * self.coefficients_std)     # (6, 4); NaN: held at 0
+
+        def fig(key, term, group, text):
+            j = TERMS.index(term)
+            rows = slice(0, 3) if group == "gyro" else slice(3, 6)
+            return "not resolved by these logs" if held[rows, j].all() else text.format(c[key])
+
         return (f"gyro ARW {c['gyro_arw_dph_rthz']:.4g} deg/h/sqrt(Hz) ({c['gyro_arw_dph_rthz'] / 60:.3g} "
-                f"deg/sqrt(h)), bias instability {c['gyro_bias_instability_dph']:.3g} deg/h, quantization "
-                f"{c['gyro_quantization_arcsec']:.3g} arcsec, rate random walk {c['gyro_rrw_dph_rth']:.3g} "
-                f"deg/h/sqrt(h); accelerometer VRW {c['accel_vrw_ug_rthz']:.4g} ug/sqrt(Hz), bias instability "
-                f"{c['accel_bias_instability_ug']:.3g} ug, quantization {c['accel_quantization_mps']:.3g} m/s")
+                f"deg/sqrt(h)), bias instability "
+                + fig("gyro_bias_instability_dph", "bias_instability", "gyro", "{:.3g} deg/h")
+                + ", quantization " + fig("gyro_quantization_arcsec", "quantization", "gyro", "{:.3g} arcsec")
+                + ", rate random walk " + fig("gyro_rrw_dph_rth", "rate_random_walk", "gyro", "{:.3g} deg/h/sqrt(h)")
+                + f"; accelerometer VRW {c['accel_vrw_ug_rthz']:.4g} ug/sqrt(Hz), bias instability "
+                + fig("accel_bias_instability_ug", "bias_instability", "accel", "{:.3g} ug")
+                + ", quantization " + fig("accel_quantization_mps", "quantization", "accel", "{:.3g} m/s"))
 
 
 @functools.lru_cache(maxsize=32)
