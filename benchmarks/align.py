@@ -20,6 +20,12 @@
     python benchmarks/align.py               # 100 logs, --jobs 2
     python benchmarks/align.py --logs 20 --jobs 1
     python benchmarks/align.py --logs 0             # the single log only
+    python benchmarks/align.py --logs 0 --scaling   # also logs of 1-20 minutes
+
+3. With ``--scaling``: align and checks + Allan (CPU, medians) on logs of 1, 2, 5, 10 and 20
+   minutes, and a straight line through them: the fixed cost of each (independent of the log's
+   length) and its cost per minute of log. The ratio of the per-minute costs is what the
+   checks and the Allan analysis add to a long log's alignment, whatever their fixed cost.
 """
 import argparse
 import os
@@ -103,6 +109,34 @@ def one_log(repeats, path):
           f"{100 * statistics.median(tc) / statistics.median(tl):.0f} %  [{100 * min(tc) / min(tl):.0f}]")
 
 
+def scaling(repeats):
+    truth = TruthConfig.default()
+    cfg = align_config_from_truth(truth)
+    minutes = np.array([1.0, 2.0, 5.0, 10.0, 20.0])
+    costs = []
+    print(f"align and checks + Allan against the log's length (CPU, {repeats} repeats, medians):")
+    for m in minutes:
+        log = generate(truth, RunSpec(rate=40 * DEG_PER_S, azimuth=0.3, duration=60.0 * m, t_start=7200.0),
+                       np.random.default_rng(0))
+        align(log, cfg)
+        ta, tc = [], []
+        for _ in range(repeats + 1):
+            c0 = time.process_time()
+            align(log, cfg)
+            c1 = time.process_time()
+            sums = block_sums(log)
+            noise_from_log(assess(log, sums=sums).log, sums=sums)
+            c2 = time.process_time()
+            ta.append(c1 - c0)
+            tc.append(c2 - c1)
+        a, c = statistics.median(ta[1:]), statistics.median(tc[1:])
+        costs.append((a, c))
+        print(f"  {m:4.0f} min: align {1e3 * a:6.2f} ms, checks + Allan {1e3 * c:6.2f} ms ({100 * c / a:.0f} %)")
+    (sa, fa), (sc, fc) = (np.polyfit(minutes, col, 1) for col in np.transpose(costs))
+    print(f"  straight lines: align {1e3 * fa:.2f} ms + {1e3 * sa:.3f} ms/min, checks + Allan {1e3 * fc:.2f} ms + "
+          f"{1e3 * sc:.3f} ms/min: per minute of log they add {100 * sc / sa:.0f} % to the alignment")
+
+
 def directory(n_logs, jobs, workdir):
     truth = TruthConfig.default()
     save_truth(truth, os.path.join(workdir, "TRUTH.toml"))
@@ -143,9 +177,12 @@ def main():
     ap.add_argument("--logs", type=int, default=100, help="logs for part 2 (0: part 1 only)")
     ap.add_argument("--jobs", type=int, default=2)
     ap.add_argument("--repeats", type=int, default=20)
+    ap.add_argument("--scaling", action="store_true", help="also the costs against the log's length (part 3)")
     args = ap.parse_args()
     with tempfile.TemporaryDirectory() as workdir:
         one_log(args.repeats, os.path.join(workdir, "one.npz"))
+        if args.scaling:
+            scaling(args.repeats)
         if args.logs > 0:
             directory(args.logs, args.jobs, workdir)
 
