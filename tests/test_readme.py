@@ -76,7 +76,7 @@ def test_quickstart_is_the_two_commands_ci_runs():
     m = re.search(r"<!-- quickstart -->\s*```bash\n(.*?)```\s*<!-- /quickstart -->",
                   README.read_text(encoding="utf-8"), flags=re.S)
     assert m and m.group(1).splitlines() == ["pip install . && hse-opt demo",
-                                            "pip install '.[test]' && python -m pytest"]
+                                            "pip install -e '.[test]' && python -m pytest"]
 
 
 def test_every_skipped_block_says_why():

@@ -16,7 +16,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from hse_opt.align._stats import step_stats
+from hse_opt.align._stats import every_29th_step, step_stats
 
 __all__ = ["Quanta", "EncoderSteps", "quantum", "encoder_quantum", "QUANTUM_SAMPLES", "QUANTUM_CHANGES"]
 
@@ -100,12 +100,17 @@ class EncoderSteps:
     first: np.ndarray
 
     @classmethod
-    def of(cls, enc, steps=None):
+    def of(cls, enc, steps=None, extremes=None):
         """Of the encoder ``enc`` (n,), rad; ``steps``: its steps ``enc[1:] - enc[:-1]`` when
-        already taken (else taken here, and let go)."""
+        already taken (else taken here, and let go); ``extremes``: their largest and smallest
+        when already known (the compiled pass, :func:`hse_opt.align.blocks.block_sums`: the
+        steps are then not taken; the statistics read the same steps from ``enc``)."""
+        N = min(QUANTUM_SAMPLES, enc.shape[0] - 2)
+        if extremes is not None:
+            step, sigma = step_stats(every_29th_step(enc), taken=True)
+            return cls(enc, float(extremes[0]), float(extremes[1]), step, sigma, enc[2:N + 2] - enc[1:N + 1])
         steps = enc[1:] - enc[:-1] if steps is None else steps
         step, sigma = step_stats(steps)
-        N = min(QUANTUM_SAMPLES, steps.shape[0] - 1)
         return cls(enc, float(steps.max()), float(steps.min()), step, sigma, steps[1:N + 1].copy())
 
     @functools.cached_property

@@ -42,6 +42,11 @@ from hse_opt.align._blas import block_dot, one_thread
 from hse_opt.align._quanta import EncoderSteps
 from hse_opt.align._stats import cholesky_inverse
 
+try:            # the record's passes compiled (setup.py builds them where a C compiler is present)
+    import hse_opt.align._kernels as _kernels
+except ImportError:             # numpy's route: the same sums to rounding, slower
+    _kernels = None
+
 __all__ = ["BlockSums", "block_sums", "Residual", "deterministic_residual", "CHANNELS", "BLOCK_PERIOD",
            "MIN_BLOCKS"]
 
@@ -53,13 +58,37 @@ BLOCK_PERIOD = 0.064
 MIN_BLOCKS = 32
 
 
+def _rows(x):
+    """The columns of ``x`` (n, 3) as contiguous float64 rows (3, n) when they are (a
+    column-major log: :func:`_columns_compiled`), else None."""
+    rows = np.asarray(x).T
+    return rows if rows.dtype == np.float64 and rows.strides[1] == 8 else None
+
+
+def _columns_compiled(x, nb, block, out=None, weighted=None):
+    """:func:`_block_sums` of ``x`` (n, 3) by the compiled pass (:mod:`hse_opt.align._kernels`)
+    where it is built and the columns are contiguous float64 rows, else None; ``weighted``
+    (3, nb): also their weighted sums (:func:`_weighted_block_sums`), in the same read."""
+    rows = _rows(x) if _kernels is not None else None
+    if rows is None:
+        return None
+    out = np.empty((3, nb)) if out is None else out
+    for j in range(3):
+        _kernels.block_sums(rows[j], block, nb, out[j], None if weighted is None else weighted[j])
+    return out
+
+
 def _block_sums(x, stop, nb, block, out=None):
     """Sums of rows 1..stop-1 of ``x`` (n, 3) over blocks of ``block`` rows, shape (3, nb)
     (summed in the array's own memory order: a column-major array as a view of its columns,
-    by a matrix-vector product on one BLAS thread (:mod:`hse_opt.align._blas`), a row-major
-    one by ``reduceat``, 4 times faster there than a reshaped sum over the middle
-    axis; the quality checks use it too); written into ``out`` (3, nb) when given."""
+    by the compiled pass (:func:`_columns_compiled`) or else by a matrix-vector product on one
+    BLAS thread (:mod:`hse_opt.align._blas`), a row-major one by ``reduceat``, 4 times faster
+    there than a reshaped sum over the middle axis; the quality checks use it too); written
+    into ``out`` (3, nb) when given (its rows contiguous)."""
     x = np.asarray(x)
+    done = _columns_compiled(x, nb, block, out)
+    if done is not None:
+        return done
     if x.T.flags.c_contiguous:
         return block_dot(x.T[:, 1:stop].reshape(3, nb, block), np.ones(block), out=out)
     s = np.add.reduceat(x[1:stop], np.arange(0, nb * block, block), axis=0).T
@@ -72,12 +101,26 @@ def _block_sums(x, stop, nb, block, out=None):
 def _weighted_block_sums(x, nb, block):
     """The weighted sums of rows 1 .. nb block of ``x`` (n, 3) over blocks of ``block`` rows
     (row ``i`` of a block weighted ``block + 1 - i``), shape (3, nb), by a matrix-vector
-    product on one BLAS thread (:mod:`hse_opt.align._blas`); a row-major ``x`` is copied to
-    columns first. Check 3b's gyro sums (:func:`hse_opt.align.steps.weighted_sums`)."""
+    product on one BLAS thread (:mod:`hse_opt.align._blas`) or by the compiled pass
+    (:func:`_columns_compiled`); a row-major ``x`` is copied to columns first. Check 3b's gyro
+    sums (:func:`hse_opt.align.steps.weighted_sums`)."""
     g = np.asarray(x).T                              # (3, n): rows (a view for a column-major log)
     if g.strides[1] != g.itemsize:
         g = np.ascontiguousarray(g)                  # (a row-major log: the blocks as contiguous rows)
+    weighted = np.empty((3, nb))
+    if _columns_compiled(g.T, nb, block, weighted=weighted) is not None:
+        return weighted
     return block_dot(g[:, 1:nb * block + 1].reshape(3, nb, block), np.arange(block, 0, -1, dtype=float))
+
+
+def _encoder_weighted(enc, nb, block):
+    """The encoder's weighted sums over blocks of ``block`` steps (:func:`_weighted_step_sums`)
+    of the encoder ``enc`` (n,), rad, shape (nb,): by the compiled pass where it is built."""
+    if _kernels is not None and enc.dtype == np.float64 and enc.strides[0] == 8:
+        weighted = np.empty(nb)
+        _kernels.encoder_steps(enc, block, nb, weighted)
+        return weighted
+    return _weighted_step_sums(enc[1:nb * block + 1] - enc[:nb * block], nb, block)
 
 
 def _weighted_step_sums(steps, nb, block):
@@ -189,12 +232,32 @@ def block_sums(log, *, block_period=BLOCK_PERIOD, checks=True):
     if not checks:
         _block_sums(log.accel, stop, nb, block, out=sums[3:])
         return BlockSums(log=log, block=block, sums=sums)
+    compiled = _compiled_checks_pass(log, block, nb)
+    if compiled is not None:
+        return compiled
     weighted = _weighted_block_sums(log.gyro, nb, block)         # (while the gyros are in the cache)
     _block_sums(log.accel, stop, nb, block, out=sums[3:])
     enc = log.encoder
     steps = enc[1:] - enc[:-1]
     return BlockSums(log=log, block=block, sums=sums, weighted=weighted,
                      weighted_encoder=_weighted_step_sums(steps, nb, block), encoder_steps=EncoderSteps.of(enc, steps))
+
+
+def _compiled_checks_pass(log, block, nb):
+    """:func:`block_sums` with ``checks`` by the compiled pass (:mod:`hse_opt.align._kernels`:
+    one read of each array), or None where it is not built or the log's arrays are not
+    contiguous float64 rows (a row-major log)."""
+    enc = np.asarray(log.encoder)
+    if _kernels is None or enc.dtype != np.float64 or enc.strides[0] != 8 or enc.shape[0] < 2:
+        return None
+    sums, weighted = np.empty((6, nb)), np.empty((3, nb))
+    if _columns_compiled(log.gyro, nb, block, sums[:3], weighted) is None or \
+            _columns_compiled(log.accel, nb, block, sums[3:]) is None:
+        return None
+    weighted_encoder = np.empty(nb)
+    largest, smallest = _kernels.encoder_steps(enc, block, nb, weighted_encoder)
+    return BlockSums(log=log, block=block, sums=sums, weighted=weighted, weighted_encoder=weighted_encoder,
+                     encoder_steps=EncoderSteps.of(enc, extremes=(largest, smallest)))
 
 #: largest angle the series of :func:`_cos_sin_small` takes, rad (error |d|^7 / 5040 < 3e-9)
 _SERIES_MAX = 0.2

@@ -72,7 +72,7 @@ import numpy as np
 from hse_opt import units
 from hse_opt.align._blas import block_dot, one_thread
 from hse_opt.align._stats import MAD as _MAD, row_median as _row_median, solve_normal as _solve_normal
-from hse_opt.align.blocks import BLOCK_PERIOD, _weighted_block_sums, _weighted_step_sums
+from hse_opt.align.blocks import BLOCK_PERIOD, _encoder_weighted, _weighted_block_sums
 
 __all__ = ["block_period", "weighted_sums", "weighted_regressors", "shares", "check_steps", "find_steps",
            "step_statistic", "GRID"]
@@ -123,7 +123,7 @@ def weighted_sums(enc, gyro, h, nb, sums=None):
     if W is None:
         W = _weighted_block_sums(gyro, nb, h)
     if E is None:
-        E = _weighted_step_sums(enc[1:nb * h + 1] - enc[:nb * h], nb, h)
+        E = _encoder_weighted(enc, nb, h)
     return W, E
 
 

@@ -1,0 +1,154 @@
+"""The raw-log path's compiled passes over a record (hse_opt/align/_kernels.c, issue 25's
+benchmark): built wherever a C compiler is present, and against independent references: each
+block's sums against math.fsum (exactly rounded) of its samples, the encoder's extremes against
+numpy's max and min of np.diff, and everything the quality checks and the Allan analysis take
+of a log against numpy's route (the same figures, the same findings)."""
+import math
+import shutil
+
+import numpy as np
+import pytest
+
+from hse_opt.align import blocks
+from hse_opt.align.noise import noise_from_log
+from hse_opt.align.quality import assess
+from hse_opt.units import DEG_PER_S
+
+COMPILER = shutil.which("cc") or shutil.which("gcc") or shutil.which("clang")
+_kernels = blocks._kernels
+#: two routes' sums of a block of 32 (64) like-signed terms in different orders differ by a few
+#: units of the last place of the largest sum at most: 64 of them is a bound
+ROUNDING = 64 * np.finfo(float).eps
+needs_kernels = pytest.mark.skipif(_kernels is None, reason="hse_opt.align._kernels is not built (no C compiler "
+                                   "when the package was installed): numpy's route only")
+
+
+def test_the_kernels_are_built_where_a_compiler_is():
+    """setup.py's extension is optional (an install without a C compiler goes on without it);
+    with a compiler present a failed build must not pass unnoticed."""
+    if COMPILER is None:
+        pytest.skip("no C compiler (cc, gcc or clang) on PATH: the extension is optional")
+    assert _kernels is not None, "a C compiler is present but hse_opt.align._kernels was not built"
+
+
+def _exact_blocks(x, block, nb, weights=None):
+    """Each block's sum of x[1 + b block .. (b + 1) block] (weighted when given), by fsum."""
+    rows = x[1:nb * block + 1].reshape(nb, block)
+    if weights is not None:
+        rows = rows * weights                       # (each product rounded once)
+    return np.array([math.fsum(r) for r in rows]), np.abs(rows).sum(axis=1)
+
+
+@needs_kernels
+@pytest.mark.parametrize("block, nb", [(32, 101), (32, 100), (6, 37), (13, 20), (64, 9), (1, 50), (7, 1), (8, 0)])
+def test_a_channel_s_block_sums_are_its_samples_summed(block, nb):
+    """Sums and weighted sums (increment i of a block weighted block + 1 - i) within a few
+    units of the last place of the sum of magnitudes of the exactly rounded sums, for blocks of
+    a whole number of lanes (32, 64, 8), of lanes and a tail (13, 7), of a tail alone (6, 1),
+    odd and even counts; the plain sums are the same bytes whether the weighted ones are taken."""
+    rng = np.random.default_rng(block * 1000 + nb)
+    x = 8e-4 + 1e-6 * rng.standard_normal(nb * block + 1 + 3)          # a turning gyro's increments
+    s, w, s_alone = np.empty(nb), np.empty(nb), np.empty(nb)
+    _kernels.block_sums(x, block, nb, s, w)
+    _kernels.block_sums(x, block, nb, s_alone)
+    exact, mag = _exact_blocks(x, block, nb)
+    assert np.all(np.abs(s - exact) <= 4 * np.finfo(float).eps * mag)
+    exact_w, mag_w = _exact_blocks(x, block, nb, np.arange(block, 0, -1, dtype=float))
+    assert np.all(np.abs(w - exact_w) <= 8 * np.finfo(float).eps * mag_w)
+    assert np.array_equal(s, s_alone)
+
+
+@needs_kernels
+@pytest.mark.parametrize("n, block, nb", [(3201, 32, 100), (3230, 32, 100), (500, 6, 83), (40, 13, 3), (2, 1, 1)])
+def test_the_encoder_s_steps_extremes_and_weighted_sums(n, block, nb):
+    """The largest and smallest of all n - 1 steps (the tail past the blocks too) are numpy's
+    max and min of np.diff, bit for bit; a NaN step makes both NaN (as numpy's); the weighted
+    sums sum (enc[start + i] - enc[start]), i = 1 .. block, as fsum of the steps does."""
+    rng = np.random.default_rng(n)
+    enc = np.cumsum(np.full(n, 1.4e-3) + 1e-6 * rng.standard_normal(n))
+    enc[-1] += 0.01 if n > nb * block + 1 else 0.0                  # the largest step past the blocks
+    w = np.empty(nb)
+    largest, smallest = _kernels.encoder_steps(enc, block, nb, w)
+    d = np.diff(enc)
+    assert (largest, smallest) == (d.max(), d.min())
+    exact, mag = _exact_blocks(np.concatenate(([0.0], d)), block, nb, np.arange(block, 0, -1, dtype=float))
+    assert np.all(np.abs(w - exact) <= 8 * np.finfo(float).eps * mag)
+    enc[n // 2] = np.nan
+    assert all(math.isnan(v) for v in _kernels.encoder_steps(enc, block, nb, w))
+
+
+@needs_kernels
+def test_the_kernels_refuse_what_they_cannot_read():
+    x = np.zeros(65)
+    out = np.empty(2)
+    with pytest.raises(TypeError, match="float64"):
+        _kernels.block_sums(x.astype(np.float32), 32, 2, out)
+    with pytest.raises(ValueError, match="at least 65 needed"):
+        _kernels.block_sums(x[:64], 32, 2, out)
+    with pytest.raises(ValueError, match="sums: 1 values, at least 2 needed"):
+        _kernels.block_sums(x, 32, 2, out[:1])
+    with pytest.raises((TypeError, BufferError, ValueError)):
+        _kernels.block_sums(np.zeros((65, 2))[:, 0], 32, 2, out)      # not contiguous
+    with pytest.raises(ValueError, match="block >= 1"):
+        _kernels.encoder_steps(x, 0, 2, out)
+
+
+def _log(seed, rate_dps=40.0, duration=120.0, truth=None):
+    from hse_opt.sim import RunSpec, TruthConfig, generate
+    return generate(truth or TruthConfig.default(), RunSpec(rate=rate_dps * DEG_PER_S, azimuth=0.3, duration=duration,
+                                                            t_start=7200.0), np.random.default_rng(seed))
+
+
+def _both_routes(log, monkeypatch):
+    """(compiled, numpy): the block sums, the quality checks and the Allan figures by each."""
+    out = []
+    for kernels in (_kernels, None):
+        monkeypatch.setattr(blocks, "_kernels", kernels)
+        sums = blocks.block_sums(log)
+        quality = assess(log, sums=sums)
+        out.append((sums, quality, noise_from_log(quality.log, sums=sums)))
+    return out
+
+
+@needs_kernels
+@pytest.mark.parametrize("seed, rate_dps", [(1, 40.0), (2, -10.0), (3, 100.0)])
+def test_the_compiled_route_gives_numpy_s_figures_and_findings(seed, rate_dps, monkeypatch):
+    """A log's block sums within rounding of numpy's route, the encoder's statistics the same
+    bytes, the same findings (none on a clean log; a gyro's step and an encoder's jump found at
+    the same sample, with the same action), Allan deviations within 1e-8 relative and the IEEE
+    952 terms within 1e-9 of each channel's largest."""
+    log = _log(seed, rate_dps)
+    gyro, enc = log.gyro.copy(), log.encoder.copy()
+    gyro[20001, 1] += 1e-6                                          # a step of 0.2 arcsec
+    enc[40001] += 1.5e-4                                            # an encoder sample 30 arcsec off
+    faulty = type(log)(log.t, gyro, log.accel, enc, log.meta)
+    for case in (log, faulty):
+        (cs, cq, cn), (ns, nq, nn) = _both_routes(case, monkeypatch)
+        assert np.allclose(cs.sums, ns.sums, rtol=0, atol=ROUNDING * np.abs(ns.sums).max())
+        assert np.allclose(cs.weighted, ns.weighted, rtol=0, atol=ROUNDING * np.abs(ns.weighted).max())
+        assert np.allclose(cs.weighted_encoder, ns.weighted_encoder, rtol=1e-14, atol=0)
+        a, b = cs.encoder_steps, ns.encoder_steps
+        assert (a.largest, a.smallest, a.step, a.step_sigma) == (b.largest, b.smallest, b.step, b.step_sigma)
+        assert np.array_equal(a.first, b.first)
+        assert [(f.check, f.sample, f.action) for f in cq.findings] == \
+               [(f.check, f.sample, f.action) for f in nq.findings]
+        # (the residual is 1e-5 of the sums and less: their rounding moves it by 1e-11 of
+        # itself and the longest clusters' deviations by up to 5e-10; measured on these logs)
+        assert np.allclose(cn.adev, nn.adev, rtol=1e-8, atol=0)
+        scale = np.abs(nn.coefficients).max(axis=1, keepdims=True)
+        assert np.all(np.abs(cn.coefficients - nn.coefficients) <= 1e-9 * scale)
+    assert not _both_routes(log, monkeypatch)[0][1].findings
+    assert {f.check for f in _both_routes(faulty, monkeypatch)[0][1].findings} >= {"encoder"}
+
+
+@needs_kernels
+def test_a_row_major_log_takes_numpy_s_route(monkeypatch):
+    """A log whose channels are not contiguous rows (an (n, 3) C-ordered array, as a CSV reader
+    may give) is summed by numpy's route, with the same figures to rounding."""
+    from hse_opt.align import RawLog
+    log = _log(4)
+    rowmajor = RawLog(log.t, np.ascontiguousarray(log.gyro), np.ascontiguousarray(log.accel), log.encoder, log.meta)
+    assert blocks._rows(rowmajor.gyro) is None and blocks._rows(log.gyro) is not None
+    a, b = blocks.block_sums(log), blocks.block_sums(rowmajor)
+    assert np.allclose(a.sums, b.sums, rtol=0, atol=ROUNDING * np.abs(a.sums).max())
+    assert np.allclose(a.weighted, b.weighted, rtol=0, atol=ROUNDING * np.abs(a.weighted).max())
