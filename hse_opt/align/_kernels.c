@@ -198,6 +198,112 @@ encoder_blocks(const double *enc, Py_ssize_t n, Py_ssize_t B, Py_ssize_t nb, dou
     *smallest = any_nan ? NAN : m;
 }
 
+/* The Allan analysis' clusters shorter than a block (hse_opt/align/noise.py, _short_allan): in
+   each of `count` stretches of L increments starting after sample first[j] (a block edge), the
+   fitted deterministic part taken off every increment of the six channels - its angle by the
+   series of the deviation from the block edge's angle (the order numpy's route picks from the
+   largest deviation of all stretches) and the angle-addition formulas - then, for each size m
+   (powers of two, ascending), the sum over the stretch of the squared differences of two
+   adjacent sums of m increments (the sums by doubling, as numpy's route takes them).
+   work: scratch of count L + 6 L values. */
+CLONES static void
+short_squares(const double *const x[6], const double *enc, const double *t, const long long *first,
+              Py_ssize_t count, Py_ssize_t L, Py_ssize_t block, const double *coef, double rate,
+              const double *ec, const double *es, const Py_ssize_t *sizes, Py_ssize_t k, double *ss,
+              double *work)
+{
+    double *mid = work, *X0 = work + count * L, *X1 = X0 + L, *X2 = X1 + L, *X3 = X2 + L;
+    double *r = X3 + L, *v = r + L;
+    double top = 0.0;
+    int nan = 0;
+    for (Py_ssize_t j = 0; j < count; j++) {
+        const Py_ssize_t s0 = (Py_ssize_t)first[j];
+        for (Py_ssize_t l0 = 0; l0 < L; l0 += block) {
+            const double edge = enc[s0 + l0];
+            const Py_ssize_t l1 = l0 + block < L ? l0 + block : L;
+            for (Py_ssize_t l = l0; l < l1; l++) {
+                const Py_ssize_t i = s0 + 1 + l;
+                const double d = ((enc[i] - enc[i - 1]) * 0.5 + enc[i - 1]) - edge;
+                mid[j * L + l] = d;
+                const double a = fabs(d);
+                top = a > top ? a : top;
+                nan |= d != d;
+            }
+        }
+    }
+    /* the series' order (hse_opt.align.blocks._cos_sin_small): 2 to 1e-3, 4 to 0.03, 6 to 0.2 */
+    const int order = nan || !(top <= 0.2) ? 0 : top <= 1e-3 ? 2 : top <= 0.03 ? 4 : 6;
+    for (Py_ssize_t j = 0; j < count; j++) {
+        const Py_ssize_t s0 = (Py_ssize_t)first[j];
+        const double *d = mid + j * L;
+        /* cos and sin of the deviations into X1, X2 */
+        for (Py_ssize_t l = 0; l < L; l++) {
+            const double q = d[l] * d[l];
+            if (order == 2) {
+                X1[l] = q * -0.5 + 1.0;
+                X2[l] = (q * (-1.0 / 6.0) + 1.0) * d[l];
+            } else if (order == 4) {
+                X1[l] = (q * (1.0 / 24.0) - 0.5) * q + 1.0;
+                X2[l] = ((q * (1.0 / 120.0) - 1.0 / 6.0) * q + 1.0) * d[l];
+            } else if (order == 6) {
+                X1[l] = 1.0 - q * (0.5 - q * (1.0 / 24.0 - q / 720.0));
+                X2[l] = (1.0 - q * (1.0 / 6.0 - q / 120.0)) * d[l];
+            } else {
+                X1[l] = cos(d[l]);
+                X2[l] = sin(d[l]);
+            }
+        }
+        /* the four regressors of each increment: dt, cos dt, sin dt, d alpha - rate dt */
+        for (Py_ssize_t l0 = 0; l0 < L; l0 += block) {
+            const Py_ssize_t b = s0 / block + l0 / block, l1 = l0 + block < L ? l0 + block : L;
+            const double ce = ec[b], se = es[b];
+            for (Py_ssize_t l = l0; l < l1; l++) {
+                const Py_ssize_t i = s0 + 1 + l;
+                const double h = t[i] - t[i - 1], cd = X1[l], sd = X2[l];
+                X0[l] = h;
+                X1[l] = (ce * cd - se * sd) * h;
+                X2[l] = (se * cd + ce * sd) * h;
+                X3[l] = (enc[i] - enc[i - 1]) - rate * h;
+            }
+        }
+        for (int c = 0; c < 6; c++) {
+            const double c0 = coef[c], c1 = coef[6 + c], c2 = coef[12 + c], c3 = coef[18 + c];
+            const double *xc = x[c] + s0 + 1;
+            for (Py_ssize_t l = 0; l < L; l++)
+                r[l] = xc[l] - (((c0 * X0[l] + c1 * X1[l]) + c2 * X2[l]) + c3 * X3[l]);
+            /* the sums of m increments by doubling (r and v in turn; entries i <= L - width are
+               sums within the stretch), the squared differences of adjacent ones */
+            Py_ssize_t width = 1;
+            double *cur = r, *nxt = v;
+            for (Py_ssize_t z = 0; z < k; z++) {
+                const Py_ssize_t m = sizes[z];
+                while (width < m) {
+                    const Py_ssize_t len = L - 2 * width + 1;
+                    for (Py_ssize_t i = 0; i < len; i++)
+                        nxt[i] = cur[i] + cur[i + width];
+                    double *tmp = cur;
+                    cur = nxt;
+                    nxt = tmp;
+                    width *= 2;
+                }
+                double acc[4] = {0, 0, 0, 0};
+                const Py_ssize_t nd = L - 2 * m + 1;
+                Py_ssize_t i = 0;
+                for (; i + 4 <= nd; i += 4)
+                    for (int u = 0; u < 4; u++) {
+                        const double e = cur[i + u + m] - cur[i + u];
+                        acc[u] += e * e;
+                    }
+                for (; i < nd; i++) {
+                    const double e = cur[i + m] - cur[i];
+                    acc[0] += e * e;
+                }
+                ss[(c * count + j) * k + z] = (acc[0] + acc[1]) + (acc[2] + acc[3]);
+            }
+        }
+    }
+}
+
 /* a C-contiguous float64 buffer of at least `need` elements (writable when asked) */
 static int
 doubles(PyObject *obj, Py_buffer *view, int writable, Py_ssize_t need, const char *name)
@@ -293,9 +399,143 @@ encoder_steps(PyObject *self, PyObject *args)
     return Py_BuildValue("dd", largest, smallest);
 }
 
+PyDoc_STRVAR(short_allan_doc,
+"short_allan(channels, enc, t, first, length, block, coef, rate, edge_cos, edge_sin, sizes, ss)\n--\n\n"
+"The squared differences of the Allan analysis' clusters shorter than a block (noise.py's\n"
+"_short_allan) into ss (6, count, len(sizes)): channels, six contiguous float64 rows (n,);\n"
+"enc, t (n,); first (count,) int64 stretch starts (block edges); coef (4, 6) the fitted\n"
+"coefficients; edge_cos, edge_sin the block edges' cos and sin; sizes ascending powers of two.");
+
+static PyObject *
+short_allan(PyObject *self, PyObject *args)
+{
+    PyObject *cho, *eo, *to, *fo, *co, *eco, *eso, *so, *sso;
+    Py_ssize_t L, block;
+    double rate;
+    if (!PyArg_ParseTuple(args, "OOOOnnOdOOOO:short_allan", &cho, &eo, &to, &fo, &L, &block, &co, &rate, &eco,
+                          &eso, &so, &sso))
+        return NULL;
+    PyObject *seq = PySequence_Fast(cho, "short_allan: channels must be a sequence of six arrays");
+    if (seq == NULL)
+        return NULL;
+    PyObject *sizes_seq = PySequence_Fast(so, "short_allan: sizes must be a sequence of ints");
+    if (sizes_seq == NULL) {
+        Py_DECREF(seq);
+        return NULL;
+    }
+    Py_buffer views[6], e, t, f, c, ec, es, ss;
+    int held = 0, ok = 0;
+    Py_ssize_t count = 0, k = PySequence_Fast_GET_SIZE(sizes_seq);
+    Py_ssize_t *sizes = NULL;
+    double *work = NULL;
+    if (PySequence_Fast_GET_SIZE(seq) != 6) {
+        PyErr_SetString(PyExc_ValueError, "short_allan: six channels are needed");
+        goto done;
+    }
+    if (L < 2 || block < 1 || k < 1) {
+        PyErr_SetString(PyExc_ValueError, "short_allan: length >= 2, block >= 1 and one size at least are needed");
+        goto done;
+    }
+    sizes = PyMem_Malloc(k * sizeof(Py_ssize_t));
+    if (sizes == NULL) {
+        PyErr_NoMemory();
+        goto done;
+    }
+    for (Py_ssize_t z = 0; z < k; z++) {
+        sizes[z] = PyLong_AsSsize_t(PySequence_Fast_GET_ITEM(sizes_seq, z));
+        if (sizes[z] == -1 && PyErr_Occurred())
+            goto done;
+        if (sizes[z] < 1 || (sizes[z] & (sizes[z] - 1)) || (z && sizes[z] <= sizes[z - 1]) || 2 * sizes[z] > L) {
+            PyErr_SetString(PyExc_ValueError, "short_allan: sizes must be ascending powers of two with 2 m <= length");
+            goto done;
+        }
+    }
+    if (PyObject_GetBuffer(fo, &f, PyBUF_FORMAT | PyBUF_C_CONTIGUOUS) < 0)
+        goto done;
+    held = 1;
+    if (f.itemsize != 8 || f.format == NULL || (strcmp(f.format, "q") != 0 && strcmp(f.format, "l") != 0)) {
+        PyErr_SetString(PyExc_TypeError, "short_allan: first must be a contiguous int64 array");
+        goto done;
+    }
+    count = f.len / 8;
+    const long long *first = (const long long *)f.buf;
+    if (doubles(eo, &e, 0, 2, "enc") < 0)
+        goto done;
+    held = 2;
+    const Py_ssize_t n = e.len / 8;
+    for (Py_ssize_t j = 0; j < count; j++)
+        if (first[j] < 0 || first[j] % block || first[j] + L >= n) {
+            PyErr_SetString(PyExc_ValueError, "short_allan: a stretch starts off a block edge or runs past the log");
+            goto done;
+        }
+    if (doubles(to, &t, 0, n, "t") < 0)
+        goto done;
+    held = 3;
+    if (doubles(co, &c, 0, 24, "coef") < 0)
+        goto done;
+    held = 4;
+    if (doubles(eco, &ec, 0, 1, "edge_cos") < 0)
+        goto done;
+    held = 5;
+    if (doubles(eso, &es, 0, ec.len / 8, "edge_sin") < 0)
+        goto done;
+    held = 6;
+    if (doubles(sso, &ss, 1, 6 * count * k, "ss") < 0)
+        goto done;
+    held = 7;
+    for (Py_ssize_t j = 0; j < count; j++)
+        if (first[j] / block + (L - 1) / block >= ec.len / 8) {
+            PyErr_SetString(PyExc_ValueError, "short_allan: edge_cos and edge_sin do not reach the stretches' blocks");
+            goto done;
+        }
+    const double *rows[6];
+    for (int i = 0; i < 6; i++) {
+        if (doubles(PySequence_Fast_GET_ITEM(seq, i), &views[i], 0, n, "channels") < 0)
+            goto done;
+        held = 8 + i;
+        rows[i] = (const double *)views[i].buf;
+    }
+    work = PyMem_Malloc((count * L + 6 * L) * sizeof(double));
+    if (work == NULL) {
+        PyErr_NoMemory();
+        goto done;
+    }
+    Py_BEGIN_ALLOW_THREADS
+    short_squares(rows, (const double *)e.buf, (const double *)t.buf, first, count, L, block,
+                  (const double *)c.buf, rate, (const double *)ec.buf, (const double *)es.buf, sizes, k,
+                  (double *)ss.buf, work);
+    Py_END_ALLOW_THREADS
+    ok = 1;
+done:
+    for (int i = 0; i < 6 && held >= 8 + i; i++)
+        PyBuffer_Release(&views[i]);
+    if (held >= 7)
+        PyBuffer_Release(&ss);
+    if (held >= 6)
+        PyBuffer_Release(&es);
+    if (held >= 5)
+        PyBuffer_Release(&ec);
+    if (held >= 4)
+        PyBuffer_Release(&c);
+    if (held >= 3)
+        PyBuffer_Release(&t);
+    if (held >= 2)
+        PyBuffer_Release(&e);
+    if (held >= 1)
+        PyBuffer_Release(&f);
+    PyMem_Free(work);
+    PyMem_Free(sizes);
+    Py_DECREF(sizes_seq);
+    Py_DECREF(seq);
+    if (!ok)
+        return NULL;
+    Py_RETURN_NONE;
+}
+
 static PyMethodDef methods[] = {
     {"block_sums", block_sums, METH_VARARGS, block_sums_doc},
     {"encoder_steps", encoder_steps, METH_VARARGS, encoder_steps_doc},
+    {"short_allan", short_allan, METH_VARARGS, short_allan_doc},
     {NULL, NULL, 0, NULL},
 };
 

@@ -226,15 +226,15 @@ def block_sums(log, *, block_period=BLOCK_PERIOD, checks=True):
         The log has fewer than :data:`MIN_BLOCKS` blocks.
     """
     block, nb = _blocking(log, block_period)
+    compiled = _compiled_checks_pass(log, block, nb) if checks else None
+    if compiled is not None:
+        return compiled
     stop = nb * block + 1
     sums = np.empty((6, nb))
     _block_sums(log.gyro, stop, nb, block, out=sums[:3])
     if not checks:
         _block_sums(log.accel, stop, nb, block, out=sums[3:])
         return BlockSums(log=log, block=block, sums=sums)
-    compiled = _compiled_checks_pass(log, block, nb)
-    if compiled is not None:
-        return compiled
     weighted = _weighted_block_sums(log.gyro, nb, block)         # (while the gyros are in the cache)
     _block_sums(log.accel, stop, nb, block, out=sums[3:])
     enc = log.encoder

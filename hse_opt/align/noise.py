@@ -107,6 +107,7 @@ import numpy as np
 from hse_opt import units
 from hse_opt.align._angles import rotate
 from hse_opt.align.allan_fit import MISFIT, MODEL_ERROR, _POWERS, fit_allan
+import hse_opt.align.blocks as _blocks
 from hse_opt.align.blocks import (BLOCK_PERIOD, CHANNELS, BlockSums, Residual, _cos_sin_small, block_sums,
                                   deterministic_residual)
 from hse_opt.align.processor import _vecdot
@@ -294,6 +295,10 @@ def _short_allan(log, residual, sizes, segments=SEGMENTS, length=SEGMENT_SAMPLES
     length = min(length, n)
     count = max(1, min(segments, n // length))
     first, edges, blocks, starts = _stretches(n, block, length, count)
+    compiled = _short_compiled(log, residual, t, enc, first, length, sizes, count)
+    if compiled is not None:
+        ms, norm, clusters = _short_plan(tuple(sizes), count, length)
+        return ms * dt, np.sqrt(compiled.sum(axis=1) / norm) / (ms * dt), clusters.copy()
     rows = 6 * count
     work = np.empty((2, rows * length))                           # r, then sums and d in turn
     r = work[0].reshape(6, count, length)
@@ -347,6 +352,22 @@ def _short_allan(log, residual, sizes, segments=SEGMENTS, length=SEGMENT_SAMPLES
         _vecdot(valid, valid, out=ss[:, i])
     adev = np.sqrt(ss.reshape(6, count, -1).sum(axis=1) / norm) / (ms * dt)
     return ms * dt, adev, clusters.copy()
+
+
+def _short_compiled(log, residual, t, enc, first, length, sizes, count):
+    """:func:`_short_allan`'s squared differences, shape (6, count, len(sizes)), by the compiled
+    kernel (:mod:`hse_opt.align._kernels`, the same steps in one pass a stretch) where it is
+    built and the log's arrays are contiguous float64 rows; else None (numpy's route)."""
+    kernels = _blocks._kernels
+    rows = [_blocks._rows(log.gyro), _blocks._rows(log.accel)] if kernels is not None else [None]
+    contiguous = all(a.dtype == np.float64 and a.strides[0] == 8 for a in (t, enc))
+    if any(r is None for r in rows) or not contiguous or any(m & (m - 1) for m in sizes):
+        return None
+    ss = np.empty((6, count, len(sizes)))
+    kernels.short_allan((*rows[0], *rows[1]), enc, t, first, length, residual.block,
+                        np.ascontiguousarray(residual.coefficients), residual.rate, residual.edge_cos,
+                        residual.edge_sin, [int(m) for m in sizes], ss)
+    return ss
 
 
 @functools.lru_cache(maxsize=32)
