@@ -9,13 +9,13 @@ import shutil
 import numpy as np
 import pytest
 
-from hse_opt.align import blocks
+from hse_opt.align import _compiled, blocks
 from hse_opt.align.noise import noise_from_log
 from hse_opt.align.quality import assess
 from hse_opt.units import DEG_PER_S
 
 COMPILER = shutil.which("cc") or shutil.which("gcc") or shutil.which("clang")
-_kernels = blocks._kernels
+_kernels = _compiled.kernels
 #: two routes' sums of a block of 32 (64) like-signed terms in different orders differ by a few
 #: units of the last place of the largest sum at most: 64 of them is a bound
 ROUNDING = 64 * np.finfo(float).eps
@@ -103,7 +103,7 @@ def _both_routes(log, monkeypatch):
     """(compiled, numpy): the block sums, the quality checks and the Allan figures by each."""
     out = []
     for kernels in (_kernels, None):
-        monkeypatch.setattr(blocks, "_kernels", kernels)
+        monkeypatch.setattr(_compiled, "kernels", kernels)
         sums = blocks.block_sums(log)
         quality = assess(log, sums=sums)
         out.append((sums, quality, noise_from_log(quality.log, sums=sums)))
@@ -148,7 +148,23 @@ def test_a_row_major_log_takes_numpy_s_route(monkeypatch):
     from hse_opt.align import RawLog
     log = _log(4)
     rowmajor = RawLog(log.t, np.ascontiguousarray(log.gyro), np.ascontiguousarray(log.accel), log.encoder, log.meta)
-    assert blocks._rows(rowmajor.gyro) is None and blocks._rows(log.gyro) is not None
+    assert _compiled.rows(rowmajor.gyro) is None and _compiled.rows(log.gyro) is not None
     a, b = blocks.block_sums(log), blocks.block_sums(rowmajor)
     assert np.allclose(a.sums, b.sums, rtol=0, atol=ROUNDING * np.abs(a.sums).max())
     assert np.allclose(a.weighted, b.weighted, rtol=0, atol=ROUNDING * np.abs(a.weighted).max())
+
+
+@needs_kernels
+def test_the_quanta_are_numpy_s_on_quantized_noisy_flat_and_nan_rows():
+    """The kernel's quantum of each row is numpy's route's (_row_quanta), bit for bit: a pulse
+    counter dithered by jitter (its pulse), white noise (its smallest change), a row that does
+    not change, one that changes in only 10 samples (no quantum: 0), one with a NaN (NaN)."""
+    from hse_opt.align._quanta import QUANTUM_CHANGES, _row_quanta
+    rng = np.random.default_rng(7)
+    q = 1e-6
+    angle = np.cumsum(np.full(4001, 7.3e-5)) + 3 * q * rng.standard_normal(4001)
+    rows = [np.diff(np.floor(angle / q) * q), rng.standard_normal(4000), np.zeros(4000),
+            np.r_[np.zeros(3990), np.arange(10.0)], np.r_[np.nan, np.arange(3999.0) * 1e-3]]
+    got = np.array(_kernels.quanta(rows, QUANTUM_CHANGES))
+    assert np.array_equal(got, _row_quanta(np.stack(rows)), equal_nan=True)
+    assert got[0] == pytest.approx(q, rel=1e-6) and got[2] == got[3] == 0.0 and math.isnan(got[4])

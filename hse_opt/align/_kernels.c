@@ -304,6 +304,34 @@ short_squares(const double *const x[6], const double *enc, const double *t, cons
     }
 }
 
+/* The quantum of a row x (N values; hse_opt/align/_quanta.py, _row_quanta): the smallest change
+   between consecutive values above 1e-9 of the row's mean magnitude, 0 when no more than
+   `changes` of them are above it (NaN when a change is NaN). */
+static double
+row_quantum(const double *x, Py_ssize_t N, Py_ssize_t changes)
+{
+    if (N < 2)
+        return 0.0;
+    double mag = 0.0;
+    for (Py_ssize_t i = 0; i < N; i++)
+        mag += fabs(x[i]);
+    const double floor = 1e-9 * (mag / (double)N);
+    double least = INFINITY;
+    Py_ssize_t seen = 0;
+    int nan = 0;
+    for (Py_ssize_t i = 1; i < N; i++) {
+        const double d = fabs(x[i] - x[i - 1]);
+        if (!(d <= floor)) {            /* a change (a NaN too, as numpy's comparison) */
+            seen++;
+            nan |= d != d;
+            least = d < least ? d : least;
+        }
+    }
+    if (seen <= changes)
+        return 0.0;
+    return nan ? NAN : least;
+}
+
 /* a C-contiguous float64 buffer of at least `need` elements (writable when asked) */
 static int
 doubles(PyObject *obj, Py_buffer *view, int writable, Py_ssize_t need, const char *name)
@@ -532,10 +560,47 @@ done:
     Py_RETURN_NONE;
 }
 
+PyDoc_STRVAR(quanta_doc,
+"quanta(rows, changes) -> tuple of float\n--\n\n"
+"The quantum of each row (contiguous float64 arrays): the smallest change between consecutive\n"
+"values above 1e-9 of the row's mean magnitude, 0 when no more than `changes` are above it.");
+
+static PyObject *
+quanta(PyObject *self, PyObject *args)
+{
+    PyObject *ro;
+    Py_ssize_t changes;
+    if (!PyArg_ParseTuple(args, "On:quanta", &ro, &changes))
+        return NULL;
+    PyObject *seq = PySequence_Fast(ro, "quanta: rows must be a sequence of arrays");
+    if (seq == NULL)
+        return NULL;
+    const Py_ssize_t k = PySequence_Fast_GET_SIZE(seq);
+    PyObject *out = PyTuple_New(k);
+    for (Py_ssize_t j = 0; out != NULL && j < k; j++) {
+        Py_buffer v;
+        if (doubles(PySequence_Fast_GET_ITEM(seq, j), &v, 0, 0, "rows") < 0) {
+            Py_CLEAR(out);
+            break;
+        }
+        const double q = row_quantum((const double *)v.buf, v.len / 8, changes);
+        PyBuffer_Release(&v);
+        PyObject *f = PyFloat_FromDouble(q);
+        if (f == NULL) {
+            Py_CLEAR(out);
+            break;
+        }
+        PyTuple_SET_ITEM(out, j, f);
+    }
+    Py_DECREF(seq);
+    return out;
+}
+
 static PyMethodDef methods[] = {
     {"block_sums", block_sums, METH_VARARGS, block_sums_doc},
     {"encoder_steps", encoder_steps, METH_VARARGS, encoder_steps_doc},
     {"short_allan", short_allan, METH_VARARGS, short_allan_doc},
+    {"quanta", quanta, METH_VARARGS, quanta_doc},
     {NULL, NULL, 0, NULL},
 };
 

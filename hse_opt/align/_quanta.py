@@ -16,6 +16,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from hse_opt.align import _compiled
 from hse_opt.align._stats import every_29th_step, step_stats
 
 __all__ = ["Quanta", "EncoderSteps", "quantum", "encoder_quantum", "QUANTUM_SAMPLES", "QUANTUM_CHANGES"]
@@ -38,6 +39,16 @@ def _row_quanta(x):
         return np.zeros(x.shape[0])
     np.putmask(dd, same, np.inf)
     return np.where(many, dd.min(axis=-1), 0.0)
+
+
+def _quanta_of_rows(rows):
+    """:func:`_row_quanta` of rows of one length given as a list (the channels' own memory,
+    not copied), shape (k,): by the compiled kernel (:mod:`hse_opt.align._compiled`) where it is
+    built and each row is contiguous float64, else numpy's route on the rows stacked."""
+    kernels = _compiled.kernels
+    if kernels is not None and all(r.dtype == np.float64 and r.strides[0] == 8 for r in rows):
+        return np.array(kernels.quanta(rows, QUANTUM_CHANGES))
+    return _row_quanta(np.stack(rows))
 
 
 def quantum(x):
@@ -201,11 +212,10 @@ class Quanta:
             pulses = like.pulses
         elif first.shape[0] == QUANTUM_SAMPLES and not same_enc:
             # the encoder's steps 1 .. N and the channels' samples 1 .. N, one row each
-            q = _row_quanta(np.concatenate((first[None], gyro.T[:, 1:QUANTUM_SAMPLES + 1],
-                                            accel.T[:, 1:QUANTUM_SAMPLES + 1])))
+            q = _quanta_of_rows([first, *gyro.T[:, 1:QUANTUM_SAMPLES + 1], *accel.T[:, 1:QUANTUM_SAMPLES + 1]])
             return cls(enc, gyro, accel, resolution, seen, max(float(q[0]), resolution), q[1:])
         else:
-            pulses = _row_quanta(np.concatenate((gyro.T[:, 1:QUANTUM_SAMPLES + 1], accel.T[:, 1:QUANTUM_SAMPLES + 1])))
+            pulses = _quanta_of_rows([*gyro.T[:, 1:QUANTUM_SAMPLES + 1], *accel.T[:, 1:QUANTUM_SAMPLES + 1]])
         if not same_enc:
-            count = max(float(_row_quanta(first[None])[0]), resolution)
+            count = max(float(_quanta_of_rows([first])[0]), resolution)
         return cls(enc, gyro, accel, resolution, seen, count, pulses)

@@ -38,14 +38,10 @@ from dataclasses import dataclass
 import numpy as np
 
 from hse_opt.align._angles import rotate
+from hse_opt.align import _compiled
 from hse_opt.align._blas import block_dot, one_thread
 from hse_opt.align._quanta import EncoderSteps
 from hse_opt.align._stats import cholesky_inverse
-
-try:            # the record's passes compiled (setup.py builds them where a C compiler is present)
-    import hse_opt.align._kernels as _kernels
-except ImportError:             # numpy's route: the same sums to rounding, slower
-    _kernels = None
 
 __all__ = ["BlockSums", "block_sums", "Residual", "deterministic_residual", "CHANNELS", "BLOCK_PERIOD",
            "MIN_BLOCKS"]
@@ -58,23 +54,17 @@ BLOCK_PERIOD = 0.064
 MIN_BLOCKS = 32
 
 
-def _rows(x):
-    """The columns of ``x`` (n, 3) as contiguous float64 rows (3, n) when they are (a
-    column-major log: :func:`_columns_compiled`), else None."""
-    rows = np.asarray(x).T
-    return rows if rows.dtype == np.float64 and rows.strides[1] == 8 else None
-
-
 def _columns_compiled(x, nb, block, out=None, weighted=None):
     """:func:`_block_sums` of ``x`` (n, 3) by the compiled pass (:mod:`hse_opt.align._kernels`)
     where it is built and the columns are contiguous float64 rows, else None; ``weighted``
     (3, nb): also their weighted sums (:func:`_weighted_block_sums`), in the same read."""
-    rows = _rows(x) if _kernels is not None else None
+    kernels = _compiled.kernels
+    rows = _compiled.rows(x) if kernels is not None else None
     if rows is None:
         return None
     out = np.empty((3, nb)) if out is None else out
     for j in range(3):
-        _kernels.block_sums(rows[j], block, nb, out[j], None if weighted is None else weighted[j])
+        kernels.block_sums(rows[j], block, nb, out[j], None if weighted is None else weighted[j])
     return out
 
 
@@ -116,9 +106,10 @@ def _weighted_block_sums(x, nb, block):
 def _encoder_weighted(enc, nb, block):
     """The encoder's weighted sums over blocks of ``block`` steps (:func:`_weighted_step_sums`)
     of the encoder ``enc`` (n,), rad, shape (nb,): by the compiled pass where it is built."""
-    if _kernels is not None and enc.dtype == np.float64 and enc.strides[0] == 8:
+    kernels = _compiled.kernels
+    if kernels is not None and enc.dtype == np.float64 and enc.strides[0] == 8:
         weighted = np.empty(nb)
-        _kernels.encoder_steps(enc, block, nb, weighted)
+        kernels.encoder_steps(enc, block, nb, weighted)
         return weighted
     return _weighted_step_sums(enc[1:nb * block + 1] - enc[:nb * block], nb, block)
 
@@ -247,15 +238,15 @@ def _compiled_checks_pass(log, block, nb):
     """:func:`block_sums` with ``checks`` by the compiled pass (:mod:`hse_opt.align._kernels`:
     one read of each array), or None where it is not built or the log's arrays are not
     contiguous float64 rows (a row-major log)."""
-    enc = np.asarray(log.encoder)
-    if _kernels is None or enc.dtype != np.float64 or enc.strides[0] != 8 or enc.shape[0] < 2:
+    enc, kernels = np.asarray(log.encoder), _compiled.kernels
+    if kernels is None or enc.dtype != np.float64 or enc.strides[0] != 8 or enc.shape[0] < 2:
         return None
     sums, weighted = np.empty((6, nb)), np.empty((3, nb))
     if _columns_compiled(log.gyro, nb, block, sums[:3], weighted) is None or \
             _columns_compiled(log.accel, nb, block, sums[3:]) is None:
         return None
     weighted_encoder = np.empty(nb)
-    largest, smallest = _kernels.encoder_steps(enc, block, nb, weighted_encoder)
+    largest, smallest = kernels.encoder_steps(enc, block, nb, weighted_encoder)
     return BlockSums(log=log, block=block, sums=sums, weighted=weighted, weighted_encoder=weighted_encoder,
                      encoder_steps=EncoderSteps.of(enc, extremes=(largest, smallest)))
 

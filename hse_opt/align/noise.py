@@ -107,7 +107,7 @@ import numpy as np
 from hse_opt import units
 from hse_opt.align._angles import rotate
 from hse_opt.align.allan_fit import MISFIT, MODEL_ERROR, _POWERS, fit_allan
-import hse_opt.align.blocks as _blocks
+from hse_opt.align import _compiled
 from hse_opt.align.blocks import (BLOCK_PERIOD, CHANNELS, BlockSums, Residual, _cos_sin_small, block_sums,
                                   deterministic_residual)
 from hse_opt.align.processor import _vecdot
@@ -358,8 +358,8 @@ def _short_compiled(log, residual, t, enc, first, length, sizes, count):
     """:func:`_short_allan`'s squared differences, shape (6, count, len(sizes)), by the compiled
     kernel (:mod:`hse_opt.align._kernels`, the same steps in one pass a stretch) where it is
     built and the log's arrays are contiguous float64 rows; else None (numpy's route)."""
-    kernels = _blocks._kernels
-    rows = [_blocks._rows(log.gyro), _blocks._rows(log.accel)] if kernels is not None else [None]
+    kernels = _compiled.kernels
+    rows = [_compiled.rows(log.gyro), _compiled.rows(log.accel)] if kernels is not None else [None]
     contiguous = all(a.dtype == np.float64 and a.strides[0] == 8 for a in (t, enc))
     if any(r is None for r in rows) or not contiguous or any(m & (m - 1) for m in sizes):
         return None
