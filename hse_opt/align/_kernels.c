@@ -332,6 +332,152 @@ row_quantum(const double *x, Py_ssize_t N, Py_ssize_t changes)
     return nan ? NAN : least;
 }
 
+/* cos and sin of small angles d by the series of hse_opt/align/blocks.py's _cos_sin_small, in
+   its order for `order` (2: to 1e-3, 4: to 0.03, 6: to 0.2; 0: libm's), and sin(d) / d (1 at 0)
+   when `sinc` is given */
+static inline void
+small_cos_sin(double d, int order, double *c, double *s, double *sinc)
+{
+    const double q = d * d;
+    double cd, f;
+    if (order == 2) {
+        cd = q * -0.5 + 1.0;
+        f = q * (-1.0 / 6.0) + 1.0;
+    } else if (order == 4) {
+        cd = (q * (1.0 / 24.0) - 0.5) * q + 1.0;
+        f = (q * (1.0 / 120.0) - 1.0 / 6.0) * q + 1.0;
+    } else if (order == 6) {
+        cd = 1.0 - q * (0.5 - q * (1.0 / 24.0 - q / 720.0));
+        f = 1.0 - q * (1.0 / 6.0 - q / 120.0);
+    } else {
+        *c = cos(d);
+        *s = sin(d);
+        if (sinc)
+            *sinc = d != 0.0 ? *s / d : 1.0;
+        return;
+    }
+    *c = cd;
+    *s = f * d;
+    if (sinc)
+        *sinc = f;
+}
+
+/* the series' order for the largest |d| (NaN: libm's) */
+static inline int
+series_order(double top, int nan)
+{
+    return nan || !(top <= 0.2) ? 0 : top <= 1e-3 ? 2 : top <= 0.03 ? 4 : 6;
+}
+
+#define PHASE_TABLE 64
+
+/* The deterministic part's regressors of hse_opt/align/blocks.py's _fit_residual for nb blocks
+   of B samples (module docstring, step 2), and the normal equations of its fit: the encoder
+   angle at the block edges' cos and sin (ce, se: nb + 1; its linear phase from two tables of
+   PHASE_TABLE steps, the deviation by series, as _cos_sin), the regressors X (4, nb), G = X X^T
+   (4, 4) and H = X y^T (4, 6) of the block sums y (6, nb). Returns the encoder's mean rate.
+   The edges are gathered first (one strided read of the record each; every later pass reads
+   them in place). work: scratch of 3 (nb + 1) + 2 PHASE_TABLE values. */
+CLONES static double
+fit_blocks(const double *enc, const double *t, Py_ssize_t B, Py_ssize_t nb, const double *y, double *ce,
+           double *se, double *X, double *G, double *H, double *work)
+{
+    const Py_ssize_t n = nb + 1;
+    double *a = work, *te = work + n, *d = te + n, *lr = d + n, *li = lr + PHASE_TABLE;
+    for (Py_ssize_t i = 0; i < n; i++) {
+        a[i] = enc[i * B];
+        te[i] = t[i * B];
+    }
+    const double a0 = a[0], rate = (a[nb] - a0) / (te[nb] - te[0]);
+    const double step = (a[nb] - a0) / (double)(n - 1 > 1 ? n - 1 : 1);
+    double top = 0.0;
+    int nan = 0;
+    for (Py_ssize_t i = 0; i < n; i++) {
+        d[i] = a[i] - (a0 + step * (double)i);
+        const double m = fabs(d[i]);
+        top = m > top ? m : top;
+        nan |= d[i] != d[i];
+    }
+    if (nan || !(top <= 0.2)) {
+        for (Py_ssize_t i = 0; i < n; i++) {
+            ce[i] = cos(a[i]);
+            se[i] = sin(a[i]);
+        }
+    } else {
+        const int order = series_order(top, 0);
+        for (int l = 0; l < PHASE_TABLE; l++) {
+            lr[l] = cos(step * (double)l);
+            li[l] = sin(step * (double)l);
+        }
+        for (Py_ssize_t j0 = 0; j0 < n; j0 += PHASE_TABLE) {
+            const double ph = a0 + (double)PHASE_TABLE * step * (double)(j0 / PHASE_TABLE);
+            const double hr = cos(ph), hi = sin(ph);
+            const Py_ssize_t j1 = j0 + PHASE_TABLE < n ? j0 + PHASE_TABLE : n;
+            for (Py_ssize_t i = j0; i < j1; i++) {
+                const double pr = hr * lr[i - j0] - hi * li[i - j0], pi = hr * li[i - j0] + hi * lr[i - j0];
+                double cd, sd;
+                small_cos_sin(d[i], order, &cd, &sd, NULL);
+                ce[i] = pr * cd - pi * sd;
+                se[i] = pi * cd + pr * sd;
+            }
+        }
+    }
+    /* the regressors: dt, cos and sin at the block's mid angle times sinc(d alpha / 2) dt,
+       d alpha - rate dt (the half turn's cos, sin and sinc by series of its own order) */
+    double *X0 = X, *X1 = X + nb, *X2 = X1 + nb, *X3 = X2 + nb;
+    top = 0.0;
+    nan = 0;
+    for (Py_ssize_t b = 0; b < nb; b++) {
+        const double h = 0.5 * (a[b + 1] - a[b]), m = fabs(h);
+        top = m > top ? m : top;
+        nan |= h != h;
+    }
+    const int order = series_order(top, nan);
+    for (Py_ssize_t b = 0; b < nb; b++) {
+        const double da = a[b + 1] - a[b], dt = te[b + 1] - te[b];
+        double ch, sh, w;
+        small_cos_sin(0.5 * da, order, &ch, &sh, &w);
+        w *= dt;
+        X0[b] = dt;
+        X1[b] = (ce[b] * ch - se[b] * sh) * w;
+        X2[b] = (se[b] * ch + ce[b] * sh) * w;
+        X3[b] = dt * -rate + da;
+    }
+    for (int i = 0; i < 4; i++) {
+        for (int j = 0; j < 4 + 6; j++) {
+            if (j < 4 && j > i)
+                continue;
+            const double *u = X + i * nb, *v = j < 4 ? X + j * nb : y + (j - 4) * nb;
+            double acc[4] = {0, 0, 0, 0};
+            Py_ssize_t b = 0;
+            for (; b + 4 <= nb; b += 4)
+                for (int k = 0; k < 4; k++)
+                    acc[k] += u[b + k] * v[b + k];
+            for (; b < nb; b++)
+                acc[0] += u[b] * v[b];
+            const double dot = (acc[0] + acc[1]) + (acc[2] + acc[3]);
+            if (j < 4)
+                G[i * 4 + j] = G[j * 4 + i] = dot;
+            else
+                H[i * 6 + j - 4] = dot;
+        }
+    }
+    return rate;
+}
+
+/* out = y - coef^T X: y (6, nb), coef (4, 6), X (4, nb) */
+CLONES static void
+fit_residual(const double *y, const double *coef, const double *X, Py_ssize_t nb, double *out)
+{
+    for (int c = 0; c < 6; c++) {
+        const double c0 = coef[c], c1 = coef[6 + c], c2 = coef[12 + c], c3 = coef[18 + c];
+        const double *yc = y + c * nb;
+        double *oc = out + c * nb;
+        for (Py_ssize_t b = 0; b < nb; b++)
+            oc[b] = yc[b] - (((c0 * X[b] + c1 * X[nb + b]) + c2 * X[2 * nb + b]) + c3 * X[3 * nb + b]);
+    }
+}
+
 /* a C-contiguous float64 buffer of at least `need` elements (writable when asked) */
 static int
 doubles(PyObject *obj, Py_buffer *view, int writable, Py_ssize_t need, const char *name)
@@ -596,11 +742,98 @@ quanta(PyObject *self, PyObject *args)
     return out;
 }
 
+PyDoc_STRVAR(fit_doc,
+"fit(enc, t, block, nb, y, edge_cos, edge_sin, X, G, H) -> rate\n--\n\n"
+"The deterministic part's regressors and normal equations (blocks.py's _fit_residual) of the\n"
+"block sums y (6, nb) over blocks of `block` samples: cos and sin of the encoder at the block\n"
+"edges into edge_cos, edge_sin (nb + 1,), the regressors into X (4, nb), X X^T into G (4, 4)\n"
+"and X y^T into H (4, 6); returns the encoder's mean rate.");
+
+static PyObject *
+fit(PyObject *self, PyObject *args)
+{
+    PyObject *eo, *to, *yo, *ceo, *seo, *xo, *go, *ho;
+    Py_ssize_t B, nb;
+    if (!PyArg_ParseTuple(args, "OOnnOOOOOO:fit", &eo, &to, &B, &nb, &yo, &ceo, &seo, &xo, &go, &ho))
+        return NULL;
+    if (B < 1 || nb < 1) {
+        PyErr_SetString(PyExc_ValueError, "fit: block >= 1 and nb >= 1 are needed");
+        return NULL;
+    }
+    PyObject *objs[8] = {eo, to, yo, ceo, seo, xo, go, ho};
+    const Py_ssize_t need[8] = {nb * B + 1, nb * B + 1, 6 * nb, nb + 1, nb + 1, 4 * nb, 16, 24};
+    const char *names[8] = {"enc", "t", "y", "edge_cos", "edge_sin", "X", "G", "H"};
+    Py_buffer v[8];
+    int held = 0;
+    double rate = 0.0, *work = NULL;
+    for (; held < 8; held++)
+        if (doubles(objs[held], &v[held], held >= 3, need[held], names[held]) < 0)
+            goto done;
+    work = PyMem_Malloc((3 * (nb + 1) + 2 * PHASE_TABLE) * sizeof(double));
+    if (work == NULL) {
+        PyErr_NoMemory();
+        goto done;
+    }
+    Py_BEGIN_ALLOW_THREADS
+    rate = fit_blocks((const double *)v[0].buf, (const double *)v[1].buf, B, nb, (const double *)v[2].buf,
+                      (double *)v[3].buf, (double *)v[4].buf, (double *)v[5].buf, (double *)v[6].buf,
+                      (double *)v[7].buf, work);
+    Py_END_ALLOW_THREADS
+done:
+    for (int i = 0; i < held; i++)
+        PyBuffer_Release(&v[i]);
+    PyMem_Free(work);
+    if (held < 8 || work == NULL)
+        return NULL;
+    return PyFloat_FromDouble(rate);
+}
+
+PyDoc_STRVAR(residual_doc,
+"residual(y, coef, X, out)\n--\n\n"
+"out = y - coef^T X: y and out (6, nb), coef (4, 6), X (4, nb), contiguous float64.");
+
+static PyObject *
+residual(PyObject *self, PyObject *args)
+{
+    PyObject *yo, *co, *xo, *oo;
+    if (!PyArg_ParseTuple(args, "OOOO:residual", &yo, &co, &xo, &oo))
+        return NULL;
+    Py_buffer y, c, x, o;
+    if (doubles(yo, &y, 0, 6, "y") < 0)
+        return NULL;
+    const Py_ssize_t nb = y.len / 8 / 6;
+    int held = 1;
+    if (doubles(co, &c, 0, 24, "coef") == 0) {
+        held = 2;
+        if (doubles(xo, &x, 0, 4 * nb, "X") == 0) {
+            held = 3;
+            if (doubles(oo, &o, 1, 6 * nb, "out") == 0) {
+                held = 4;
+                Py_BEGIN_ALLOW_THREADS
+                fit_residual((const double *)y.buf, (const double *)c.buf, (const double *)x.buf, nb, (double *)o.buf);
+                Py_END_ALLOW_THREADS
+            }
+        }
+    }
+    PyBuffer_Release(&y);
+    if (held >= 2)
+        PyBuffer_Release(&c);
+    if (held >= 3)
+        PyBuffer_Release(&x);
+    if (held >= 4)
+        PyBuffer_Release(&o);
+    if (held < 4)
+        return NULL;
+    Py_RETURN_NONE;
+}
+
 static PyMethodDef methods[] = {
     {"block_sums", block_sums, METH_VARARGS, block_sums_doc},
     {"encoder_steps", encoder_steps, METH_VARARGS, encoder_steps_doc},
     {"short_allan", short_allan, METH_VARARGS, short_allan_doc},
     {"quanta", quanta, METH_VARARGS, quanta_doc},
+    {"fit", fit, METH_VARARGS, fit_doc},
+    {"residual", residual, METH_VARARGS, residual_doc},
     {NULL, NULL, 0, NULL},
 };
 

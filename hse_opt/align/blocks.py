@@ -396,6 +396,9 @@ def _fit_residual(log, block, y):
     """:func:`deterministic_residual` of ``log``'s block sums ``y`` (6, nb) over ``block`` samples."""
     t, enc = np.asarray(log.t, dtype=float), np.asarray(log.encoder, dtype=float)
     nb = y.shape[1]
+    compiled = _fit_compiled(t, enc, block, y)
+    if compiled is not None:
+        return compiled
     stop = nb * block + 1
     # the block edges gathered once (each strided read of the record touches a cache line an edge)
     a, te = enc[:stop:block].copy(), t[:stop:block].copy()
@@ -408,6 +411,25 @@ def _fit_residual(log, block, y):
         residual = y - coef.T @ X
     return Residual(blocks=residual, tau0=float((te[-1] - te[0]) / nb), block=block,
                     coefficients=coef, rate=rate, edge_cos=ce, edge_sin=se, regressors=X)
+
+
+def _fit_compiled(t, enc, block, y):
+    """:func:`_fit_residual` by the compiled kernels (:mod:`hse_opt.align._compiled`: the block
+    edges' cos and sin, the regressors and the normal equations in one pass, the residual in
+    another; the same steps) where they are built and the arrays are contiguous float64, else
+    None."""
+    kernels = _compiled.kernels
+    if kernels is None or not all(a.dtype == np.float64 and a.strides[-1] == 8 and a.flags.c_contiguous
+                                  for a in (t, enc, y)):
+        return None
+    nb = y.shape[1]
+    ce, se, X, G, H = np.empty(nb + 1), np.empty(nb + 1), np.empty((4, nb)), np.empty((4, 4)), np.empty((4, 6))
+    rate = kernels.fit(enc, t, block, nb, y, ce, se, X, G, H)
+    coef = np.ascontiguousarray(_normal_solve(G, H))
+    residual = np.empty_like(y)
+    kernels.residual(y, coef, X, residual)
+    return Residual(blocks=residual, tau0=float((t[nb * block] - t[0]) / nb), block=block, coefficients=coef,
+                    rate=rate, edge_cos=ce, edge_sin=se, regressors=X)
 
 
 def _normal_solve(G, H):
