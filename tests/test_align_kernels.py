@@ -168,3 +168,42 @@ def test_the_quanta_are_numpy_s_on_quantized_noisy_flat_and_nan_rows():
     got = np.array(_kernels.quanta(rows, QUANTUM_CHANGES))
     assert np.array_equal(got, _row_quanta(np.stack(rows)), equal_nan=True)
     assert got[0] == pytest.approx(q, rel=1e-6) and got[2] == got[3] == 0.0 and math.isnan(got[4])
+
+
+@needs_kernels
+@pytest.mark.parametrize("rate_dps, wobble", [(40.0, 0.0), (100.0, 0.0), (-10.0, 0.0), (40.0, 0.5)])
+def test_the_fit_s_regressors_against_their_closed_forms(rate_dps, wobble):
+    """The kernel's block-edge cos and sin against numpy's cos and sin of the edges' angles
+    (within 1e-13: its phase tables and series round at the angles' size, tens of rad), its
+    regressors against their closed forms
+    (``dt``, ``cos(alpha_m) sinc(d alpha / 2) dt``, ``sin(...)``, ``d alpha - Omega dt`` by
+    numpy's cos, sin and sinc; within the sinc series' truncation, ``(d alpha / 2)^6 / 5040``
+    at most, as numpy's route, plus 2e-13 of rounding), G and H against numpy's products;
+    a table whose angle strays from a steady turn by more than the series take (``wobble``
+    0.5 rad) gets libm's cos and sin."""
+    rng = np.random.default_rng(int(abs(rate_dps) + 10 * wobble))
+    block, nb = 32, 301
+    n = nb * block + 1
+    t = 7200.0 + 0.002 * np.arange(n)
+    enc = 0.3 + rate_dps * DEG_PER_S * (t - t[0]) + 1e-6 * rng.standard_normal(n)
+    enc += wobble * np.sin(2 * np.pi * (t - t[0]) / 3.0)
+    y = rng.standard_normal((6, nb))
+    ce, se, X, G, H = np.empty(nb + 1), np.empty(nb + 1), np.empty((4, nb)), np.empty((4, 4)), np.empty((4, 6))
+    rate = _kernels.fit(enc, t, block, nb, y, ce, se, X, G, H)
+    a, te = enc[::block], t[::block]
+    assert rate == (a[-1] - a[0]) / (te[-1] - te[0])
+    assert np.abs(ce - np.cos(a)).max() < 1e-13 and np.abs(se - np.sin(a)).max() < 1e-13
+    da, dt = np.diff(a), np.diff(te)
+    mid = a[:-1] + da / 2
+    ref = np.array([dt, np.cos(mid) * np.sinc(da / 2 / np.pi) * dt, np.sin(mid) * np.sinc(da / 2 / np.pi) * dt,
+                    da - rate * dt])
+    tol = np.abs(da / 2).max() ** 6 / 5040 + 2e-13
+    assert np.all(np.abs(X - ref).max(axis=1) <= tol * np.abs(ref).max(axis=1))
+    # (each entry within 64 units of the last place of its Cauchy-Schwarz bound)
+    norms = np.sqrt(np.concatenate([np.diag(X @ X.T), np.square(y).sum(axis=1)]))
+    bound = 64 * np.finfo(float).eps * np.outer(norms[:4], norms)
+    assert np.all(np.abs(G - X @ X.T) <= bound[:, :4]) and np.all(np.abs(H - X @ y.T) <= bound[:, 4:])
+    out = np.empty_like(y)
+    coef = np.ascontiguousarray(rng.standard_normal((4, 6)))
+    _kernels.residual(y, coef, X, out)
+    assert np.allclose(out, y - coef.T @ X, rtol=0, atol=1e-15 * np.abs(y).max())
