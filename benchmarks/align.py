@@ -42,6 +42,7 @@ _one_blas_thread()          # BLAS as the command line runs it (one thread), bef
 
 import numpy as np  # noqa: E402
 
+from hse_opt.align import _compiled
 from hse_opt.align.blocks import block_sums
 from hse_opt.align.noise import noise_from_log
 from hse_opt.align.quality import assess
@@ -92,7 +93,8 @@ def one_log(repeats, path):
         tr.append(t1 - t0)
         tc.append(t2 - t1)
         tl.append(t3 - t2)
-    print(f"one 10-minute 500 Hz log ({len(log)} samples, {repeats} repeats; median [min]):")
+    print(f"one 10-minute 500 Hz log ({len(log)} samples, {repeats} repeats; median [min]; the raw-log path's "
+          f"compiled part {'built' if _compiled.kernels is not None else 'not built: numpy route'}):")
     print(f"  align (reading excluded) : {1e3 * statistics.median(ta):6.1f} ms  [{1e3 * min(ta):.1f}]  "
           "(target <= 20 ms)")
     added = (statistics.median(tq) + statistics.median(tn)) / statistics.median(ta)

@@ -1,12 +1,20 @@
 /* The raw-log path's passes over a record, compiled (hse_opt.align._kernels; private).
 
-   What hse_opt/align/blocks.py takes of a record for the quality checks and the Allan analysis
-   in one read of each array, where numpy takes two or three: a channel's sums over blocks of
-   B samples with, for a gyro, their weighted sums (increment i of a block weighted B + 1 - i);
-   the encoder's steps' weighted sums over the same blocks and the extremes of all its steps.
-   The same sums as blocks.py's numpy route to rounding (other summation orders: within a few
-   units of the last place of the sums' terms; tests/test_align_kernels.py). Built by setup.py
-   where a C compiler is present; without it blocks.py takes numpy's route.
+   What the quality checks and the Allan analysis take of a log, each array read once where
+   numpy's route reads it two or three times, and the small loops that numpy runs as many
+   passes over short arrays:
+   - block_sums: a channel's sums over blocks of B samples with, for a gyro, their weighted
+     sums (increment i of a block weighted B + 1 - i); encoder_steps: the encoder's steps'
+     weighted sums over the same blocks and the extremes of all its steps
+     (hse_opt/align/blocks.py, block_sums);
+   - fit, residual: the table's deterministic part fitted out of the block sums (blocks.py,
+     _fit_residual);
+   - short_allan: the Allan analysis' clusters shorter than a block (noise.py, _short_allan);
+   - quanta: the channels' and the encoder's quanta (_quanta.py, _row_quanta).
+   Each takes the same steps as numpy's route (the same series, tables and doubling trees) and
+   gives its figures to rounding (other summation orders; tests/test_align_kernels.py tests
+   each against independent references and against numpy's route). Built by setup.py where a
+   C compiler is present; without it the package takes numpy's route (hse_opt/align/_compiled.py).
 
    A block's sums are taken over W lanes (one vector register or two) in rows of W increments,
    two blocks at a time (independent chains for an out-of-order core). The weighted sum comes
@@ -198,6 +206,43 @@ encoder_blocks(const double *enc, Py_ssize_t n, Py_ssize_t B, Py_ssize_t nb, dou
     *smallest = any_nan ? NAN : m;
 }
 
+/* cos and sin of small angles d by the series of hse_opt/align/blocks.py's _cos_sin_small, in
+   its order for `order` (2: to 1e-3, 4: to 0.03, 6: to 0.2; 0: libm's), and sin(d) / d (1 at 0)
+   when `sinc` is given */
+static inline void
+small_cos_sin(double d, int order, double *c, double *s, double *sinc)
+{
+    const double q = d * d;
+    double cd, f;
+    if (order == 2) {
+        cd = q * -0.5 + 1.0;
+        f = q * (-1.0 / 6.0) + 1.0;
+    } else if (order == 4) {
+        cd = (q * (1.0 / 24.0) - 0.5) * q + 1.0;
+        f = (q * (1.0 / 120.0) - 1.0 / 6.0) * q + 1.0;
+    } else if (order == 6) {
+        cd = 1.0 - q * (0.5 - q * (1.0 / 24.0 - q / 720.0));
+        f = 1.0 - q * (1.0 / 6.0 - q / 120.0);
+    } else {
+        *c = cos(d);
+        *s = sin(d);
+        if (sinc)
+            *sinc = d != 0.0 ? *s / d : 1.0;
+        return;
+    }
+    *c = cd;
+    *s = f * d;
+    if (sinc)
+        *sinc = f;
+}
+
+/* the series' order for the largest |d| (NaN: libm's) */
+static inline int
+series_order(double top, int nan)
+{
+    return nan || !(top <= 0.2) ? 0 : top <= 1e-3 ? 2 : top <= 0.03 ? 4 : 6;
+}
+
 /* The Allan analysis' clusters shorter than a block (hse_opt/align/noise.py, _short_allan): in
    each of `count` stretches of L increments starting after sample first[j] (a block edge), the
    fitted deterministic part taken off every increment of the six channels - its angle by the
@@ -231,28 +276,12 @@ short_squares(const double *const x[6], const double *enc, const double *t, cons
             }
         }
     }
-    /* the series' order (hse_opt.align.blocks._cos_sin_small): 2 to 1e-3, 4 to 0.03, 6 to 0.2 */
-    const int order = nan || !(top <= 0.2) ? 0 : top <= 1e-3 ? 2 : top <= 0.03 ? 4 : 6;
+    const int order = series_order(top, nan);
     for (Py_ssize_t j = 0; j < count; j++) {
         const Py_ssize_t s0 = (Py_ssize_t)first[j];
         const double *d = mid + j * L;
-        /* cos and sin of the deviations into X1, X2 */
-        for (Py_ssize_t l = 0; l < L; l++) {
-            const double q = d[l] * d[l];
-            if (order == 2) {
-                X1[l] = q * -0.5 + 1.0;
-                X2[l] = (q * (-1.0 / 6.0) + 1.0) * d[l];
-            } else if (order == 4) {
-                X1[l] = (q * (1.0 / 24.0) - 0.5) * q + 1.0;
-                X2[l] = ((q * (1.0 / 120.0) - 1.0 / 6.0) * q + 1.0) * d[l];
-            } else if (order == 6) {
-                X1[l] = 1.0 - q * (0.5 - q * (1.0 / 24.0 - q / 720.0));
-                X2[l] = (1.0 - q * (1.0 / 6.0 - q / 120.0)) * d[l];
-            } else {
-                X1[l] = cos(d[l]);
-                X2[l] = sin(d[l]);
-            }
-        }
+        for (Py_ssize_t l = 0; l < L; l++)          /* cos and sin of the deviations into X1, X2 */
+            small_cos_sin(d[l], order, &X1[l], &X2[l], NULL);
         /* the four regressors of each increment: dt, cos dt, sin dt, d alpha - rate dt */
         for (Py_ssize_t l0 = 0; l0 < L; l0 += block) {
             const Py_ssize_t b = s0 / block + l0 / block, l1 = l0 + block < L ? l0 + block : L;
@@ -330,43 +359,6 @@ row_quantum(const double *x, Py_ssize_t N, Py_ssize_t changes)
     if (seen <= changes)
         return 0.0;
     return nan ? NAN : least;
-}
-
-/* cos and sin of small angles d by the series of hse_opt/align/blocks.py's _cos_sin_small, in
-   its order for `order` (2: to 1e-3, 4: to 0.03, 6: to 0.2; 0: libm's), and sin(d) / d (1 at 0)
-   when `sinc` is given */
-static inline void
-small_cos_sin(double d, int order, double *c, double *s, double *sinc)
-{
-    const double q = d * d;
-    double cd, f;
-    if (order == 2) {
-        cd = q * -0.5 + 1.0;
-        f = q * (-1.0 / 6.0) + 1.0;
-    } else if (order == 4) {
-        cd = (q * (1.0 / 24.0) - 0.5) * q + 1.0;
-        f = (q * (1.0 / 120.0) - 1.0 / 6.0) * q + 1.0;
-    } else if (order == 6) {
-        cd = 1.0 - q * (0.5 - q * (1.0 / 24.0 - q / 720.0));
-        f = 1.0 - q * (1.0 / 6.0 - q / 120.0);
-    } else {
-        *c = cos(d);
-        *s = sin(d);
-        if (sinc)
-            *sinc = d != 0.0 ? *s / d : 1.0;
-        return;
-    }
-    *c = cd;
-    *s = f * d;
-    if (sinc)
-        *sinc = f;
-}
-
-/* the series' order for the largest |d| (NaN: libm's) */
-static inline int
-series_order(double top, int nan)
-{
-    return nan || !(top <= 0.2) ? 0 : top <= 1e-3 ? 2 : top <= 0.03 ? 4 : 6;
 }
 
 #define PHASE_TABLE 64

@@ -28,6 +28,9 @@ With ``checks`` (:func:`block_sums`), the same pass also takes what the checks r
 record while each array is in the cache: the gyros' weighted sums over the same blocks (check
 3b) and the encoder's steps' extremes, statistics and weighted sums (checks 1 and 3b).
 
+Where the package's compiled part is built (:mod:`hse_opt.align._compiled`) the pass and the fit
+run there (each array read once); else by numpy, the same figures to rounding.
+
 Units: SI (rad, m/s, s).
 """
 from __future__ import annotations
