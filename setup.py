@@ -1,7 +1,10 @@
 """The package's one compiled part: the raw-log path's passes over a record
 (hse_opt/align/_kernels.c). Optional: where no C compiler is present the build goes on without
-it and hse_opt.align.blocks takes numpy's route (the same sums to rounding, slower)."""
+it and hse_opt.align takes numpy's route (hse_opt/align/_compiled.py: the same figures to
+rounding, slower)."""
+import os
+
 from setuptools import Extension, setup
 
 setup(ext_modules=[Extension("hse_opt.align._kernels", ["hse_opt/align/_kernels.c"], optional=True,
-                             extra_compile_args=["-O3"] if __import__("os").name != "nt" else [])])
+                             extra_compile_args=[] if os.name == "nt" else ["-O3"])])

@@ -40,8 +40,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from hse_opt.align._angles import rotate
 from hse_opt.align import _compiled
+from hse_opt.align._angles import rotate
 from hse_opt.align._blas import block_dot, one_thread
 from hse_opt.align._quanta import EncoderSteps
 from hse_opt.align._stats import cholesky_inverse
@@ -109,7 +109,7 @@ def _weighted_block_sums(x, nb, block):
 def _encoder_weighted(enc, nb, block):
     """The encoder's weighted sums over blocks of ``block`` steps (:func:`_weighted_step_sums`)
     of the encoder ``enc`` (n,), rad, shape (nb,): by the compiled pass where it is built."""
-    kernels = _compiled.kernels
+    enc, kernels = np.asarray(enc), _compiled.kernels
     if kernels is not None and enc.dtype == np.float64 and enc.strides[0] == 8:
         weighted = np.empty(nb)
         kernels.encoder_steps(enc, block, nb, weighted)

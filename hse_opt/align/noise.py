@@ -107,9 +107,9 @@ from dataclasses import dataclass
 import numpy as np
 
 from hse_opt import units
+from hse_opt.align import _compiled
 from hse_opt.align._angles import rotate
 from hse_opt.align.allan_fit import MISFIT, MODEL_ERROR, _POWERS, fit_allan
-from hse_opt.align import _compiled
 from hse_opt.align.blocks import (BLOCK_PERIOD, CHANNELS, BlockSums, Residual, _cos_sin_small, block_sums,
                                   deterministic_residual)
 from hse_opt.align.processor import _vecdot
