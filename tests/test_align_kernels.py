@@ -207,3 +207,19 @@ def test_the_fit_s_regressors_against_their_closed_forms(rate_dps, wobble):
     coef = np.ascontiguousarray(rng.standard_normal((4, 6)))
     _kernels.residual(y, coef, X, out)
     assert np.allclose(out, y - coef.T @ X, rtol=0, atol=1e-15 * np.abs(y).max())
+
+
+@needs_kernels
+@pytest.mark.parametrize("suffix", [".csv", ".npz"])
+def test_a_log_read_from_a_file_takes_the_compiled_route(tmp_path, suffix, monkeypatch):
+    """A raw-log CSV (read row by row) and an .npz come back with each channel contiguous, so
+    the checks' compiled passes read them; their figures are the numpy route's to rounding."""
+    from hse_opt.align.rawlog import load_rawlog, save_rawlog
+    log = _log(5)
+    save_rawlog(log, tmp_path / f"log{suffix}")
+    read = load_rawlog(tmp_path / f"log{suffix}")
+    assert _compiled.rows(read.gyro) is not None and _compiled.rows(read.accel) is not None
+    assert read.t.strides == read.encoder.strides == (8,)
+    (cs, cq, cn), (ns, nq, nn) = _both_routes(read, monkeypatch)
+    assert np.allclose(cs.sums, ns.sums, rtol=0, atol=ROUNDING * np.abs(ns.sums).max())
+    assert np.allclose(cn.adev, nn.adev, rtol=1e-8, atol=0)

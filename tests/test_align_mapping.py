@@ -81,6 +81,8 @@ def test_a_stand_csv_gives_the_native_logs_heading(native, tmp_path, name, write
     mapped = read_mapped(stand / "run5.csv", example_mapping(name))
     log = mapped.log
     assert np.allclose(log.t, native.t, rtol=0, atol=1e-9)
+    # each channel contiguous, as the quality checks' compiled passes read them
+    assert all(np.asarray(a).T.strides[-1] == 8 for a in (log.gyro, log.accel, log.t, log.encoder))
     # counters give no increment for the first row (the processor does not use it)
     first = 1 if name == "counter_stand" else 0
     assert not first or not log.gyro[0].any()

@@ -401,7 +401,7 @@ def _parse(body, first_line, header, idx, m):
         raise
     if data.shape[0] < 3:
         raise ValueError(f"has {data.shape[0]} data lines; allowed: at least 3 samples")
-    return data
+    return np.asfortranarray(data)          # each column contiguous (the compiled passes read channels)
 
 
 def _unroll(x, wrap):
@@ -418,7 +418,7 @@ def _increments(raw, triad, dt):
     x = raw * (np.asarray(triad.signs) * np.asarray(triad.factors))
     if triad.cumulative:
         x = np.vstack([_unroll(x[:, j], triad.wrap * abs(triad.factors[j])) for j in range(3)]).T
-        return np.vstack([np.zeros((1, 3)), np.diff(x, axis=0)])
+        return np.asfortranarray(np.vstack([np.zeros((1, 3)), np.diff(x, axis=0)]))
     if triad.rate:
         return x * dt[:, None]
     return x

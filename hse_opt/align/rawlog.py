@@ -293,7 +293,9 @@ def _weights(meta, key, factor, given=None):
 
 
 def _read_csv(path):
-    """(header, data (n, 8)) of a raw-log CSV; a short or malformed line names its sample."""
+    """(header, data (n, 8)) of a raw-log CSV, column-major (each channel contiguous, as the
+    quality checks' compiled passes read them: :mod:`hse_opt.align._compiled`); a short or
+    malformed line names its sample."""
     with open(path, encoding="utf-8") as fh:
         header = [h.strip() for h in fh.readline().split(",")]
         text = fh.read()
@@ -325,7 +327,7 @@ def _read_csv(path):
     if text and not text.endswith("\n"):
         raise ValueError(f"the file is truncated: its last line (sample index {data.shape[0] - 1}) has no line "
                          "end; allowed: whole lines")
-    return header, data
+    return header, np.asfortranarray(data)
 
 
 def _read_npz(path):
