@@ -223,3 +223,21 @@ def test_a_log_read_from_a_file_takes_the_compiled_route(tmp_path, suffix, monke
     (cs, cq, cn), (ns, nq, nn) = _both_routes(read, monkeypatch)
     assert np.allclose(cs.sums, ns.sums, rtol=0, atol=ROUNDING * np.abs(ns.sums).max())
     assert np.allclose(cn.adev, nn.adev, rtol=1e-8, atol=0)
+
+
+@needs_kernels
+@pytest.mark.parametrize("seed, rate_dps", [(1, 40.0), (2, -10.0), (3, 100.0)])
+def test_check_3b_s_statistic_is_numpy_s(seed, rate_dps):
+    """The kernel's step statistic (before its slow part is fitted out) against numpy's route:
+    within 1e-10 of its largest (it is the difference of sums about 1e4 times its size, whose
+    rounding, in another order, is 1e-12 of it)."""
+    from hse_opt.align import steps
+    log = _log(seed, rate_dps)
+    s = blocks.block_sums(log)
+    res = s.residual
+    beta = steps.shares(res)
+    W, E = steps.weighted_sums(log.encoder, log.gyro, res.block, res.blocks.shape[1], s)
+    got = steps._statistic_compiled(res, beta, W, E)
+    ref = steps._statistic(res, beta, res.coefficients[:, :3].copy(), W, E)
+    assert got.shape == ref.shape == (3, res.blocks.shape[1] - 7)
+    assert np.abs(got - ref).max() <= 1e-10 * np.abs(ref).max()

@@ -470,6 +470,60 @@ fit_residual(const double *y, const double *coef, const double *X, Py_ssize_t nb
     }
 }
 
+/* Check 3b's statistic D before its slow part is fitted out (hse_opt/align/steps.py,
+   step_statistic and weighted_regressors, the same steps): for each gyro j, the residual's
+   block sums with the encoder's steps taken off in the ratio beta_j, r = R_j + (coef3_j -
+   beta_j) X3; the block sums of the cumulative residual over GRID (4) blocks after each
+   block edge less over the 4 before, from r's moving sums and the weighted sums' residual
+   rw = Wg_j - C_j . Xw (Xw the regressors summed with the weights, C_j the coefficients with
+   beta_j for the jitter and the first three halved); D = that over K = 4 h.
+   R (3 rows of nb, row stride rs), coef (4, 6), beta (3), X (4, nb), Wg (3, nb), E (nb);
+   D (3, nb - 7); work: 6 nb values. */
+static void
+step_stat(const double *R, Py_ssize_t rs, const double *coef, const double *beta, const double *X,
+          const double *Wg, const double *E, Py_ssize_t nb, Py_ssize_t h, double rate, double *D, double *work)
+{
+    const double half = 0.5 * (double)(h + 1), hd = (double)h;
+    const double k1 = (hd * hd - 1.0) / (12.0 * hd * half);
+    const double k2 = ((hd * hd + 1.0) / (60.0 * hd * hd)) / (k1 * k1);
+    const double *X0 = X, *X1 = X + nb, *X2 = X1 + nb, *X3 = X2 + nb;
+    double *Xw1 = work, *Xw2 = work + nb, *Xw3 = Xw2 + nb, *r = Xw3 + nb, *rw = r + nb, *y = rw + nb;
+    /* weighted_regressors: the first three rows divided by (h + 1) / 2 (row 0 is X0 itself) */
+    for (Py_ssize_t b = 0; b < nb; b++) {
+        double d = X0[b] * (rate * k1);
+        d += X3[b] * k1;
+        double c = d * d;
+        c *= k2;
+        c += 1.0;
+        c *= d;
+        Xw1[b] = c * X2[b] + X1[b];
+        Xw2[b] = X2[b] - c * X1[b];
+        Xw3[b] = X0[b] * half * -rate + E[b];
+    }
+    const Py_ssize_t g = nb - 7;
+    for (int j = 0; j < 3; j++) {
+        const double *Rj = R + j * rs, *Wj = Wg + j * nb;
+        const double a = coef[18 + j] - beta[j];
+        const double C0 = coef[j] * half, C1 = coef[6 + j] * half, C2 = coef[12 + j] * half, C3 = beta[j];
+        for (Py_ssize_t b = 0; b < nb; b++) {
+            r[b] = Rj[b] + a * X3[b];
+            rw[b] = Wj[b] - (((C0 * X0[b] + C1 * Xw1[b]) + C2 * Xw2[b]) + C3 * Xw3[b]);
+        }
+        /* y = h (moving sum of r over 4, as _moving's doubling) + rw[b + 4] - rw[b] */
+        for (Py_ssize_t b = 0; b < nb - 4; b++) {
+            double m = (r[b] + r[b + 1]) + (r[b + 2] + r[b + 3]);
+            m *= hd;
+            m += rw[b + 4];
+            m -= rw[b];
+            y[b] = m;
+        }
+        double *Dj = D + j * g;
+        const double K = 4.0 * hd;
+        for (Py_ssize_t b = 0; b < g; b++)
+            Dj[b] = ((y[b] + y[b + 1]) + (y[b + 2] + y[b + 3])) / K;
+    }
+}
+
 /* a C-contiguous float64 buffer of at least `need` elements (writable when asked) */
 static int
 doubles(PyObject *obj, Py_buffer *view, int writable, Py_ssize_t need, const char *name)
@@ -819,6 +873,56 @@ residual(PyObject *self, PyObject *args)
     Py_RETURN_NONE;
 }
 
+PyDoc_STRVAR(step_statistic_doc,
+"step_statistic(R, coef, beta, X, W, E, h, rate, D)\n--\n\n"
+"Check 3b's statistic before its slow part is fitted out (steps.py's step_statistic) into\n"
+"D (3, nb - 7): R (3, nb) the gyros' residual block sums, coef (4, 6), beta (3,), X (4, nb)\n"
+"the regressors, W (3, nb) the gyros' weighted sums, E (nb,) the encoder's, h the block.");
+
+static PyObject *
+step_statistic(PyObject *self, PyObject *args)
+{
+    PyObject *objs[7];
+    Py_ssize_t h;
+    double rate;
+    if (!PyArg_ParseTuple(args, "OOOOOOndO:step_statistic", &objs[0], &objs[1], &objs[2], &objs[3], &objs[4],
+                          &objs[5], &h, &rate, &objs[6]))
+        return NULL;
+    Py_buffer v[7];
+    int held = 0;
+    double *work = NULL;
+    if (doubles(objs[5], &v[5], 0, 8, "E") < 0)
+        return NULL;
+    const Py_ssize_t nb = v[5].len / 8;
+    PyBuffer_Release(&v[5]);
+    const Py_ssize_t need[7] = {3 * nb, 24, 3, 4 * nb, 3 * nb, nb, 3 * (nb - 7)};
+    const char *names[7] = {"R", "coef", "beta", "X", "W", "E", "D"};
+    if (h < 1) {
+        PyErr_SetString(PyExc_ValueError, "step_statistic: h >= 1 is needed");
+        return NULL;
+    }
+    for (; held < 7; held++)
+        if (doubles(objs[held], &v[held], held == 6, need[held], names[held]) < 0)
+            goto done;
+    work = PyMem_Malloc(6 * nb * sizeof(double));
+    if (work == NULL) {
+        PyErr_NoMemory();
+        goto done;
+    }
+    Py_BEGIN_ALLOW_THREADS
+    step_stat((const double *)v[0].buf, nb, (const double *)v[1].buf, (const double *)v[2].buf,
+              (const double *)v[3].buf, (const double *)v[4].buf, (const double *)v[5].buf, nb, h, rate,
+              (double *)v[6].buf, work);
+    Py_END_ALLOW_THREADS
+done:
+    for (int i = 0; i < held; i++)
+        PyBuffer_Release(&v[i]);
+    PyMem_Free(work);
+    if (held < 7 || work == NULL)
+        return NULL;
+    Py_RETURN_NONE;
+}
+
 static PyMethodDef methods[] = {
     {"block_sums", block_sums, METH_VARARGS, block_sums_doc},
     {"encoder_steps", encoder_steps, METH_VARARGS, encoder_steps_doc},
@@ -826,6 +930,7 @@ static PyMethodDef methods[] = {
     {"quanta", quanta, METH_VARARGS, quanta_doc},
     {"fit", fit, METH_VARARGS, fit_doc},
     {"residual", residual, METH_VARARGS, residual_doc},
+    {"step_statistic", step_statistic, METH_VARARGS, step_statistic_doc},
     {NULL, NULL, 0, NULL},
 };
 

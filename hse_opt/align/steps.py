@@ -70,6 +70,7 @@ import functools
 import numpy as np
 
 from hse_opt import units
+from hse_opt.align import _compiled
 from hse_opt.align._blas import block_dot, one_thread
 from hse_opt.align._stats import MAD as _MAD, row_median as _row_median, solve_normal as _solve_normal
 from hse_opt.align.blocks import BLOCK_PERIOD, _encoder_weighted, _weighted_block_sums
@@ -198,25 +199,12 @@ def step_statistic(t, enc, gyro, residual, beta, sums=None):
     h = residual.block
     nb = residual.blocks.shape[1]
     K = GRID * h
-    X = residual.regressors
     coef = residual.coefficients[:, :3].copy()       # (4, 3)
-    r = residual.blocks[:3] + np.multiply.outer(coef[3] - beta, X[3])       # the jitter in the ratio beta
-    coef[3] = beta
     W, E = weighted_sums(enc, gyro, h, nb, sums)
-    C = coef.T.copy()                                # (3, 4): the halved rows' coefficients
-    C[:, :3] *= 0.5 * (h + 1)
-    with one_thread():
-        rw = W - C @ weighted_regressors(residual, E)
-    # block b's sum of e is rw_b + h e(end of block b - 1), e(end of b) = r_0 + .. + r_b; over the
-    # GRID blocks after edge b less the GRID before, the e(end) terms leave h times the sum of r
-    # over a triangle of 2 GRID - 1 blocks: one moving sum over GRID blocks of rw's change over
-    # GRID blocks plus h times r's moving sum (no sum over the record to cancel)
-    y = _moving(r, GRID)[:, :nb - GRID]
-    y *= h
-    y += rw[:, GRID:]
-    y -= rw[:, :-GRID]
-    D = _moving(y, GRID)
-    D /= K
+    D = _statistic_compiled(residual, beta, W, E)
+    if D is None:
+        D = _statistic(residual, beta, coef, W, E)
+    coef[3] = beta
     p = h * np.arange(GRID, nb + 1 - GRID)
     # the slow part: a constant, a sinusoid of the table angle (the encoder's own once-a-turn
     # error, in the ratio beta) and a quadratic drift, fitted by least squares (the columns
@@ -246,6 +234,46 @@ def step_statistic(t, enc, gyro, residual, beta, sums=None):
 
     D -= model
     return D, p, local
+
+
+def _statistic(residual, beta, coef, W, E):
+    """:func:`step_statistic`'s ``D`` (3, nb - 7) before its slow part is fitted out, by numpy
+    (``coef``: the coefficients' gyro columns (4, 3))."""
+    h = residual.block
+    nb = residual.blocks.shape[1]
+    X = residual.regressors
+    r = residual.blocks[:3] + np.multiply.outer(coef[3] - beta, X[3])       # the jitter in the ratio beta
+    C = coef.T.copy()                                # (3, 4): the halved rows' coefficients
+    C[:, 3] = beta
+    C[:, :3] *= 0.5 * (h + 1)
+    with one_thread():
+        rw = W - C @ weighted_regressors(residual, E)
+    # block b's sum of e is rw_b + h e(end of block b - 1), e(end of b) = r_0 + .. + r_b; over the
+    # GRID blocks after edge b less the GRID before, the e(end) terms leave h times the sum of r
+    # over a triangle of 2 GRID - 1 blocks: one moving sum over GRID blocks of rw's change over
+    # GRID blocks plus h times r's moving sum (no sum over the record to cancel)
+    y = _moving(r, GRID)[:, :nb - GRID]
+    y *= h
+    y += rw[:, GRID:]
+    y -= rw[:, :-GRID]
+    D = _moving(y, GRID)
+    D /= GRID * h
+    return D
+
+
+def _statistic_compiled(residual, beta, W, E):
+    """:func:`_statistic` by the compiled kernel (:mod:`hse_opt.align._compiled`: the same steps
+    in one pass a gyro) where it is built and the arrays are contiguous float64, else None."""
+    kernels = _compiled.kernels
+    nb = residual.blocks.shape[1]
+    arrays = (residual.blocks, residual.coefficients, residual.regressors, W, E)
+    if kernels is None or GRID != 4 or nb < 8 or not all(a.dtype == np.float64 and a.flags.c_contiguous
+                                                         for a in arrays):
+        return None
+    D = np.empty((3, nb - 2 * GRID + 1))
+    kernels.step_statistic(residual.blocks[:3], residual.coefficients, np.ascontiguousarray(beta, dtype=float),
+                           residual.regressors, W, E, residual.block, residual.rate, D)
+    return D
 
 
 def _moving(x, k):
