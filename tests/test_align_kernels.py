@@ -241,3 +241,21 @@ def test_check_3b_s_statistic_is_numpy_s(seed, rate_dps):
     ref = steps._statistic(res, beta, res.coefficients[:, :3].copy(), W, E)
     assert got.shape == ref.shape == (3, res.blocks.shape[1] - 7)
     assert np.abs(got - ref).max() <= 1e-10 * np.abs(ref).max()
+
+
+@needs_kernels
+@pytest.mark.parametrize("n", [9375, 9374, 4000, 300, 65])
+def test_the_octave_squares_are_the_cumulative_sums_second_differences(n):
+    """The kernel's squared second differences on a log's octave plan against the definition by
+    cumulative sums (noise._squares, another route: within 1e-10, its rounding over the record)
+    and against numpy's lattice route (the same sums: within 1e-14)."""
+    from hse_opt.align.noise import MAX_TERMS, _octave_squares, _plan, _squares, cluster_sizes
+    x = np.random.default_rng(n).standard_normal((6, n)) + 3.0
+    plan, lattice, _, _ = _plan(n, tuple(cluster_sizes(n, steps_per_octave=1).tolist()), MAX_TERMS)
+    assert lattice is not None
+    ss = np.empty((len(plan), 6))
+    _kernels.octave_squares(x, plan, lattice, ss)
+    assert np.allclose(ss, _squares(x, plan), rtol=1e-10, atol=0)
+    assert np.allclose(ss, _octave_squares(x, plan, lattice), rtol=1e-14, atol=0)
+    with pytest.raises(ValueError, match="octave"):
+        _kernels.octave_squares(x, [(3, 4, 10)], lattice, ss)

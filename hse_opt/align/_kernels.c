@@ -524,6 +524,87 @@ step_stat(const double *R, Py_ssize_t rs, const double *coef, const double *beta
     }
 }
 
+/* The overlapping Allan analysis' squared second differences on an octave plan
+   (hse_opt/align/noise.py, _octave_squares, the same sums): for one row x of n block sums and
+   each cluster (m, step, cnt) of the plan, the sum over the start points k = 0, step, ..
+   (cnt of them) of (S(k + m, m) - S(k, m))^2, S(i, m) the sum of x[i .. i + m - 1]. Clusters
+   shorter than the lattice stride s take S at their own stride (x's sums over m by pairs);
+   longer ones, q = m / s lattice sums apart, sums D_q of q consecutive lattice sums S_s by
+   doubling (D_2q[j] = D_q[j] + D_q[j + q]). No sum runs over the record.
+   work: scratch of 2 n values. */
+static void
+octave_row(const double *x, Py_ssize_t n, const Py_ssize_t *plan, Py_ssize_t k, Py_ssize_t s, double *ss,
+           Py_ssize_t ss_stride, double *work)
+{
+    double *lev = work, *lat = work + n;  /* lev: S_w for w < s, each level after the last */
+    const double *S = x;                   /* S_w at stride w, n / w entries */
+    Py_ssize_t w = 1, len = n, z = 0;
+    double *next = lev;
+    /* the clusters shorter than the lattice, in order of m (the plan's order) */
+    for (; z < k && plan[3 * z] < s; z++) {
+        const Py_ssize_t m = plan[3 * z], step = plan[3 * z + 1], cnt = plan[3 * z + 2];
+        while (w < m) {
+            const Py_ssize_t half = len / 2;
+            for (Py_ssize_t i = 0; i < half; i++)
+                next[i] = S[2 * i] + S[2 * i + 1];
+            S = next;
+            next += half;
+            len = half;
+            w *= 2;
+        }
+        const Py_ssize_t r = step / m;
+        double acc[4] = {0, 0, 0, 0};
+        Py_ssize_t c = 0;
+        for (; c + 4 <= cnt; c += 4)
+            for (int u = 0; u < 4; u++) {
+                const double e = S[(c + u) * r + 1] - S[(c + u) * r];
+                acc[u] += e * e;
+            }
+        for (; c < cnt; c++) {
+            const double e = S[c * r + 1] - S[c * r];
+            acc[0] += e * e;
+        }
+        ss[z * ss_stride] = (acc[0] + acc[1]) + (acc[2] + acc[3]);
+    }
+    if (z == k)
+        return;
+    /* the lattice sums S_s (n / s of them) */
+    while (w < s) {
+        const Py_ssize_t half = len / 2;
+        for (Py_ssize_t i = 0; i < half; i++)
+            next[i] = S[2 * i] + S[2 * i + 1];
+        S = next;
+        next += half;
+        len = half;
+        w *= 2;
+    }
+    const Py_ssize_t nl = n / s;
+    for (Py_ssize_t i = 0; i < nl; i++)
+        lat[i] = S[i];
+    Py_ssize_t q = 1, size = nl;           /* D_q: entries 0 .. size - 1 */
+    for (; z < k; z++) {
+        const Py_ssize_t m = plan[3 * z], cnt = plan[3 * z + 2];
+        while (q < m / s) {
+            for (Py_ssize_t j = 0; j + q < size; j++)
+                lat[j] += lat[j + q];
+            size -= q;
+            q *= 2;
+        }
+        double acc[4] = {0, 0, 0, 0};
+        Py_ssize_t c = 0;
+        for (; c + 4 <= cnt; c += 4)
+            for (int u = 0; u < 4; u++) {
+                const double e = lat[c + u + q] - lat[c + u];
+                acc[u] += e * e;
+            }
+        for (; c < cnt; c++) {
+            const double e = lat[c + q] - lat[c];
+            acc[0] += e * e;
+        }
+        ss[z * ss_stride] = (acc[0] + acc[1]) + (acc[2] + acc[3]);
+    }
+}
+
 /* a C-contiguous float64 buffer of at least `need` elements (writable when asked) */
 static int
 doubles(PyObject *obj, Py_buffer *view, int writable, Py_ssize_t need, const char *name)
@@ -923,6 +1004,91 @@ done:
     Py_RETURN_NONE;
 }
 
+PyDoc_STRVAR(octave_squares_doc,
+"octave_squares(x, plan, s, ss)\n--\n\n"
+"noise.py's _octave_squares: x (c, n) block sums, plan a sequence of (m, step, count) with the\n"
+"sizes powers of two (ascending) and those below the lattice stride s dividing their step;\n"
+"the sums of squared second differences into ss (k, c).");
+
+static PyObject *
+octave_squares(PyObject *self, PyObject *args)
+{
+    PyObject *xo, *po, *so;
+    Py_ssize_t s;
+    if (!PyArg_ParseTuple(args, "OOnO:octave_squares", &xo, &po, &s, &so))
+        return NULL;
+    PyObject *seq = PySequence_Fast(po, "octave_squares: plan must be a sequence of (m, step, count)");
+    if (seq == NULL)
+        return NULL;
+    const Py_ssize_t k = PySequence_Fast_GET_SIZE(seq);
+    Py_ssize_t *plan = PyMem_Malloc((3 * k + 1) * sizeof(Py_ssize_t));
+    double *work = NULL;
+    Py_buffer x, out;
+    int held = 0, ok = 0;
+    if (plan == NULL) {
+        PyErr_NoMemory();
+        goto done;
+    }
+    if (doubles(xo, &x, 0, 1, "x") < 0)
+        goto done;
+    held = 1;
+    if (x.ndim != 2) {
+        PyErr_SetString(PyExc_ValueError, "octave_squares: x must be (channels, n)");
+        goto done;
+    }
+    const Py_ssize_t c = x.shape[0], n = x.shape[1];
+    for (Py_ssize_t z = 0; z < k; z++) {
+        PyObject *t = PySequence_Fast(PySequence_Fast_GET_ITEM(seq, z), "octave_squares: a plan entry must be "
+                                      "(m, step, count)");
+        if (t == NULL)
+            goto done;
+        int good = PySequence_Fast_GET_SIZE(t) == 3;
+        for (int i = 0; good && i < 3; i++) {
+            plan[3 * z + i] = PyLong_AsSsize_t(PySequence_Fast_GET_ITEM(t, i));
+            good = !(plan[3 * z + i] == -1 && PyErr_Occurred());
+        }
+        Py_DECREF(t);
+        const Py_ssize_t m = good ? plan[3 * z] : 0, step = good ? plan[3 * z + 1] : 0, cnt = good ? plan[3 * z + 2] : 0;
+        /* the start points and their clusters lie within the row; the sizes ascend, powers of two */
+        good = good && m >= 1 && !(m & (m - 1)) && step >= 1 && cnt >= 1 && (z == 0 || m > plan[3 * z - 3])
+               && (cnt - 1) * step + 2 * m <= n
+               && (m < s ? step % m == 0 : step == s && m % s == 0);
+        if (!good) {
+            if (!PyErr_Occurred())
+                PyErr_SetString(PyExc_ValueError, "octave_squares: a plan entry is no octave cluster within the row");
+            goto done;
+        }
+    }
+    if (s < 1 || (s & (s - 1)) || s > n) {
+        PyErr_SetString(PyExc_ValueError, "octave_squares: the lattice stride must be a power of two within the row");
+        goto done;
+    }
+    if (doubles(so, &out, 1, k * c, "ss") < 0)
+        goto done;
+    held = 2;
+    work = PyMem_Malloc(2 * n * sizeof(double) + sizeof(double));
+    if (work == NULL) {
+        PyErr_NoMemory();
+        goto done;
+    }
+    Py_BEGIN_ALLOW_THREADS
+    for (Py_ssize_t ch = 0; ch < c; ch++)
+        octave_row((const double *)x.buf + ch * n, n, plan, k, s, (double *)out.buf + ch, c, work);
+    Py_END_ALLOW_THREADS
+    ok = 1;
+done:
+    if (held >= 2)
+        PyBuffer_Release(&out);
+    if (held >= 1)
+        PyBuffer_Release(&x);
+    PyMem_Free(work);
+    PyMem_Free(plan);
+    Py_DECREF(seq);
+    if (!ok)
+        return NULL;
+    Py_RETURN_NONE;
+}
+
 static PyMethodDef methods[] = {
     {"block_sums", block_sums, METH_VARARGS, block_sums_doc},
     {"encoder_steps", encoder_steps, METH_VARARGS, encoder_steps_doc},
@@ -931,6 +1097,7 @@ static PyMethodDef methods[] = {
     {"fit", fit, METH_VARARGS, fit_doc},
     {"residual", residual, METH_VARARGS, residual_doc},
     {"step_statistic", step_statistic, METH_VARARGS, step_statistic_doc},
+    {"octave_squares", octave_squares, METH_VARARGS, octave_squares_doc},
     {NULL, NULL, 0, NULL},
 };
 

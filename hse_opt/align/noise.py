@@ -434,7 +434,13 @@ def allan_deviation(increments, tau0, *, max_terms=MAX_TERMS, sizes=None):
     n = x.shape[1]
     ms = cluster_sizes(n) if sizes is None else np.asarray(sizes, dtype=np.int64)
     plan, lattice, cnt, clusters = _plan(n, tuple(ms.tolist()), max_terms)
-    ss = _squares(x, plan) if lattice is None else _octave_squares(x, plan, lattice)
+    if lattice is None:
+        ss = _squares(x, plan)
+    elif _compiled.kernels is not None and x.flags.c_contiguous:
+        ss = np.empty((len(plan), x.shape[0]))
+        _compiled.kernels.octave_squares(x, plan, lattice, ss)     # (the same sums, compiled)
+    else:
+        ss = _octave_squares(x, plan, lattice)
     adev = np.sqrt(ss.T / (2.0 * cnt)) / (ms * tau0)
     return ms * tau0, adev, clusters.copy()
 
