@@ -2,14 +2,16 @@
 
 ``kernels`` is :mod:`hse_opt.align._kernels` (``hse_opt/align/_kernels.c``, which ``setup.py``
 builds where a C compiler is present: the record's passes for the quality checks and the Allan
-analysis, the fit of the table's deterministic part, the short Allan clusters, the quanta),
+analysis, the fit of the table's deterministic part, the Allan clusters' squared differences,
+check 3b's step statistic, the quanta),
 else None: the callers then take numpy's route, the same figures to rounding. They read
 ``kernels`` here at each call (the tests compare both routes by setting it to None).
 
 Why compiled: issue 25 asks the quality checks and the Allan analysis to add at most half of
 the alignment's time to ``hse-opt align``. numpy's route reads the 17-MB record of a 10-minute
 log two or three times and runs its small loops as many short passes: 49-61 % of the alignment
-(2026-11-26); the kernels read each array once, 37-43 % (``benchmarks/align.py``). A C
+(2026-11-26); the kernels read each array once and run those loops in one pass each: 34-37 %
+(39-42 % in the command line's order; ``benchmarks/align.py``). A C
 extension built at install costs nothing at run time (no start-up or JIT, unlike numba) and
 needs no new dependency.
 """

@@ -10,6 +10,8 @@
    - fit, residual: the table's deterministic part fitted out of the block sums (blocks.py,
      _fit_residual);
    - short_allan: the Allan analysis' clusters shorter than a block (noise.py, _short_allan);
+   - octave_squares: its longer clusters' squared second differences (noise.py, _octave_squares);
+   - step_statistic: the quality checks' step test statistic (steps.py, step_statistic);
    - quanta: the channels' and the encoder's quanta (_quanta.py, _row_quanta).
    Each takes the same steps as numpy's route (the same series, tables and doubling trees) and
    gives its figures to rounding (other summation orders; tests/test_align_kernels.py tests
