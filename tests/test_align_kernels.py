@@ -156,9 +156,11 @@ def test_a_row_major_log_takes_numpy_s_route(monkeypatch):
 
 @needs_kernels
 def test_the_quanta_are_numpy_s_on_quantized_noisy_flat_and_nan_rows():
-    """The kernel's quantum of each row is numpy's route's (_row_quanta), bit for bit: a pulse
-    counter dithered by jitter (its pulse), white noise (its smallest change), a row that does
-    not change, one that changes in only 10 samples (no quantum: 0), one with a NaN (NaN)."""
+    """The kernel's quantum of each row is numpy's route's (_row_quanta): a pulse counter
+    dithered by jitter (its pulse), white noise (its smallest change), a row that does not
+    change, one that changes in only 10 samples (no quantum: 0), one with a NaN (NaN). (Its
+    threshold, 1e-9 of the mean magnitude, is summed in another order: a change within one
+    unit of its last place could fall the other side of it.)"""
     from hse_opt.align._quanta import QUANTUM_CHANGES, _row_quanta
     rng = np.random.default_rng(7)
     q = 1e-6
@@ -259,3 +261,51 @@ def test_the_octave_squares_are_the_cumulative_sums_second_differences(n):
     assert np.allclose(ss, _octave_squares(x, plan, lattice), rtol=1e-14, atol=0)
     with pytest.raises(ValueError, match="octave"):
         _kernels.octave_squares(x, [(3, 4, 10)], lattice, ss)
+
+
+
+@needs_kernels
+def test_check_3b_on_blocks_of_one_increment():
+    """A block of one increment (a log sampled below 23 Hz, or a short step span): its weighted
+    sum is its sum, the weighted regressors' correction is 0; both routes give the statistic
+    (numpy's divided by zero, the compiled one gave NaN), within 1e-10 of its largest."""
+    from hse_opt.align import steps
+    log = _log(6, duration=20.0)
+    res = blocks.deterministic_residual(log, block_period=0.002)
+    assert res.block == 1
+    beta = steps.shares(res)
+    W, E = steps.weighted_sums(log.encoder, log.gyro, 1, res.blocks.shape[1])
+    ref = steps._statistic(res, beta, res.coefficients[:, :3].copy(), W, E)
+    got = steps._statistic_compiled(res, beta, W, E)
+    assert np.isfinite(ref).all() and np.abs(got - ref).max() <= 1e-10 * np.abs(ref).max()
+
+
+@needs_kernels
+def test_the_kernels_refuse_sizes_that_overflow_and_shapes_that_disagree():
+    """Counts whose products overflow are refused before any read (they passed the length
+    checks by wrapping round), and arrays whose lengths disagree with the others' are named."""
+    x, out = np.zeros(65), np.empty(2)
+    for call in (lambda: _kernels.block_sums(x, 2 ** 62, 2, out), lambda: _kernels.encoder_steps(x, 2 ** 62, 2, out),
+                 lambda: _kernels.fit(x, x, 2 ** 62, 2, np.zeros(12), np.empty(3), np.empty(3), np.empty(8),
+                                      np.empty(16), np.empty(24))):
+        with pytest.raises(ValueError, match="block >= 1 and 0 <= nb"):
+            call()
+    with pytest.raises(ValueError, match="octave"):
+        _kernels.octave_squares(np.zeros((2, 64)), [(1, 2 ** 61 + 2 ** 59, 5)], 2, np.empty(2))
+    rows = [np.zeros(100)] * 6
+    with pytest.raises(ValueError, match="past the log"):
+        _kernels.short_allan(rows, np.zeros(100), np.zeros(100), np.array([2 ** 63 - 100]), 16, 1, np.zeros((4, 6)),
+                             0.0, np.ones(101), np.zeros(101), [1, 2], np.empty((6, 1, 2)))
+    with pytest.raises(ValueError, match="X: 12 values, exactly 16 needed"):
+        _kernels.residual(np.zeros((6, 4)), np.zeros((4, 6)), np.zeros((4, 3)), np.empty((6, 4)))
+
+
+@needs_kernels
+def test_repeated_cluster_sizes_take_either_route(monkeypatch):
+    """allan_deviation with a size given twice: the compiled route gives numpy's figures (it
+    refused sizes that were not strictly ascending)."""
+    from hse_opt.align.noise import allan_deviation
+    x = np.random.default_rng(9).standard_normal((2, 20000))
+    got = allan_deviation(x, 1.0, sizes=[8, 8, 16])[1]
+    monkeypatch.setattr(_compiled, "kernels", None)
+    assert np.allclose(got, allan_deviation(x, 1.0, sizes=[8, 8, 16])[1], rtol=1e-14, atol=0)

@@ -486,8 +486,9 @@ step_stat(const double *R, Py_ssize_t rs, const double *coef, const double *beta
           const double *Wg, const double *E, Py_ssize_t nb, Py_ssize_t h, double rate, double *D, double *work)
 {
     const double half = 0.5 * (double)(h + 1), hd = (double)h;
+    /* (a block of one increment: its weighted sum is its sum, the correction c is 0) */
     const double k1 = (hd * hd - 1.0) / (12.0 * hd * half);
-    const double k2 = ((hd * hd + 1.0) / (60.0 * hd * hd)) / (k1 * k1);
+    const double k2 = h > 1 ? ((hd * hd + 1.0) / (60.0 * hd * hd)) / (k1 * k1) : 0.0;
     const double *X0 = X, *X1 = X + nb, *X2 = X1 + nb, *X3 = X2 + nb;
     double *Xw1 = work, *Xw2 = work + nb, *Xw3 = Xw2 + nb, *r = Xw3 + nb, *rw = r + nb, *y = rw + nb;
     /* weighted_regressors: the first three rows divided by (h + 1) / 2 (row 0 is X0 itself) */
@@ -607,9 +608,10 @@ octave_row(const double *x, Py_ssize_t n, const Py_ssize_t *plan, Py_ssize_t k, 
     }
 }
 
-/* a C-contiguous float64 buffer of at least `need` elements (writable when asked) */
+/* a C-contiguous float64 buffer of at least `need` elements (exactly `need` when `exact`),
+   writable when asked */
 static int
-doubles(PyObject *obj, Py_buffer *view, int writable, Py_ssize_t need, const char *name)
+doubles(PyObject *obj, Py_buffer *view, int writable, Py_ssize_t need, int exact, const char *name)
 {
     int flags = PyBUF_FORMAT | PyBUF_C_CONTIGUOUS | (writable ? PyBUF_WRITABLE : 0);
     if (PyObject_GetBuffer(obj, view, flags) < 0)
@@ -619,12 +621,25 @@ doubles(PyObject *obj, Py_buffer *view, int writable, Py_ssize_t need, const cha
         PyBuffer_Release(view);
         return -1;
     }
-    if (view->len / 8 < need) {
-        PyErr_Format(PyExc_ValueError, "%s: %zd values, at least %zd needed", name, view->len / 8, need);
+    if (exact ? view->len / 8 != need : view->len / 8 < need) {
+        PyErr_Format(PyExc_ValueError, "%s: %zd values, %s %zd needed", name, view->len / 8,
+                     exact ? "exactly" : "at least", need);
         PyBuffer_Release(view);
         return -1;
     }
     return 0;
+}
+
+/* whether nb blocks of B samples (and one more sample) can be counted in bytes */
+static int
+countable(Py_ssize_t B, Py_ssize_t nb, const char *name)
+{
+    if (B < 1 || nb < 0 || nb > (PY_SSIZE_T_MAX / 8 - 1) / B) {
+        PyErr_Format(PyExc_ValueError, "%s: block >= 1 and 0 <= nb <= %zd are needed", name,
+                     B < 1 ? (Py_ssize_t)0 : (PY_SSIZE_T_MAX / 8 - 1) / B);
+        return 0;
+    }
+    return 1;
 }
 
 PyDoc_STRVAR(block_sums_doc,
@@ -640,19 +655,17 @@ block_sums(PyObject *self, PyObject *args)
     Py_ssize_t B, nb;
     if (!PyArg_ParseTuple(args, "OnnO|O:block_sums", &xo, &B, &nb, &so, &wo))
         return NULL;
-    if (B < 1 || nb < 0) {
-        PyErr_SetString(PyExc_ValueError, "block_sums: block >= 1 and nb >= 0 are needed");
+    if (!countable(B, nb, "block_sums"))
         return NULL;
-    }
     Py_buffer x, s, w;
-    if (doubles(xo, &x, 0, nb * B + 1, "x") < 0)
+    if (doubles(xo, &x, 0, nb * B + 1, 0, "x") < 0)
         return NULL;
-    if (doubles(so, &s, 1, nb, "sums") < 0) {
+    if (doubles(so, &s, 1, nb, 0, "sums") < 0) {
         PyBuffer_Release(&x);
         return NULL;
     }
     int weighted = wo != Py_None;
-    if (weighted && doubles(wo, &w, 1, nb, "weighted") < 0) {
+    if (weighted && doubles(wo, &w, 1, nb, 0, "weighted") < 0) {
         PyBuffer_Release(&x);
         PyBuffer_Release(&s);
         return NULL;
@@ -681,15 +694,13 @@ encoder_steps(PyObject *self, PyObject *args)
     Py_ssize_t B, nb;
     if (!PyArg_ParseTuple(args, "OnnO:encoder_steps", &eo, &B, &nb, &wo))
         return NULL;
-    if (B < 1 || nb < 0) {
-        PyErr_SetString(PyExc_ValueError, "encoder_steps: block >= 1 and nb >= 0 are needed");
+    if (!countable(B, nb, "encoder_steps"))
         return NULL;
-    }
     Py_buffer e, w;
     Py_ssize_t need = nb * B + 1 > 2 ? nb * B + 1 : 2;
-    if (doubles(eo, &e, 0, need, "enc") < 0)
+    if (doubles(eo, &e, 0, need, 0, "enc") < 0)
         return NULL;
-    if (doubles(wo, &w, 1, nb, "weighted") < 0) {
+    if (doubles(wo, &w, 1, nb, 0, "weighted") < 0) {
         PyBuffer_Release(&e);
         return NULL;
     }
@@ -748,8 +759,9 @@ short_allan(PyObject *self, PyObject *args)
         sizes[z] = PyLong_AsSsize_t(PySequence_Fast_GET_ITEM(sizes_seq, z));
         if (sizes[z] == -1 && PyErr_Occurred())
             goto done;
-        if (sizes[z] < 1 || (sizes[z] & (sizes[z] - 1)) || (z && sizes[z] <= sizes[z - 1]) || 2 * sizes[z] > L) {
-            PyErr_SetString(PyExc_ValueError, "short_allan: sizes must be ascending powers of two with 2 m <= length");
+        if (sizes[z] < 1 || (sizes[z] & (sizes[z] - 1)) || (z && sizes[z] < sizes[z - 1]) || sizes[z] > L / 2) {
+            PyErr_SetString(PyExc_ValueError, "short_allan: sizes must be powers of two, not decreasing, with 2 m <= "
+                            "length");
             goto done;
         }
     }
@@ -762,28 +774,28 @@ short_allan(PyObject *self, PyObject *args)
     }
     count = f.len / 8;
     const long long *first = (const long long *)f.buf;
-    if (doubles(eo, &e, 0, 2, "enc") < 0)
+    if (doubles(eo, &e, 0, 2, 0, "enc") < 0)
         goto done;
     held = 2;
     const Py_ssize_t n = e.len / 8;
     for (Py_ssize_t j = 0; j < count; j++)
-        if (first[j] < 0 || first[j] % block || first[j] + L >= n) {
+        if (first[j] < 0 || first[j] % block || first[j] > n - 1 - L) {
             PyErr_SetString(PyExc_ValueError, "short_allan: a stretch starts off a block edge or runs past the log");
             goto done;
         }
-    if (doubles(to, &t, 0, n, "t") < 0)
+    if (doubles(to, &t, 0, n, 0, "t") < 0)
         goto done;
     held = 3;
-    if (doubles(co, &c, 0, 24, "coef") < 0)
+    if (doubles(co, &c, 0, 24, 1, "coef") < 0)
         goto done;
     held = 4;
-    if (doubles(eco, &ec, 0, 1, "edge_cos") < 0)
+    if (doubles(eco, &ec, 0, 1, 0, "edge_cos") < 0)
         goto done;
     held = 5;
-    if (doubles(eso, &es, 0, ec.len / 8, "edge_sin") < 0)
+    if (doubles(eso, &es, 0, ec.len / 8, 1, "edge_sin") < 0)
         goto done;
     held = 6;
-    if (doubles(sso, &ss, 1, 6 * count * k, "ss") < 0)
+    if (doubles(sso, &ss, 1, 6 * count * k, 1, "ss") < 0)
         goto done;
     held = 7;
     for (Py_ssize_t j = 0; j < count; j++)
@@ -793,7 +805,7 @@ short_allan(PyObject *self, PyObject *args)
         }
     const double *rows[6];
     for (int i = 0; i < 6; i++) {
-        if (doubles(PySequence_Fast_GET_ITEM(seq, i), &views[i], 0, n, "channels") < 0)
+        if (doubles(PySequence_Fast_GET_ITEM(seq, i), &views[i], 0, n, 0, "channels") < 0)
             goto done;
         held = 8 + i;
         rows[i] = (const double *)views[i].buf;
@@ -854,7 +866,7 @@ quanta(PyObject *self, PyObject *args)
     PyObject *out = PyTuple_New(k);
     for (Py_ssize_t j = 0; out != NULL && j < k; j++) {
         Py_buffer v;
-        if (doubles(PySequence_Fast_GET_ITEM(seq, j), &v, 0, 0, "rows") < 0) {
+        if (doubles(PySequence_Fast_GET_ITEM(seq, j), &v, 0, 0, 0, "rows") < 0) {
             Py_CLEAR(out);
             break;
         }
@@ -885,8 +897,10 @@ fit(PyObject *self, PyObject *args)
     Py_ssize_t B, nb;
     if (!PyArg_ParseTuple(args, "OOnnOOOOOO:fit", &eo, &to, &B, &nb, &yo, &ceo, &seo, &xo, &go, &ho))
         return NULL;
-    if (B < 1 || nb < 1) {
-        PyErr_SetString(PyExc_ValueError, "fit: block >= 1 and nb >= 1 are needed");
+    if (!countable(B, nb, "fit"))
+        return NULL;
+    if (nb < 1) {
+        PyErr_SetString(PyExc_ValueError, "fit: nb >= 1 is needed");
         return NULL;
     }
     PyObject *objs[8] = {eo, to, yo, ceo, seo, xo, go, ho};
@@ -896,7 +910,7 @@ fit(PyObject *self, PyObject *args)
     int held = 0;
     double rate = 0.0, *work = NULL;
     for (; held < 8; held++)
-        if (doubles(objs[held], &v[held], held >= 3, need[held], names[held]) < 0)
+        if (doubles(objs[held], &v[held], held >= 3, need[held], held >= 2, names[held]) < 0)
             goto done;
     work = PyMem_Malloc((3 * (nb + 1) + 2 * PHASE_TABLE) * sizeof(double));
     if (work == NULL) {
@@ -928,15 +942,20 @@ residual(PyObject *self, PyObject *args)
     if (!PyArg_ParseTuple(args, "OOOO:residual", &yo, &co, &xo, &oo))
         return NULL;
     Py_buffer y, c, x, o;
-    if (doubles(yo, &y, 0, 6, "y") < 0)
+    if (doubles(yo, &y, 0, 6, 0, "y") < 0)
         return NULL;
     const Py_ssize_t nb = y.len / 8 / 6;
+    if (y.len / 8 != 6 * nb) {
+        PyErr_SetString(PyExc_ValueError, "y: six rows of block sums are needed");
+        PyBuffer_Release(&y);
+        return NULL;
+    }
     int held = 1;
-    if (doubles(co, &c, 0, 24, "coef") == 0) {
+    if (doubles(co, &c, 0, 24, 1, "coef") == 0) {
         held = 2;
-        if (doubles(xo, &x, 0, 4 * nb, "X") == 0) {
+        if (doubles(xo, &x, 0, 4 * nb, 1, "X") == 0) {
             held = 3;
-            if (doubles(oo, &o, 1, 6 * nb, "out") == 0) {
+            if (doubles(oo, &o, 1, 6 * nb, 1, "out") == 0) {
                 held = 4;
                 Py_BEGIN_ALLOW_THREADS
                 fit_residual((const double *)y.buf, (const double *)c.buf, (const double *)x.buf, nb, (double *)o.buf);
@@ -974,7 +993,7 @@ step_statistic(PyObject *self, PyObject *args)
     Py_buffer v[7];
     int held = 0;
     double *work = NULL;
-    if (doubles(objs[5], &v[5], 0, 8, "E") < 0)
+    if (doubles(objs[5], &v[5], 0, 8, 0, "E") < 0)
         return NULL;
     const Py_ssize_t nb = v[5].len / 8;
     PyBuffer_Release(&v[5]);
@@ -985,7 +1004,7 @@ step_statistic(PyObject *self, PyObject *args)
         return NULL;
     }
     for (; held < 7; held++)
-        if (doubles(objs[held], &v[held], held == 6, need[held], names[held]) < 0)
+        if (doubles(objs[held], &v[held], held == 6, need[held], 1, names[held]) < 0)
             goto done;
     work = PyMem_Malloc(6 * nb * sizeof(double));
     if (work == NULL) {
@@ -1031,7 +1050,7 @@ octave_squares(PyObject *self, PyObject *args)
         PyErr_NoMemory();
         goto done;
     }
-    if (doubles(xo, &x, 0, 1, "x") < 0)
+    if (doubles(xo, &x, 0, 1, 0, "x") < 0)
         goto done;
     held = 1;
     if (x.ndim != 2) {
@@ -1052,8 +1071,8 @@ octave_squares(PyObject *self, PyObject *args)
         Py_DECREF(t);
         const Py_ssize_t m = good ? plan[3 * z] : 0, step = good ? plan[3 * z + 1] : 0, cnt = good ? plan[3 * z + 2] : 0;
         /* the start points and their clusters lie within the row; the sizes ascend, powers of two */
-        good = good && m >= 1 && !(m & (m - 1)) && step >= 1 && cnt >= 1 && (z == 0 || m > plan[3 * z - 3])
-               && (cnt - 1) * step + 2 * m <= n
+        good = good && m >= 1 && !(m & (m - 1)) && step >= 1 && cnt >= 1 && (z == 0 || m >= plan[3 * z - 3])
+               && m <= n / 2 && cnt - 1 <= (n - 2 * m) / step
                && (m < s ? step % m == 0 : step == s && m % s == 0);
         if (!good) {
             if (!PyErr_Occurred())
@@ -1065,7 +1084,7 @@ octave_squares(PyObject *self, PyObject *args)
         PyErr_SetString(PyExc_ValueError, "octave_squares: the lattice stride must be a power of two within the row");
         goto done;
     }
-    if (doubles(so, &out, 1, k * c, "ss") < 0)
+    if (doubles(so, &out, 1, k * c, 1, "ss") < 0)
         goto done;
     held = 2;
     work = PyMem_Malloc(2 * n * sizeof(double) + sizeof(double));

@@ -151,7 +151,7 @@ def weighted_regressors(residual, E):
     np.multiply(X[3], k1, out=Xw[0])
     d += Xw[0]
     c = np.multiply(d, d)
-    c *= ((h * h + 1) / (60.0 * h * h)) / (k1 * k1)
+    c *= ((h * h + 1) / (60.0 * h * h)) / (k1 * k1) if h > 1 else 0.0     # (h = 1: d = 0, c = 0)
     c += 1.0
     c *= d
     Xw[0] = X[0]
