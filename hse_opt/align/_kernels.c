@@ -535,17 +535,37 @@ step_stat(const double *R, Py_ssize_t rs, const double *coef, const double *beta
    longer ones, q = m / s lattice sums apart, sums D_q of q consecutive lattice sums S_s by
    doubling (D_2q[j] = D_q[j] + D_q[j + q]). No sum runs over the record.
    work: scratch of 2 n values. */
+/* sum over c < cnt of (a[c stride + gap] - a[c stride])^2, in four lanes */
+static double
+strided_squares(const double *a, Py_ssize_t stride, Py_ssize_t gap, Py_ssize_t cnt)
+{
+    double acc[4] = {0, 0, 0, 0};
+    Py_ssize_t c = 0;
+    for (; c + 4 <= cnt; c += 4)
+        for (int u = 0; u < 4; u++) {
+            const double e = a[(c + u) * stride + gap] - a[(c + u) * stride];
+            acc[u] += e * e;
+        }
+    for (; c < cnt; c++) {
+        const double e = a[c * stride + gap] - a[c * stride];
+        acc[0] += e * e;
+    }
+    return (acc[0] + acc[1]) + (acc[2] + acc[3]);
+}
+
 static void
 octave_row(const double *x, Py_ssize_t n, const Py_ssize_t *plan, Py_ssize_t k, Py_ssize_t s, double *ss,
            Py_ssize_t ss_stride, double *work)
 {
-    double *lev = work, *lat = work + n;  /* lev: S_w for w < s, each level after the last */
+    double *next = work, *lat = work + n;  /* next: the levels S_w, w < s, one after another */
     const double *S = x;                   /* S_w at stride w, n / w entries */
     Py_ssize_t w = 1, len = n, z = 0;
-    double *next = lev;
-    /* the clusters shorter than the lattice, in order of m (the plan's order) */
-    for (; z < k && plan[3 * z] < s; z++) {
-        const Py_ssize_t m = plan[3 * z], step = plan[3 * z + 1], cnt = plan[3 * z + 2];
+    /* the clusters shorter than the lattice (m < s, in the plan's order), then the lattice */
+    for (;; z++) {
+        if (z == k)
+            return;
+        const int lattice = plan[3 * z] >= s;
+        const Py_ssize_t m = lattice ? s : plan[3 * z];
         while (w < m) {
             const Py_ssize_t half = len / 2;
             for (Py_ssize_t i = 0; i < half; i++)
@@ -555,56 +575,22 @@ octave_row(const double *x, Py_ssize_t n, const Py_ssize_t *plan, Py_ssize_t k, 
             len = half;
             w *= 2;
         }
-        const Py_ssize_t r = step / m;
-        double acc[4] = {0, 0, 0, 0};
-        Py_ssize_t c = 0;
-        for (; c + 4 <= cnt; c += 4)
-            for (int u = 0; u < 4; u++) {
-                const double e = S[(c + u) * r + 1] - S[(c + u) * r];
-                acc[u] += e * e;
-            }
-        for (; c < cnt; c++) {
-            const double e = S[c * r + 1] - S[c * r];
-            acc[0] += e * e;
-        }
-        ss[z * ss_stride] = (acc[0] + acc[1]) + (acc[2] + acc[3]);
+        if (lattice)
+            break;
+        ss[z * ss_stride] = strided_squares(S, plan[3 * z + 1] / m, 1, plan[3 * z + 2]);
     }
-    if (z == k)
-        return;
-    /* the lattice sums S_s (n / s of them) */
-    while (w < s) {
-        const Py_ssize_t half = len / 2;
-        for (Py_ssize_t i = 0; i < half; i++)
-            next[i] = S[2 * i] + S[2 * i + 1];
-        S = next;
-        next += half;
-        len = half;
-        w *= 2;
-    }
-    const Py_ssize_t nl = n / s;
+    const Py_ssize_t nl = n / s;           /* the lattice sums S_s */
     for (Py_ssize_t i = 0; i < nl; i++)
         lat[i] = S[i];
     Py_ssize_t q = 1, size = nl;           /* D_q: entries 0 .. size - 1 */
     for (; z < k; z++) {
-        const Py_ssize_t m = plan[3 * z], cnt = plan[3 * z + 2];
-        while (q < m / s) {
+        while (q < plan[3 * z] / s) {
             for (Py_ssize_t j = 0; j + q < size; j++)
                 lat[j] += lat[j + q];
             size -= q;
             q *= 2;
         }
-        double acc[4] = {0, 0, 0, 0};
-        Py_ssize_t c = 0;
-        for (; c + 4 <= cnt; c += 4)
-            for (int u = 0; u < 4; u++) {
-                const double e = lat[c + u + q] - lat[c + u];
-                acc[u] += e * e;
-            }
-        for (; c < cnt; c++) {
-            const double e = lat[c + q] - lat[c];
-            acc[0] += e * e;
-        }
-        ss[z * ss_stride] = (acc[0] + acc[1]) + (acc[2] + acc[3]);
+        ss[z * ss_stride] = strided_squares(lat, 1, q, plan[3 * z + 2]);
     }
 }
 
@@ -737,7 +723,8 @@ short_allan(PyObject *self, PyObject *args)
         Py_DECREF(seq);
         return NULL;
     }
-    Py_buffer views[6], e, t, f, c, ec, es, ss;
+    /* v: first, enc, t, coef, edge_cos, edge_sin, ss, then the six channels; held of them */
+    Py_buffer v[13];
     int held = 0, ok = 0;
     Py_ssize_t count = 0, k = PySequence_Fast_GET_SIZE(sizes_seq);
     Py_ssize_t *sizes = NULL;
@@ -765,50 +752,42 @@ short_allan(PyObject *self, PyObject *args)
             goto done;
         }
     }
-    if (PyObject_GetBuffer(fo, &f, PyBUF_FORMAT | PyBUF_C_CONTIGUOUS) < 0)
+    if (PyObject_GetBuffer(fo, &v[0], PyBUF_FORMAT | PyBUF_C_CONTIGUOUS) < 0)
         goto done;
     held = 1;
-    if (f.itemsize != 8 || f.format == NULL || (strcmp(f.format, "q") != 0 && strcmp(f.format, "l") != 0)) {
+    if (v[0].itemsize != 8 || v[0].format == NULL || (strcmp(v[0].format, "q") != 0 && strcmp(v[0].format, "l") != 0)) {
         PyErr_SetString(PyExc_TypeError, "short_allan: first must be a contiguous int64 array");
         goto done;
     }
-    count = f.len / 8;
-    const long long *first = (const long long *)f.buf;
-    if (doubles(eo, &e, 0, 2, 0, "enc") < 0)
+    count = v[0].len / 8;
+    const long long *first = (const long long *)v[0].buf;
+    if (doubles(eo, &v[1], 0, 2, 0, "enc") < 0)
         goto done;
     held = 2;
-    const Py_ssize_t n = e.len / 8;
+    const Py_ssize_t n = v[1].len / 8;
     for (Py_ssize_t j = 0; j < count; j++)
         if (first[j] < 0 || first[j] % block || first[j] > n - 1 - L) {
             PyErr_SetString(PyExc_ValueError, "short_allan: a stretch starts off a block edge or runs past the log");
             goto done;
         }
-    if (doubles(to, &t, 0, n, 0, "t") < 0)
-        goto done;
-    held = 3;
-    if (doubles(co, &c, 0, 24, 1, "coef") < 0)
-        goto done;
-    held = 4;
-    if (doubles(eco, &ec, 0, 1, 0, "edge_cos") < 0)
-        goto done;
-    held = 5;
-    if (doubles(eso, &es, 0, ec.len / 8, 1, "edge_sin") < 0)
-        goto done;
-    held = 6;
-    if (doubles(sso, &ss, 1, 6 * count * k, 1, "ss") < 0)
-        goto done;
-    held = 7;
+    PyObject *objs[5] = {to, co, eco, eso, sso};
+    const Py_ssize_t need[5] = {n, 24, 1, 0, 6 * count * k};
+    const char *names[5] = {"t", "coef", "edge_cos", "edge_sin", "ss"};
+    for (int i = 0; i < 5; i++, held++) {
+        const Py_ssize_t want = i == 3 ? v[4].len / 8 : need[i];       /* edge_sin: as long as edge_cos */
+        if (doubles(objs[i], &v[2 + i], i == 4, want, i != 0 && i != 2, names[i]) < 0)
+            goto done;
+    }
     for (Py_ssize_t j = 0; j < count; j++)
-        if (first[j] / block + (L - 1) / block >= ec.len / 8) {
+        if (first[j] / block + (L - 1) / block >= v[4].len / 8) {
             PyErr_SetString(PyExc_ValueError, "short_allan: edge_cos and edge_sin do not reach the stretches' blocks");
             goto done;
         }
     const double *rows[6];
-    for (int i = 0; i < 6; i++) {
-        if (doubles(PySequence_Fast_GET_ITEM(seq, i), &views[i], 0, n, 0, "channels") < 0)
+    for (int i = 0; i < 6; i++, held++) {
+        if (doubles(PySequence_Fast_GET_ITEM(seq, i), &v[7 + i], 0, n, 0, "channels") < 0)
             goto done;
-        held = 8 + i;
-        rows[i] = (const double *)views[i].buf;
+        rows[i] = (const double *)v[7 + i].buf;
     }
     work = PyMem_Malloc((count * L + 6 * L) * sizeof(double));
     if (work == NULL) {
@@ -816,28 +795,14 @@ short_allan(PyObject *self, PyObject *args)
         goto done;
     }
     Py_BEGIN_ALLOW_THREADS
-    short_squares(rows, (const double *)e.buf, (const double *)t.buf, first, count, L, block,
-                  (const double *)c.buf, rate, (const double *)ec.buf, (const double *)es.buf, sizes, k,
-                  (double *)ss.buf, work);
+    short_squares(rows, (const double *)v[1].buf, (const double *)v[2].buf, first, count, L, block,
+                  (const double *)v[3].buf, rate, (const double *)v[4].buf, (const double *)v[5].buf, sizes, k,
+                  (double *)v[6].buf, work);
     Py_END_ALLOW_THREADS
     ok = 1;
 done:
-    for (int i = 0; i < 6 && held >= 8 + i; i++)
-        PyBuffer_Release(&views[i]);
-    if (held >= 7)
-        PyBuffer_Release(&ss);
-    if (held >= 6)
-        PyBuffer_Release(&es);
-    if (held >= 5)
-        PyBuffer_Release(&ec);
-    if (held >= 4)
-        PyBuffer_Release(&c);
-    if (held >= 3)
-        PyBuffer_Release(&t);
-    if (held >= 2)
-        PyBuffer_Release(&e);
-    if (held >= 1)
-        PyBuffer_Release(&f);
+    for (int i = 0; i < held; i++)
+        PyBuffer_Release(&v[i]);
     PyMem_Free(work);
     PyMem_Free(sizes);
     Py_DECREF(sizes_seq);
