@@ -110,17 +110,28 @@ def _both_routes(log, monkeypatch):
     return out
 
 
+def _at_100_hz():
+    import dataclasses
+    from hse_opt.sim import TruthConfig
+    from hse_opt.sim.truth import TimingConfig
+    return dataclasses.replace(TruthConfig.default(), timing=TimingConfig(sample_period=0.01))
+
+
 @needs_kernels
-@pytest.mark.parametrize("seed, rate_dps", [(1, 40.0), (2, -10.0), (3, 100.0)])
-def test_the_compiled_route_gives_numpy_s_figures_and_findings(seed, rate_dps, monkeypatch):
+@pytest.mark.parametrize("seed, rate_dps, duration, hz", [(1, 40.0, 120.0, 500), (2, -10.0, 120.0, 500),
+                                                          (3, 100.0, 120.0, 500), (4, 40.0, 10.0, 500),
+                                                          (5, 40.0, 600.0, 100)])
+def test_the_compiled_route_gives_numpy_s_figures_and_findings(seed, rate_dps, duration, hz, monkeypatch):
     """A log's block sums within rounding of numpy's route, the encoder's statistics the same
     bytes, the same findings (none on a clean log; a gyro's step and an encoder's jump found at
     the same sample, with the same action), Allan deviations within 1e-8 relative and the IEEE
-    952 terms within 1e-9 of each channel's largest."""
-    log = _log(seed, rate_dps)
+    952 terms within 1e-9 of each channel's largest: 500 Hz logs of 2 minutes (eight stretches
+    of 1024 samples for the short clusters, each whole blocks of 32) and of 10 s (four), and a
+    100 Hz log (blocks of 6: the stretches end inside a block)."""
+    log = _log(seed, rate_dps, duration, None if hz == 500 else _at_100_hz())
     gyro, enc = log.gyro.copy(), log.encoder.copy()
-    gyro[20001, 1] += 1e-6                                          # a step of 0.2 arcsec
-    enc[40001] += 1.5e-4                                            # an encoder sample 30 arcsec off
+    gyro[len(log) // 3, 1] += 1e-6                                  # a step of 0.2 arcsec
+    enc[2 * len(log) // 3] += 1.5e-4                                # an encoder sample 30 arcsec off
     faulty = type(log)(log.t, gyro, log.accel, enc, log.meta)
     for case in (log, faulty):
         (cs, cq, cn), (ns, nq, nn) = _both_routes(case, monkeypatch)
