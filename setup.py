@@ -1,5 +1,5 @@
-"""The package's one compiled part: the raw-log path's passes over a record
-(hse_opt/align/_kernels.c). Optional: where no C compiler is present the build goes on without
+"""The package's one compiled part: the quality checks' and the Allan analysis' passes over a
+raw log (hse_opt/align/_kernels.c). Optional: where no C compiler is present the build goes on without
 it and hse_opt.align takes numpy's route (hse_opt/align/_compiled.py: the same figures to
 rounding, slower)."""
 import os
