@@ -22,11 +22,17 @@ try:
 except ImportError:             # built without a C compiler: numpy's route
     kernels = None
 
-__all__ = ["kernels", "rows"]
+__all__ = ["kernels", "rows", "takes"]
+
+
+def takes(*arrays):
+    """Whether the kernels are built and every one of ``arrays`` is a C-contiguous float64
+    array (what they read in place); else the caller takes numpy's route."""
+    return kernels is not None and all(a.dtype == np.float64 and a.flags.c_contiguous for a in arrays)
 
 
 def rows(x):
     """The columns of ``x`` (n, 3) as contiguous float64 rows (3, n) when they are (a
     column-major log), else None."""
     r = np.asarray(x).T
-    return r if r.dtype == np.float64 and r.strides[1] == 8 else None
+    return r if takes(r[0], r[1], r[2]) else None

@@ -616,6 +616,25 @@ doubles(PyObject *obj, Py_buffer *view, int writable, Py_ssize_t need, int exact
     return 0;
 }
 
+/* doubles() for each of k objects in turn, writable from index `writable` on, of exactly their
+   `need` from index `exact` on; returns how many it took (k when all; else the error is set) */
+static int
+take_doubles(PyObject *const *objs, Py_buffer *v, int k, const Py_ssize_t *need, int writable, int exact,
+             const char *const *names)
+{
+    int i = 0;
+    while (i < k && doubles(objs[i], &v[i], i >= writable, need[i], i >= exact, names[i]) == 0)
+        i++;
+    return i;
+}
+
+static void
+release_doubles(Py_buffer *v, int held)
+{
+    for (int i = 0; i < held; i++)
+        PyBuffer_Release(&v[i]);
+}
+
 /* whether nb blocks of B samples (and one more sample) can be counted in bytes */
 static int
 countable(Py_ssize_t B, Py_ssize_t nb, const char *name)
@@ -801,8 +820,7 @@ short_allan(PyObject *self, PyObject *args)
     Py_END_ALLOW_THREADS
     ok = 1;
 done:
-    for (int i = 0; i < held; i++)
-        PyBuffer_Release(&v[i]);
+    release_doubles(v, held);
     PyMem_Free(work);
     PyMem_Free(sizes);
     Py_DECREF(sizes_seq);
@@ -872,11 +890,10 @@ fit(PyObject *self, PyObject *args)
     const Py_ssize_t need[8] = {nb * B + 1, nb * B + 1, 6 * nb, nb + 1, nb + 1, 4 * nb, 16, 24};
     const char *names[8] = {"enc", "t", "y", "edge_cos", "edge_sin", "X", "G", "H"};
     Py_buffer v[8];
-    int held = 0;
     double rate = 0.0, *work = NULL;
-    for (; held < 8; held++)
-        if (doubles(objs[held], &v[held], held >= 3, need[held], held >= 2, names[held]) < 0)
-            goto done;
+    const int held = take_doubles(objs, v, 8, need, 3, 2, names);
+    if (held < 8)
+        goto done;
     work = PyMem_Malloc((3 * (nb + 1) + 2 * PHASE_TABLE) * sizeof(double));
     if (work == NULL) {
         PyErr_NoMemory();
@@ -888,8 +905,7 @@ fit(PyObject *self, PyObject *args)
                       (double *)v[7].buf, work);
     Py_END_ALLOW_THREADS
 done:
-    for (int i = 0; i < held; i++)
-        PyBuffer_Release(&v[i]);
+    release_doubles(v, held);
     PyMem_Free(work);
     if (held < 8 || work == NULL)
         return NULL;
@@ -906,35 +922,26 @@ residual(PyObject *self, PyObject *args)
     PyObject *yo, *co, *xo, *oo;
     if (!PyArg_ParseTuple(args, "OOOO:residual", &yo, &co, &xo, &oo))
         return NULL;
-    Py_buffer y, c, x, o;
-    if (doubles(yo, &y, 0, 6, 0, "y") < 0)
+    Py_buffer v[4];                       /* y, coef, X, out */
+    if (doubles(yo, &v[0], 0, 6, 0, "y") < 0)
         return NULL;
-    const Py_ssize_t nb = y.len / 8 / 6;
-    if (y.len / 8 != 6 * nb) {
+    const Py_ssize_t nb = v[0].len / 8 / 6;
+    if (v[0].len / 8 != 6 * nb) {
         PyErr_SetString(PyExc_ValueError, "y: six rows of block sums are needed");
-        PyBuffer_Release(&y);
+        PyBuffer_Release(&v[0]);
         return NULL;
     }
-    int held = 1;
-    if (doubles(co, &c, 0, 24, 1, "coef") == 0) {
-        held = 2;
-        if (doubles(xo, &x, 0, 4 * nb, 1, "X") == 0) {
-            held = 3;
-            if (doubles(oo, &o, 1, 6 * nb, 1, "out") == 0) {
-                held = 4;
-                Py_BEGIN_ALLOW_THREADS
-                fit_residual((const double *)y.buf, (const double *)c.buf, (const double *)x.buf, nb, (double *)o.buf);
-                Py_END_ALLOW_THREADS
-            }
-        }
+    PyObject *const objs[3] = {co, xo, oo};
+    const Py_ssize_t need[3] = {24, 4 * nb, 6 * nb};
+    const char *const names[3] = {"coef", "X", "out"};
+    const int held = 1 + take_doubles(objs, v + 1, 3, need, 2, 0, names);
+    if (held == 4) {
+        Py_BEGIN_ALLOW_THREADS
+        fit_residual((const double *)v[0].buf, (const double *)v[1].buf, (const double *)v[2].buf, nb,
+                     (double *)v[3].buf);
+        Py_END_ALLOW_THREADS
     }
-    PyBuffer_Release(&y);
-    if (held >= 2)
-        PyBuffer_Release(&c);
-    if (held >= 3)
-        PyBuffer_Release(&x);
-    if (held >= 4)
-        PyBuffer_Release(&o);
+    release_doubles(v, held);
     if (held < 4)
         return NULL;
     Py_RETURN_NONE;
@@ -968,9 +975,9 @@ step_statistic(PyObject *self, PyObject *args)
         PyErr_SetString(PyExc_ValueError, "step_statistic: h >= 1 is needed");
         return NULL;
     }
-    for (; held < 7; held++)
-        if (doubles(objs[held], &v[held], held == 6, need[held], 1, names[held]) < 0)
-            goto done;
+    held = take_doubles(objs, v, 7, need, 6, 0, names);
+    if (held < 7)
+        goto done;
     work = PyMem_Malloc(6 * nb * sizeof(double));
     if (work == NULL) {
         PyErr_NoMemory();
@@ -982,8 +989,7 @@ step_statistic(PyObject *self, PyObject *args)
               (double *)v[6].buf, work);
     Py_END_ALLOW_THREADS
 done:
-    for (int i = 0; i < held; i++)
-        PyBuffer_Release(&v[i]);
+    release_doubles(v, held);
     PyMem_Free(work);
     if (held < 7 || work == NULL)
         return NULL;

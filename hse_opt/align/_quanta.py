@@ -45,9 +45,8 @@ def _quanta_of_rows(rows):
     """:func:`_row_quanta` of rows of one length given as a list (the channels' own memory,
     not copied), shape (k,): by the compiled kernel (:mod:`hse_opt.align._compiled`) where it is
     built and each row is contiguous float64, else numpy's route on the rows stacked."""
-    kernels = _compiled.kernels
-    if kernels is not None and all(r.dtype == np.float64 and r.strides[0] == 8 for r in rows):
-        return np.array(kernels.quanta(rows, QUANTUM_CHANGES))
+    if _compiled.takes(*rows):
+        return np.array(_compiled.kernels.quanta(rows, QUANTUM_CHANGES))
     return _row_quanta(np.stack(rows))
 
 

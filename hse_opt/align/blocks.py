@@ -61,13 +61,12 @@ def _columns_compiled(x, nb, block, out=None, weighted=None):
     """:func:`_block_sums` of ``x`` (n, 3) by the compiled pass (:mod:`hse_opt.align._kernels`)
     where it is built and the columns are contiguous float64 rows, else None; ``weighted``
     (3, nb): also their weighted sums (:func:`_weighted_block_sums`), in the same read."""
-    kernels = _compiled.kernels
-    rows = _compiled.rows(x) if kernels is not None else None
+    rows = _compiled.rows(x)
     if rows is None:
         return None
     out = np.empty((3, nb)) if out is None else out
     for j in range(3):
-        kernels.block_sums(rows[j], block, nb, out[j], None if weighted is None else weighted[j])
+        _compiled.kernels.block_sums(rows[j], block, nb, out[j], None if weighted is None else weighted[j])
     return out
 
 
@@ -109,10 +108,10 @@ def _weighted_block_sums(x, nb, block):
 def _encoder_weighted(enc, nb, block):
     """The encoder's weighted sums over blocks of ``block`` steps (:func:`_weighted_step_sums`)
     of the encoder ``enc`` (n,), rad, shape (nb,): by the compiled pass where it is built."""
-    enc, kernels = np.asarray(enc), _compiled.kernels
-    if kernels is not None and enc.dtype == np.float64 and enc.strides[0] == 8:
+    enc = np.asarray(enc)
+    if _compiled.takes(enc):
         weighted = np.empty(nb)
-        kernels.encoder_steps(enc, block, nb, weighted)
+        _compiled.kernels.encoder_steps(enc, block, nb, weighted)
         return weighted
     return _weighted_step_sums(enc[1:nb * block + 1] - enc[:nb * block], nb, block)
 
@@ -241,15 +240,15 @@ def _compiled_checks_pass(log, block, nb):
     """:func:`block_sums` with ``checks`` by the compiled pass (:mod:`hse_opt.align._kernels`:
     one read of each array), or None where it is not built or the log's arrays are not
     contiguous float64 rows (a row-major log)."""
-    enc, kernels = np.asarray(log.encoder), _compiled.kernels
-    if kernels is None or enc.dtype != np.float64 or enc.strides[0] != 8 or enc.shape[0] < 2:
+    enc = np.asarray(log.encoder)
+    if not _compiled.takes(enc) or enc.shape[0] < 2:
         return None
     sums, weighted = np.empty((6, nb)), np.empty((3, nb))
     if _columns_compiled(log.gyro, nb, block, sums[:3], weighted) is None or \
             _columns_compiled(log.accel, nb, block, sums[3:]) is None:
         return None
     weighted_encoder = np.empty(nb)
-    largest, smallest = kernels.encoder_steps(enc, block, nb, weighted_encoder)
+    largest, smallest = _compiled.kernels.encoder_steps(enc, block, nb, weighted_encoder)
     return BlockSums(log=log, block=block, sums=sums, weighted=weighted, weighted_encoder=weighted_encoder,
                      encoder_steps=EncoderSteps.of(enc, extremes=(largest, smallest)))
 
@@ -421,10 +420,9 @@ def _fit_compiled(t, enc, block, y):
     edges' cos and sin, the regressors and the normal equations in one pass, the residual in
     another; the same steps) where they are built and the arrays are contiguous float64, else
     None."""
-    kernels = _compiled.kernels
-    if kernels is None or not all(a.dtype == np.float64 and a.strides[-1] == 8 and a.flags.c_contiguous
-                                  for a in (t, enc, y)):
+    if not _compiled.takes(t, enc, y):
         return None
+    kernels = _compiled.kernels
     nb = y.shape[1]
     ce, se, X, G, H = np.empty(nb + 1), np.empty(nb + 1), np.empty((4, nb)), np.empty((4, 4)), np.empty((4, 6))
     rate = kernels.fit(enc, t, block, nb, y, ce, se, X, G, H)

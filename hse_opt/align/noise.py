@@ -360,13 +360,11 @@ def _short_compiled(log, residual, t, enc, first, length, sizes, count):
     """:func:`_short_allan`'s squared differences, shape (6, count, len(sizes)), by the compiled
     kernel (:mod:`hse_opt.align._kernels`, the same steps in one pass a stretch) where it is
     built and the log's arrays are contiguous float64 rows; else None (numpy's route)."""
-    kernels = _compiled.kernels
-    rows = [_compiled.rows(log.gyro), _compiled.rows(log.accel)] if kernels is not None else [None]
-    contiguous = all(a.dtype == np.float64 and a.strides[0] == 8 for a in (t, enc))
-    if any(r is None for r in rows) or not contiguous or any(m & (m - 1) for m in sizes):
+    rows = [_compiled.rows(log.gyro), _compiled.rows(log.accel)]
+    if any(r is None for r in rows) or not _compiled.takes(t, enc) or any(m & (m - 1) for m in sizes):
         return None
     ss = np.empty((6, count, len(sizes)))
-    kernels.short_allan((*rows[0], *rows[1]), enc, t, first, length, residual.block,
+    _compiled.kernels.short_allan((*rows[0], *rows[1]), enc, t, first, length, residual.block,
                         np.ascontiguousarray(residual.coefficients), residual.rate, residual.edge_cos,
                         residual.edge_sin, [int(m) for m in sizes], ss)
     return ss
@@ -436,7 +434,7 @@ def allan_deviation(increments, tau0, *, max_terms=MAX_TERMS, sizes=None):
     plan, lattice, cnt, clusters = _plan(n, tuple(ms.tolist()), max_terms)
     if lattice is None:
         ss = _squares(x, plan)
-    elif _compiled.kernels is not None and x.flags.c_contiguous:
+    elif _compiled.takes(x):
         ss = np.empty((len(plan), x.shape[0]))
         _compiled.kernels.octave_squares(x, plan, lattice, ss)     # (the same sums, compiled)
     else:

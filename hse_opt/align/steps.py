@@ -264,14 +264,12 @@ def _statistic(residual, beta, coef, W, E):
 def _statistic_compiled(residual, beta, W, E):
     """:func:`_statistic` by the compiled kernel (:mod:`hse_opt.align._compiled`: the same steps
     in one pass a gyro) where it is built and the arrays are contiguous float64, else None."""
-    kernels = _compiled.kernels
     nb = residual.blocks.shape[1]
     arrays = (residual.blocks, residual.coefficients, residual.regressors, W, E)
-    if kernels is None or GRID != 4 or nb < 8 or not all(a.dtype == np.float64 and a.flags.c_contiguous
-                                                         for a in arrays):
+    if GRID != 4 or nb < 8 or not _compiled.takes(*arrays):
         return None
     D = np.empty((3, nb - 2 * GRID + 1))
-    kernels.step_statistic(residual.blocks[:3], residual.coefficients, np.ascontiguousarray(beta, dtype=float),
+    _compiled.kernels.step_statistic(residual.blocks[:3], residual.coefficients, np.ascontiguousarray(beta, dtype=float),
                            residual.regressors, W, E, residual.block, residual.rate, D)
     return D
 
