@@ -21,11 +21,15 @@
     python benchmarks/align.py --logs 20 --jobs 1
     python benchmarks/align.py --logs 0             # the single log only
     python benchmarks/align.py --logs 0 --scaling   # also logs of 1-20 minutes
+    python benchmarks/align.py --logs 0 --parts     # also each compiled part against numpy's route
 
 3. With ``--scaling``: align and checks + Allan (CPU, medians) on logs of 1, 2, 5, 10 and 20
    minutes, and a straight line through them: the fixed cost of each (independent of the log's
    length) and its cost per minute of log. The ratio of the per-minute costs is what the
    checks and the Allan analysis add to a long log's alignment, whatever their fixed cost.
+4. With ``--parts``: each part the compiled kernels serve (``hse_opt/align/_kernels.c``), by
+   numpy's route and compiled, right after an alignment as ``hse-opt align`` runs them
+   (medians of the repeats, ms; needs the compiled part built).
 """
 import argparse
 import os
@@ -42,7 +46,7 @@ _one_blas_thread()          # BLAS as the command line runs it (one thread), bef
 
 import numpy as np  # noqa: E402
 
-from hse_opt.align import _compiled
+from hse_opt.align import _compiled, blocks, noise
 from hse_opt.align.blocks import block_sums
 from hse_opt.align.noise import noise_from_log
 from hse_opt.align.quality import assess
@@ -139,6 +143,45 @@ def scaling(repeats):
           f"{1e3 * sc:.3f} ms/min: per minute of log they add {100 * sc / sa:.0f} % to the alignment")
 
 
+def parts(repeats):
+    from hse_opt.align import steps
+    from hse_opt.align._quanta import Quanta
+    if _compiled.kernels is None:
+        print("the compiled part is not built: no parts to compare")
+        return
+    truth = TruthConfig.default()
+    cfg = align_config_from_truth(truth)
+    log = generate(truth, RunSpec(rate=40 * DEG_PER_S, azimuth=0.3, duration=600.0, t_start=7200.0),
+                   np.random.default_rng(0))
+    sums = block_sums(log)
+    res = sums.residual
+    beta = steps.shares(res)
+    short, sizes = noise._log_sizes(res.blocks.shape[1], res.block)
+    work = {"record's pass (block_sums)": lambda: block_sums(log),
+            "deterministic fit (_fit_residual)": lambda: blocks._fit_residual(log, sums.block, sums.sums),
+            "short Allan clusters": lambda: noise._short_allan(log, res, short),
+            "Allan curve (allan_deviation)": lambda: noise.allan_deviation(res.blocks, res.tau0, sizes=sizes),
+            "check 3b (step_statistic)": lambda: steps.step_statistic(log.t, log.encoder, log.gyro, res, beta, sums),
+            "quanta (Quanta.of)": lambda: Quanta.of(log.encoder, log.gyro, log.accel)}
+    built = _compiled.kernels
+    print(f"each compiled part against numpy's route, right after align (CPU, {repeats} repeats, medians):")
+    try:
+        for name, f in work.items():
+            times = {"numpy": [], "compiled": []}
+            for _ in range(repeats):
+                for route, kernels in (("compiled", built), ("numpy", None)):
+                    align(log, cfg)
+                    _compiled.kernels = kernels
+                    c0 = time.process_time()
+                    f()
+                    times[route].append(time.process_time() - c0)
+                    _compiled.kernels = built
+            print(f"  {name:36s}: numpy {1e3 * statistics.median(times['numpy']):.3f} ms -> compiled "
+                  f"{1e3 * statistics.median(times['compiled']):.3f} ms")
+    finally:
+        _compiled.kernels = built
+
+
 def directory(n_logs, jobs, workdir):
     truth = TruthConfig.default()
     save_truth(truth, os.path.join(workdir, "TRUTH.toml"))
@@ -180,11 +223,14 @@ def main():
     ap.add_argument("--jobs", type=int, default=2)
     ap.add_argument("--repeats", type=int, default=20)
     ap.add_argument("--scaling", action="store_true", help="also the costs against the log's length (part 3)")
+    ap.add_argument("--parts", action="store_true", help="also each compiled part against numpy's route (part 4)")
     args = ap.parse_args()
     with tempfile.TemporaryDirectory() as workdir:
         one_log(args.repeats, os.path.join(workdir, "one.npz"))
         if args.scaling:
             scaling(args.repeats)
+        if args.parts:
+            parts(args.repeats)
         if args.logs > 0:
             directory(args.logs, args.jobs, workdir)
 
